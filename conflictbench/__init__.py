@@ -1,0 +1,37 @@
+"""conflictbench: how VLA policies behave when the premise of their task is false.
+
+The public plugin API is re-exported here; see ``conflictbench.core.hookspecs`` for the hooks.
+"""
+
+from importlib import metadata as _metadata
+
+from .core import (
+    ActionContext,
+    ConflictCase,
+    EpisodeRecord,
+    Observation,
+    Pair,
+    PrivilegedState,
+    hookimpl,
+)
+
+try:
+    __version__ = _metadata.version("conflictbench")
+except _metadata.PackageNotFoundError:  # running from a source tree that was never installed
+    __version__ = "0+unknown"
+
+#: Modules whose hook implementations ship with conflictbench (registered like any plugin).
+BUILTIN_PLUGINS = ("conflictbench.policies", "conflictbench.metrics")
+
+
+def plugins(**kwargs):
+    """A plugin manager with the built-ins and every installed third-party plugin."""
+    from .core.plugins import Plugins
+
+    return Plugins(BUILTIN_PLUGINS, **kwargs)
+
+
+__all__ = [
+    "ActionContext", "ConflictCase", "EpisodeRecord", "Observation", "Pair", "PrivilegedState",
+    "BUILTIN_PLUGINS", "hookimpl", "plugins", "__version__",
+]

@@ -1,0 +1,132 @@
+"""The Hydra application behind ``conflictbench [overrides]``: compose a run, play it, report."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, PROMPT_CONDITIONS, UserError
+from conflictbench.core.plugins import Plugins
+
+CONFIG_PACKAGE = "pkg://conflictbench.conf"
+GROUPS = ("model", "suite", "level", "prompt", "run")
+INIT_STATES_PER_TASK = 50
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """The ``run`` group, checked (every value a person can type wrongly gets a clear message)."""
+
+    init_states: list[int]
+    cases_per_cell: int | None
+    sample_seed: int
+    libero_suites: list[str]
+    seed: int
+    workers: int
+    out: Path
+    metrics: list[str] | None
+    progress: bool
+    report: bool
+
+
+def _int(value: Any, name: str, minimum: int = 0) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise UserError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def _names(value: Any, name: str, allowed: tuple[str, ...]) -> list[str]:
+    items = list(value) if isinstance(value, (list, ListConfig)) else [value]
+    for item in items:
+        if item not in allowed:
+            raise UserError(f"unknown {name} {item!r}; valid choices: {', '.join(allowed)}")
+    if not items:
+        raise UserError(f"{name} must not be empty")
+    return [str(i) for i in items]
+
+
+def run_options(run: DictConfig) -> RunOptions:
+    states = run.init_states
+    if isinstance(states, (list, ListConfig)):
+        init_states = sorted({_int(s, "run.init_states entries") for s in states})
+        if not init_states:
+            raise UserError("run.init_states must name at least one initial state")
+    else:
+        count = _int(states, "run.init_states", minimum=1)
+        if count > INIT_STATES_PER_TASK:
+            raise UserError(f"run.init_states={count}, but LIBERO has {INIT_STATES_PER_TASK} fixed initial states per task")
+        init_states = list(range(count))
+    if init_states[-1] >= INIT_STATES_PER_TASK:
+        raise UserError(f"run.init_states names state {init_states[-1]}; LIBERO's are 0..{INIT_STATES_PER_TASK - 1}")
+    per_cell = run.cases_per_cell
+    cases_per_cell = None if per_cell == "all" else _int(per_cell, "run.cases_per_cell (or 'all')")
+    metrics = None if run.metrics is None else [str(m) for m in (run.metrics if isinstance(run.metrics, (list, ListConfig)) else [run.metrics])]
+    return RunOptions(
+        init_states=init_states,
+        cases_per_cell=cases_per_cell,
+        sample_seed=_int(run.sample_seed, "run.sample_seed"),
+        libero_suites=_names(run.libero_suites, "LIBERO suite", LIBERO_SUITES),
+        seed=_int(run.seed, "run.seed"),
+        workers=_int(run.workers, "run.workers", minimum=1),
+        out=Path(str(run.out)),
+        metrics=metrics,
+        progress=bool(run.progress),
+        report=bool(run.report),
+    )
+
+
+def register_model_configs(plugins: Plugins) -> None:
+    """Make every registered policy a Hydra ``model`` option (its config dataclass as the schema)."""
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    for name, spec in plugins.policies().items():
+        store.store(group="model", name=name, node=spec.config if spec.config is not None else {})
+
+
+def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
+    """Play the composed run and print its report. Returns the process exit code."""
+    from conflictbench.report import report_records
+    from conflictbench.sim.plan import build_plan
+    from conflictbench.sim.runner import Runner
+    from conflictbench.store import EpisodeStore
+    from conflictbench.tasks.libero_tasks import all_base_tasks
+    from conflictbench.tasks.suite_file import load_suite
+
+    options = run_options(cfg.run)
+    families = _names(cfg.suite.families, "conflict family", FAMILIES)
+    levels = _names(cfg.level.levels, "level", LEVELS)
+    prompts = _names(cfg.prompt.conditions, "prompt condition", PROMPT_CONDITIONS)
+    spec = plugins.policy(model)
+    settings = OmegaConf.to_container(cfg.model, resolve=True) if cfg.get("model") is not None else {}
+    config = spec.make_config(settings or {})
+    if options.metrics is not None:
+        from conflictbench.report.summary import select_metrics
+
+        select_metrics(plugins, options.metrics)  # fail now on an unknown name, not after the rollouts
+
+    suite = load_suite(cfg.suite.get("file"))
+    tasks = {t.key: t.language for t in all_base_tasks(tuple(options.libero_suites))}
+    plan = build_plan(suite.cases, base_instructions=tasks, families=families, levels=levels, prompts=prompts,
+                      init_states=options.init_states, cases_per_cell=options.cases_per_cell,
+                      sample_seed=options.sample_seed, libero_suites=options.libero_suites)
+    if not plan:
+        raise UserError("this selection plans no episodes (no accepted case matches the suite/level/LIBERO-suite filters)")
+    store = EpisodeStore(options.out)
+    conflicts = sum(e.case is not None for e in plan)
+    print(f"conflictbench: model={model} suite={'+'.join(families)} level={'+'.join(levels)} "
+          f"prompt={'+'.join(prompts)}: {len(plan)} episodes ({conflicts} conflict, {len(plan) - conflicts} reference) "
+          f"from suite {suite.name} {suite.version}; store {store.root}/", file=sys.stderr)
+    runner = Runner(plugins, spec, config, store=store, workers=options.workers, seed=options.seed,
+                    progress=options.progress)
+    result = runner.run(plan)
+    print(f"conflictbench: {result.played} played, {result.already_stored} already stored, "
+          f"{result.errors} with errors", file=sys.stderr)
+    if options.report:
+        records = store.records(episode_ids=result.episode_ids)
+        report_records(records, plugins, out_dir=store.root / "report", metrics=options.metrics)
+    return 0

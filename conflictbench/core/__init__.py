@@ -1,0 +1,28 @@
+"""The contract every plugin sees. Imports nothing else of conflictbench, no simulator, no torch."""
+
+from .errors import ConflictbenchError, PluginError, PolicyError, SimulatorUnavailable, UserError
+from .hookspecs import hookimpl, hookspec
+from .plugins import MetricSpec, Plugins, PolicySpec
+from .policy import DEFAULT_MAX_STEPS, Policy, PolicyTraits, as_action_chunk
+from .prompts import P1_PREAMBLE, default_format_prompt
+from .records import (
+    ACTION_DIM,
+    FAMILIES,
+    LEVELS,
+    LIBERO_SUITES,
+    PROMPT_CONDITIONS,
+    ActionContext,
+    ConflictCase,
+    EpisodeRecord,
+    Observation,
+    Pair,
+    PrivilegedState,
+)
+
+__all__ = [
+    "ACTION_DIM", "ActionContext", "ConflictCase", "ConflictbenchError", "DEFAULT_MAX_STEPS",
+    "EpisodeRecord", "FAMILIES", "LEVELS", "LIBERO_SUITES", "MetricSpec", "Observation",
+    "P1_PREAMBLE", "PROMPT_CONDITIONS", "Pair", "PluginError", "Plugins", "Policy", "PolicyError",
+    "PolicySpec", "PolicyTraits", "PrivilegedState", "SimulatorUnavailable", "UserError",
+    "as_action_chunk", "default_format_prompt", "hookimpl", "hookspec",
+]

@@ -1,0 +1,68 @@
+"""Hook specifications: the whole contract between conflictbench and its plugins.
+
+A plugin is any module or object with functions decorated by :data:`conflictbench.hookimpl`
+whose names match the specs below. Third-party plugins are found through the entry-point group
+``conflictbench``; the built-in policies and metrics register through these same hooks.
+"""
+
+from __future__ import annotations
+
+import pluggy
+
+PROJECT_NAME = "conflictbench"
+
+hookspec = pluggy.HookspecMarker(PROJECT_NAME)
+hookimpl = pluggy.HookimplMarker(PROJECT_NAME)
+
+
+@hookspec
+def conflictbench_register_policies(register):
+    """Declare policies.
+
+    Call ``register(name, load=..., config=...)`` once per policy:
+
+    - ``name``: the Hydra ``model`` option (``conflictbench model=<name>``);
+    - ``load(cfg) -> policy``: builds the policy from an instance of ``config``;
+    - ``config``: a dataclass whose fields become the overrides ``model.<field>=...``
+      (optional; a policy without settings may omit it).
+
+    The policy returned by ``load`` has ``reset(instruction: str) -> None`` and
+    ``act(observation) -> ndarray`` of shape ``(7,)`` or a chunk ``(k, 7)`` executed open-loop.
+    It may also define ``act_batch(observations) -> list[ndarray]`` (one instance then serves all
+    workers), ``close()``, and these attributes (defaults in brackets):
+    ``needs_images`` [True], ``needs_privileged`` [False], ``image_size`` [256],
+    ``warmup_steps`` [10], ``max_steps`` [a mapping LIBERO suite -> steps; 220/280/300/520].
+    """
+
+
+@hookspec(firstresult=True)
+def conflictbench_format_prompt(instruction, condition, policy):
+    """Return the text a policy receives for ``instruction`` under prompt ``condition``.
+
+    ``condition`` is ``"p0"`` (standard task text) or ``"p1"`` (the task text after the fixed
+    premise-check preamble); ``policy`` is the policy's registered name. The first non-``None``
+    result wins; the core's own implementation runs last and is the fallback.
+    """
+
+
+@hookspec
+def conflictbench_postprocess_action(action, context):
+    """Transform one action before it reaches the environment.
+
+    ``action`` is a float64 array of shape ``(7,)``; ``context`` an :class:`ActionContext`.
+    Implementations are chained: each receives the action returned by the one before, in
+    pluggy's call order (``tryfirst`` implementations first, then the most recently registered
+    first, ``trylast`` ones last). Returning ``None`` leaves the action unchanged. The store keeps
+    both what the policy returned (``raw_actions``) and what was executed (``actions``).
+    """
+
+
+@hookspec
+def conflictbench_register_metrics(register):
+    """Declare per-pair metrics.
+
+    Call ``register(name, compute=..., description="")``; ``compute(pair) -> float | None`` gets a
+    :class:`Pair` (``pair.reference`` and ``pair.conflict`` are :class:`EpisodeRecord`) and returns
+    ``None`` where the measure is undefined for that pair. A metric is averaged over the pairs
+    where it is defined and appears in every report and CSV beside the built-ins.
+    """

@@ -1,0 +1,68 @@
+"""What the framework expects of a policy object, and the defaults for what it may declare."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from .errors import PolicyError
+from .records import ACTION_DIM, Observation
+
+#: Max policy steps per LIBERO suite used by OpenVLA, OpenVLA-OFT and openpi's LIBERO clients.
+DEFAULT_MAX_STEPS: Mapping[str, int] = {
+    "libero_spatial": 220,
+    "libero_object": 280,
+    "libero_goal": 300,
+    "libero_10": 520,
+}
+DEFAULT_WARMUP_STEPS = 10
+DEFAULT_IMAGE_SIZE = 256
+
+
+@runtime_checkable
+class Policy(Protocol):
+    def reset(self, instruction: str) -> None: ...
+
+    def act(self, observation: Observation) -> np.ndarray: ...
+
+
+class PolicyTraits:
+    """The optional declarations of a policy, with their defaults filled in."""
+
+    def __init__(self, policy: Any):
+        self.needs_images: bool = bool(getattr(policy, "needs_images", True))
+        self.needs_privileged: bool = bool(getattr(policy, "needs_privileged", False))
+        self.image_size: int = int(getattr(policy, "image_size", DEFAULT_IMAGE_SIZE))
+        self.warmup_steps: int = int(getattr(policy, "warmup_steps", DEFAULT_WARMUP_STEPS))
+        self.max_steps: dict[str, int] = {**DEFAULT_MAX_STEPS, **dict(getattr(policy, "max_steps", None) or {})}
+        self.batched: bool = callable(getattr(policy, "act_batch", None))
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(vars(self))
+
+
+def as_action_chunk(raw: Any) -> np.ndarray:
+    """Validate a policy's output and return it as a float64 chunk of shape (k, 7).
+
+    Raises :class:`PolicyError` for anything else (wrong shape, an empty chunk, NaN or inf).
+    """
+    try:
+        arr = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise PolicyError(f"policy returned something that is not a numeric array: {exc}") from None
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != ACTION_DIM or arr.shape[0] == 0:
+        raise PolicyError(f"policy returned shape {np.shape(raw)}, expected ({ACTION_DIM},) or (k, {ACTION_DIM}) with k >= 1")
+    if not np.all(np.isfinite(arr)):
+        raise PolicyError("policy returned a non-finite action (NaN or inf)")
+    return arr
+
+
+def batch_outputs(policy: Any, observations: Sequence[Observation]) -> list[Any]:
+    """Call ``act_batch`` and check it answered every observation."""
+    out = list(policy.act_batch(list(observations)))
+    if len(out) != len(observations):
+        raise PolicyError(f"act_batch returned {len(out)} results for {len(observations)} observations")
+    return out

@@ -1,0 +1,171 @@
+"""Typed records exchanged between the simulator, policies, metrics and the store.
+
+Only numpy is needed here: these are the types a plugin sees. Arrays follow LIBERO's units
+(metres, radians, the 7-D delta end-effector action ``[dx, dy, dz, drx, dry, drz, gripper]``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+ACTION_DIM = 7
+LIBERO_SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
+PROMPT_CONDITIONS = ("p0", "p1")
+FAMILIES = ("instruction", "grounding", "spatial", "physical")
+LEVELS = ("L1", "L2", "L3", "L4")
+
+
+@dataclass(frozen=True)
+class ConflictCase:
+    """One premise-conflict case: a base task plus an instruction whose premise cannot hold.
+
+    ``init_states`` lists the fixed initial states in which the premise is known to be false
+    (``None``: all of them); the planner pairs the case only with those.
+    """
+
+    case_id: str
+    suite: str
+    task_id: int
+    base_instruction: str
+    instruction: str
+    family: str
+    level: str
+    factors: tuple[str, ...] = ()
+    premise: str = ""
+    witness: Mapping[str, Any] = field(default_factory=dict)
+    status: str = "accepted"
+    init_states: tuple[int, ...] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["factors"] = list(self.factors)
+        out["witness"] = dict(self.witness)
+        out["init_states"] = None if self.init_states is None else list(self.init_states)
+        return out
+
+
+@dataclass(frozen=True)
+class PrivilegedState:
+    """Simulator ground truth, given only to policies that declare ``needs_privileged = True``.
+
+    Built-in experts and oracles use it; a learned policy must never ask for it.
+    """
+
+    body_poses: Mapping[str, np.ndarray]
+    """Root pose of every object and fixture: ``name -> (7,)`` position + quaternion (w, x, y, z)."""
+    site_positions: Mapping[str, np.ndarray]
+    """World position of every named region site: ``name -> (3,)``."""
+    joint_positions: Mapping[str, float]
+    """Position of every articulated scene joint (drawers, doors, knobs): ``name -> qpos``."""
+    goal: tuple[tuple[str, ...], ...]
+    """The base task's BDDL goal predicates, e.g. ``(("on", "akita_black_bowl_1", "plate_1"),)``."""
+    case: ConflictCase | None
+    """The conflict case of this episode; ``None`` on a reference episode."""
+    extras: Mapping[str, Any] = field(default_factory=dict)
+    """Further facts a built-in policy asked the simulator for (kept open for experts)."""
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a policy sees at one decision point.
+
+    Images are exactly what LIBERO renders (upside down, uint8 HxWx3); native clients rotate
+    them 180 degrees, and so must a plugin that speaks such a protocol. They are ``None`` when the
+    policy does not declare ``needs_images``.
+    """
+
+    step: int
+    """Number of policy actions executed so far in this episode (0 at the first query)."""
+    instruction: str
+    """The prompt text for this episode (after P0/P1 formatting)."""
+    eef_pos: np.ndarray
+    eef_quat: np.ndarray
+    """End-effector orientation as robosuite reports it (x, y, z, w)."""
+    gripper_qpos: np.ndarray
+    state: np.ndarray
+    """LIBERO's 8-D state: eef position, axis-angle of eef_quat, the two gripper joint positions."""
+    agentview_image: np.ndarray | None = None
+    wrist_image: np.ndarray | None = None
+    joint_positions: np.ndarray | None = None
+    """The seven arm joint positions."""
+    privileged: PrivilegedState | None = None
+    stream: int = 0
+    """Which concurrent episode this belongs to (worker slot); batched policies key state by it."""
+
+
+@dataclass(frozen=True)
+class ActionContext:
+    """What an action post-processor knows about the action it transforms."""
+
+    policy: str
+    suite: str
+    task_id: int
+    prompt: str
+    case_id: str | None
+    step: int
+    """Index of this action in the episode (0-based)."""
+    chunk_index: int
+    """Index of this action inside the chunk the policy returned."""
+
+
+@dataclass(eq=False)  # arrays inside: compare fields explicitly
+class EpisodeRecord:
+    """One closed-loop rollout, exactly as stored (one row of the episode store).
+
+    ``eef_pos`` and ``target_pos`` hold the H+1 recorded states (after the warm-up, then after
+    each of the H executed actions); ``actions`` are the H actions sent to the environment after
+    post-processing and ``raw_actions`` what the policy returned for them.
+    """
+
+    # keys
+    policy: str
+    suite: str
+    task_id: int
+    init_state: int
+    prompt: str
+    instruction: str
+    seed: int = 7
+    case_id: str | None = None
+    family: str | None = None
+    level: str | None = None
+    # outcome
+    success: bool = False
+    steps: int = 0
+    error: str | None = None
+    # process
+    eef_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    target_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
+    target_names: tuple[str, ...] = ()
+    actions: np.ndarray = field(default_factory=lambda: np.zeros((0, ACTION_DIM)))
+    raw_actions: np.ndarray = field(default_factory=lambda: np.zeros((0, ACTION_DIM)))
+    # context
+    episode_id: str = ""
+    base_instruction: str = ""
+    prompt_text: str = ""
+    max_steps: int = 0
+    # provenance
+    conflictbench_version: str = ""
+    plugin: str = ""
+    plugin_version: str = ""
+    libero_version: str = ""
+    robosuite_version: str = ""
+    mujoco_version: str = ""
+    numpy_version: str = ""
+    config_hash: str = ""
+    wall_time_s: float = 0.0
+    created_at: str = ""
+
+    @property
+    def is_reference(self) -> bool:
+        return self.case_id is None
+
+
+@dataclass(frozen=True)
+class Pair:
+    """A reference and a conflict rollout by the same policy, base task, init state and prompt."""
+
+    reference: EpisodeRecord
+    conflict: EpisodeRecord

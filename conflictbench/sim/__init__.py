@@ -1,0 +1,1 @@
+"""Simulation: planning episodes, worker processes that own LIBERO envs, and the runner."""

