@@ -104,6 +104,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (UserError, SimulatorUnavailable) as exc:
         print(f"conflictbench: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except BrokenPipeError:  # output piped into `head` and the like
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print("\nconflictbench: interrupted; every finished episode is stored, and the same command resumes the run",
               file=sys.stderr)

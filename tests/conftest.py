@@ -41,3 +41,35 @@ def play(tmp_path: Path, plugins):
         return runner.run(list(specs)), store
 
     return _play
+
+
+DEMO_PLUGIN = Path(__file__).parent / "plugins" / "conflictbench-demo"
+
+
+@pytest.fixture(scope="session")
+def demo_plugin_site(tmp_path_factory) -> Path:
+    """The demo plugin, pip-installed (a real distribution with a real entry point) into a directory."""
+    import subprocess
+    import sys
+
+    target = tmp_path_factory.mktemp("demo-plugin-site")
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--no-compile", "--target", str(target), str(DEMO_PLUGIN)], check=True)
+    return target
+
+
+@pytest.fixture
+def cli(tmp_path: Path, demo_plugin_site: Path):
+    """cli(*args, timeout=...) runs the installed `conflictbench` command in tmp_path, demo plugin visible."""
+    import os
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).parent / "conflictbench"
+
+    def _cli(*args: str, timeout: float = 600, cwd: Path | None = None) -> subprocess.CompletedProcess:
+        env = {**os.environ, "PYTHONPATH": str(demo_plugin_site)}
+        return subprocess.run([str(exe), *args], cwd=cwd or tmp_path, env=env, capture_output=True, text=True,
+                              timeout=timeout, stdin=subprocess.DEVNULL)
+
+    return _cli

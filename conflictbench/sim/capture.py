@@ -55,11 +55,6 @@ def quat2axisangle(quat: np.ndarray) -> np.ndarray:
     return np.asarray(convert(np.array(quat, dtype=np.float64)), dtype=np.float64)
 
 
-def render_cameras(env, size: int) -> tuple[np.ndarray, np.ndarray]:
-    images = [env.sim.render(camera_name=cam, width=size, height=size, depth=False) for cam in CAMERAS]
-    return images[0], images[1]
-
-
 def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase | None) -> PrivilegedState:
     inner, model, data = env.env, env.sim.model, env.sim.data
     poses = {}
@@ -75,14 +70,15 @@ def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase 
     return PrivilegedState(body_poses=poses, site_positions=sites, joint_positions=joints, goal=goal, case=case)
 
 
-def make_observation(env, raw_obs: dict, *, step: int, instruction: str, stream: int,
-                     image_size: int | None, privileged: PrivilegedState | None) -> Observation:
+def make_observation(raw_obs: dict, *, step: int, instruction: str, stream: int, images: bool,
+                     privileged: PrivilegedState | None) -> Observation:
+    """The policy's view: robosuite's own observation values, exactly as a native client gets them."""
     eef_pos = np.asarray(raw_obs["robot0_eef_pos"], dtype=np.float64).copy()
     eef_quat = np.asarray(raw_obs["robot0_eef_quat"], dtype=np.float64).copy()
     gripper = np.asarray(raw_obs["robot0_gripper_qpos"], dtype=np.float64).copy()
     agent = wrist = None
-    if image_size:
-        agent, wrist = render_cameras(env, image_size)
+    if images:
+        agent, wrist = (np.array(raw_obs[f"{camera}_image"]) for camera in CAMERAS)
     return Observation(
         step=step,
         instruction=instruction,

@@ -11,6 +11,8 @@ import logging
 import os
 from dataclasses import dataclass
 
+import numpy as np
+
 from conflictbench.core import SimulatorUnavailable
 from conflictbench.tasks.libero_tasks import prepare_libero_import
 
@@ -53,11 +55,10 @@ def configure_process(settings: EnvSettings) -> None:
 
 
 def make_env(bddl_path: str, settings: EnvSettings):
-    """A LIBERO env with the native settings (OSC_POSE, 20 Hz, Panda), rendering only on demand.
+    """A LIBERO env with the native settings (OSC_POSE, 20 Hz, Panda, two 256-px cameras when needed).
 
-    Camera observations are off even when images are needed: the worker renders the two cameras
-    itself, only at the steps where the policy is queried (the same call robosuite's camera
-    observable makes, so the pixels are identical).
+    Camera observations stay robosuite's own (so images are sampled at exactly the sub-step a
+    native client's are); :class:`CameraGate` makes them render only when a policy will look.
     """
     try:
         from libero.libero.envs.env_wrapper import ControlEnv
@@ -67,11 +68,49 @@ def make_env(bddl_path: str, settings: EnvSettings):
         bddl_file_name=bddl_path,
         has_renderer=False,
         has_offscreen_renderer=settings.needs_images,
-        use_camera_obs=False,
+        use_camera_obs=settings.needs_images,
+        camera_names=list(CAMERAS),
         camera_heights=settings.image_size,
         camera_widths=settings.image_size,
         ignore_done=True,  # we stop episodes ourselves; LIBERO's horizon would raise past 1000 steps
     )
+
+
+class CameraGate:
+    """Renders the camera observables only for the env calls whose observation a policy receives.
+
+    robosuite samples each observable on its own timer inside ``env.step`` (not at the end of the
+    step), and native clients see those samples. Swapping the camera *sensor* for a blank one
+    between queries keeps that timing bit-exact while skipping the renders nobody looks at (two
+    256-px software renders cost ~0.4 s per step on a CPU). Install after every ``reset()``:
+    a hard reset puts fresh sensors back.
+    """
+
+    def __init__(self, env):
+        self._observables = [obs for name, obs in env.env._observables.items() if name.endswith("_image")]
+        self._real = [obs._sensor for obs in self._observables]
+        self._blank = [_blank_like(sensor) for sensor in self._real]
+        self.open = None
+        self.set(False)
+
+    def set(self, open_: bool) -> None:
+        if open_ is self.open:
+            return
+        # Assign the private attribute: set_sensor() would test-call (i.e. render) the sensor.
+        for obs, real, blank in zip(self._observables, self._real, self._blank):
+            obs._sensor = real if open_ else blank
+        self.open = open_
+
+
+_BLANK = np.zeros((1, 1, 3), dtype=np.uint8)
+
+
+def _blank_like(sensor):
+    def blank(obs_cache):
+        return _BLANK
+
+    blank.__modality__ = sensor.__modality__
+    return blank
 
 
 def simulator_versions() -> dict[str, str]:

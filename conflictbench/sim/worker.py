@@ -106,33 +106,46 @@ class EpisodePlayer:
             env = self._env_for(job)
             env.seed(job.seed)
             env.reset()
+            gate = self._libero_env.CameraGate(env) if self.settings.needs_images else None
+
+            def render_next(needed: bool) -> None:
+                """Render cameras during the next env call only if the policy will see its observation."""
+                if gate is not None:
+                    gate.set(needed)
+
+            render_next(job.warmup_steps == 0)
             raw = env.set_init_state(self._init_states[job.init_state])
-            for _ in range(job.warmup_steps):
+            for k in range(job.warmup_steps):
+                render_next(k == job.warmup_steps - 1)
                 raw, _, _, _ = env.step(NOOP_ACTION)
             targets = [target_resolver(env, name) for name in job.targets]
+            eef_site = env.env.robots[0].eef_site_id
 
-            def record(raw_obs) -> None:
-                out.eef_pos.append(np.asarray(raw_obs["robot0_eef_pos"], dtype=np.float64).copy())
+            def record() -> None:
+                # The end-of-step state, read from the simulator like the targets (robosuite's
+                # observation values are sampled a sub-step earlier).
+                out.eef_pos.append(env.sim.data.site_xpos[eef_site].copy())
                 out.target_pos.append(np.array([read() for read in targets], dtype=np.float64).reshape(-1, 3))
 
-            record(raw)
+            record()
             out.success = bool(env.check_success())
-            image_size = self.settings.image_size if self.settings.needs_images else None
             while not out.success and out.steps < job.max_steps:
                 priv = privileged_state(env, job.goal, job.case) if job.needs_privileged else None
-                conn.send(("obs", make_observation(env, raw, step=out.steps, instruction=job.instruction,
-                                                   stream=job.stream, image_size=image_size, privileged=priv)))
+                conn.send(("obs", make_observation(raw, step=out.steps, instruction=job.instruction, stream=job.stream,
+                                                   images=gate is not None, privileged=priv)))
                 reply = conn.recv()
                 if reply[0] == "abort":
                     out.error = reply[1]
                     break
                 _, raw_chunk, executed_chunk = reply
-                for raw_action, action in zip(raw_chunk, executed_chunk):
+                last = len(executed_chunk) - 1
+                for i, (raw_action, action) in enumerate(zip(raw_chunk, executed_chunk)):
+                    render_next(i == last and out.steps + 1 < job.max_steps)
                     raw, _, done, _ = env.step(action)
                     out.steps += 1
                     out.raw_actions.append(np.asarray(raw_action, dtype=np.float64))
                     out.actions.append(np.asarray(action, dtype=np.float64))
-                    record(raw)
+                    record()
                     if done:
                         out.success = True
                         break

@@ -75,8 +75,9 @@ def _offsets(lengths: list[int]) -> pa.Array:
 def _nested(arrays: list[np.ndarray], width: int, ndim: int) -> pa.Array:
     """list<fixed_size_list<float64, width>> (ndim 2) or list<list<...>> (ndim 3) from ndarrays."""
     arrays = [np.asarray(a, dtype=np.float64) for a in arrays]
-    arrays = [a.reshape(-1, width) if ndim == 2 else (a if a.ndim == 3 else a.reshape(a.shape[0], -1, width))
-              for a in arrays]
+    for a in arrays:  # never reshape silently: a wrong width is a bug upstream
+        if a.ndim != ndim or a.shape[-1] != width:
+            raise ValueError(f"expected an array of {ndim} dimensions ending in {width}, got shape {a.shape}")
     flat = np.concatenate([a.reshape(-1) for a in arrays]) if arrays else np.zeros(0)
     values: pa.Array = pa.FixedSizeListArray.from_arrays(pa.array(flat, type=pa.float64()), width)
     if ndim == 3:  # each step holds K vectors
@@ -90,10 +91,12 @@ def records_to_table(records: Iterable[EpisodeRecord]) -> pa.Table:
     columns: dict[str, Any] = {}
     for name in SCHEMA.names:
         values = [getattr(r, name) for r in records]
-        if name in ("eef_pos", "actions", "raw_actions"):
-            columns[name] = _nested(values, 3 if name == "eef_pos" else ACTION_DIM, ndim=2)
-        elif name == "target_pos":
-            columns[name] = _nested(values, 3, ndim=3)
+        if name in ARRAY_COLUMNS:
+            width = ACTION_DIM if "actions" in name else 3
+            try:
+                columns[name] = _nested(values, width, ndim=3 if name == "target_pos" else 2)
+            except ValueError as exc:
+                raise ValueError(f"column {name}: {exc}") from None
         elif name == "target_names":
             columns[name] = pa.array([list(v) for v in values], type=SCHEMA.field(name).type)
         else:

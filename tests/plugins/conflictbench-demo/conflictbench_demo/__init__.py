@@ -1,0 +1,76 @@
+"""A third-party plugin, written against the public API only (``from conflictbench import ...``).
+
+It registers a policy with settings, a metric, a prompt format for its policy and an action
+post-processor, exactly as an external model package would.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from conflictbench import EpisodeRecord, hookimpl
+
+
+@dataclass
+class WaveConfig:
+    amplitude: float = 0.5
+    """Peak of the sinusoidal x motion."""
+    period: int = 8
+    """Steps per oscillation."""
+    chunk: int = 1
+    """Actions returned per query (executed open-loop)."""
+
+
+class WavePolicy:
+    needs_images = False
+    max_steps = {"libero_spatial": 12, "libero_object": 12, "libero_goal": 12, "libero_10": 12}
+
+    def __init__(self, cfg: WaveConfig):
+        self.cfg = cfg
+        self.instructions = []
+
+    def reset(self, instruction: str) -> None:
+        self.instructions.append(instruction)
+
+    def act(self, observation):
+        steps = observation.step + np.arange(self.cfg.chunk)
+        x = self.cfg.amplitude * np.sin(2 * np.pi * steps / self.cfg.period)
+        out = np.zeros((self.cfg.chunk, 7))
+        out[:, 0] = x
+        out[:, 6] = -1.0
+        return out if self.cfg.chunk > 1 else out[0]
+
+
+@hookimpl
+def conflictbench_register_policies(register):
+    register("demo-wave", load=WavePolicy, config=WaveConfig)
+
+
+def path_length(pair) -> float:
+    """Ratio of the conflict rollout's end-effector path length to the reference's."""
+    def length(record: EpisodeRecord) -> float:
+        return float(np.linalg.norm(np.diff(record.eef_pos, axis=0), axis=1).sum())
+
+    ref = length(pair.reference)
+    return None if ref == 0 else length(pair.conflict) / ref
+
+
+@hookimpl
+def conflictbench_register_metrics(register):
+    register("demo_path_ratio", compute=path_length, description="conflict/reference eef path length")
+
+
+@hookimpl
+def conflictbench_format_prompt(instruction, condition, policy):
+    if policy != "demo-wave":
+        return None
+    return f"[{condition}] {instruction.upper()}"
+
+
+@hookimpl
+def conflictbench_postprocess_action(action, context):
+    if context.policy != "demo-wave":
+        return None
+    out = action.copy()
+    out[0] *= 0.5  # halve x, so raw and executed actions differ in a checkable way
+    return out

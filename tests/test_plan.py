@@ -1,0 +1,100 @@
+"""Planning: references shared between cases, the stratified sample, initial-state restrictions."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import pytest
+
+from conflictbench.core import FAMILIES, LEVELS, ConflictCase, UserError
+from conflictbench.sim.plan import EpisodeSpec, build_plan, episode_id, sample_cases
+
+SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
+BASE = {(s, t): f"task {s} {t}" for s in SUITES for t in range(10)}
+
+
+def case(cid, suite="libero_goal", task=0, family="physical", level="L1", states=None, status="accepted"):
+    return ConflictCase(cid, suite, task, BASE[(suite, task)], f"conflict {cid}", family, level,
+                        init_states=states, status=status)
+
+
+def plan(cases, **kw):
+    args = dict(base_instructions=BASE, families=FAMILIES, levels=LEVELS, prompts=["p0"], init_states=[0],
+                cases_per_cell=None)
+    args.update(kw)
+    return build_plan(cases, **args)
+
+
+def test_cases_of_one_base_task_share_one_reference_per_state_and_prompt():
+    cases = [case("a"), case("b", level="L2"), case("c", family="spatial")]
+    episodes = plan(cases, init_states=[0, 1], prompts=["p0", "p1"])
+    refs = [e for e in episodes if e.case is None]
+    assert len(refs) == 4  # one base task x 2 states x 2 prompts
+    assert len(episodes) - len(refs) == 3 * 2 * 2
+    assert Counter(e.reference_key for e in refs).most_common(1)[0][1] == 1
+    assert all(e.instruction == BASE[("libero_goal", 0)] for e in refs)
+
+
+def test_family_level_and_libero_suite_filters():
+    cases = [case("a"), case("b", family="spatial"), case("c", level="L3"), case("d", suite="libero_10")]
+    got = {e.case_id for e in plan(cases, families=["physical"], levels=["L1"]) if e.case}
+    assert got == {"a", "d"}
+    got = {e.case_id for e in plan(cases, families=["physical"], levels=["L1"], libero_suites=["libero_10"]) if e.case}
+    assert got == {"d"}
+
+
+def test_cases_not_accepted_are_never_planned():
+    assert not [e for e in plan([case("a", status="removed"), case("b", status="pending")]) if e.case]
+
+
+def test_case_initial_states_restrict_pairing():
+    episodes = plan([case("a", states=(1, 3))], init_states=[0, 1, 2, 3])
+    assert sorted(e.init_state for e in episodes if e.case) == [1, 3]
+    assert sorted(e.init_state for e in episodes if e.case is None) == [1, 3]
+
+
+def test_zero_cases_per_cell_plans_only_references_of_every_selected_task():
+    episodes = plan([case("a")], cases_per_cell=0, libero_suites=["libero_goal"], init_states=[0, 2])
+    assert all(e.case is None for e in episodes)
+    assert {(e.task_id, e.init_state) for e in episodes} == {(t, s) for t in range(10) for s in (0, 2)}
+
+
+def test_negative_cases_per_cell_is_a_user_error():
+    with pytest.raises(UserError):
+        plan([case("a")], cases_per_cell=-2)
+
+
+def test_sample_is_seeded_bounded_per_cell_and_spans_suites():
+    cases = [case(f"{s}-{t}-{f}-{l}", suite=s, task=t, family=f, level=l)
+             for s in SUITES for t in range(3) for f in FAMILIES for l in LEVELS]
+    picked = sample_cases(cases, 4, seed=0)
+    cells = Counter((c.family, c.level) for c in picked)
+    assert set(cells.values()) == {4} and len(cells) == 16
+    for cell in cells:  # 4 picks over 4 suites: one per suite
+        assert len({c.suite for c in picked if (c.family, c.level) == cell}) == 4
+    assert [c.case_id for c in sample_cases(cases, 4, seed=0)] == [c.case_id for c in picked]
+    assert [c.case_id for c in sample_cases(cases, 4, seed=1)] != [c.case_id for c in picked]
+    assert len(sample_cases(cases, 100, seed=0)) == len(cases)
+    assert sample_cases(cases, None, seed=0) == sorted(cases, key=lambda c: c.case_id)
+
+
+def test_plan_groups_episodes_by_base_task_references_first():
+    cases = [case("x", suite="libero_10", task=3), case("y"), case("z", task=5)]
+    episodes = plan(cases)
+    keys = [e.task_key for e in episodes]
+    assert keys == sorted(keys, key=lambda k: (k[0], k[1]))
+    for key in set(keys):
+        group = [e for e in episodes if e.task_key == key]
+        assert group[0].case is None
+
+
+def test_episode_ids_are_stable_and_change_with_anything_that_changes_the_rollout():
+    spec = EpisodeSpec("libero_goal", 0, 0, "p0", "open the drawer")
+    base = dict(policy="noop", config_hash="h", spec=spec, prompt_text="open the drawer", seed=7)
+    eid = episode_id(**base)
+    assert eid == episode_id(**base) and len(eid) == 24
+    variants = [dict(policy="random"), dict(config_hash="h2"), dict(seed=8), dict(prompt_text="x"),
+                dict(spec=EpisodeSpec("libero_goal", 0, 1, "p0", "open the drawer")),
+                dict(spec=EpisodeSpec("libero_goal", 0, 0, "p1", "open the drawer")),
+                dict(spec=EpisodeSpec("libero_goal", 0, 0, "p0", "open the drawer", case("a")))]
+    assert len({episode_id(**{**base, **v}) for v in variants} | {eid}) == len(variants) + 1

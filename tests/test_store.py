@@ -1,0 +1,122 @@
+"""The episode store: real Parquet files, atomic writes, claims between concurrent jobs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from conflictbench.core import EpisodeRecord
+from conflictbench.store import SCHEMA, EpisodeStore
+
+
+def record(eid: str, h: int = 4, k: int = 2, policy: str = "noop", seed: int = 0, **kw) -> EpisodeRecord:
+    rng = np.random.default_rng(seed)
+    fields = dict(policy=policy, suite="libero_goal", task_id=3, init_state=1, prompt="p1", instruction="put it there",
+                  episode_id=eid, success=bool(seed % 2), steps=h, eef_pos=rng.normal(size=(h + 1, 3)),
+                  target_pos=rng.normal(size=(h + 1, k, 3)), target_names=tuple(f"obj_{i}" for i in range(k)),
+                  actions=rng.normal(size=(h, 7)), raw_actions=rng.normal(size=(h, 7)), mujoco_version="2.3.7")
+    fields.update(kw)
+    return EpisodeRecord(**fields)
+
+
+def assert_same(a: EpisodeRecord, b: EpisodeRecord) -> None:
+    for name in SCHEMA.names:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            assert x.shape == y.shape and np.array_equal(x, y), name
+        else:
+            assert x == y, name
+
+
+def test_round_trip_keeps_every_column_bit_for_bit(tmp_path):
+    store = EpisodeStore(tmp_path)
+    originals = [record("a", h=5, k=2, seed=1), record("b", h=0, k=1, seed=2, case_id="c1", family="spatial", level="L2"),
+                 record("c", h=3, k=0, seed=3, error="policy returned NaN")]
+    for r in originals:
+        store.write(r)
+    back = {r.episode_id: r for r in store.records()}
+    assert set(back) == {"a", "b", "c"}
+    for r in originals:
+        assert_same(r, back[r.episode_id])
+    assert back["b"].eef_pos.shape == (1, 3) and back["b"].actions.shape == (0, 7)
+    assert back["c"].target_pos.shape == (4, 0, 3)
+
+
+def test_files_are_plain_parquet_readable_without_conflictbench(tmp_path):
+    store = EpisodeStore(tmp_path)
+    store.write(record("a", seed=1))
+    store.write(record("b", seed=2, policy="random"))
+    frame = pd.concat([pd.read_parquet(p) for p in sorted((tmp_path / "episodes").glob("*/*.parquet"))])
+    assert sorted(frame["policy"]) == ["noop", "random"]
+    first = pq.read_table(store.path_for("noop", "a"))
+    assert first.schema.equals(SCHEMA, check_metadata=False)
+    eef = np.array(first.column("eef_pos").to_pylist()[0])
+    np.testing.assert_array_equal(eef, record("a", seed=1).eef_pos)
+
+
+def test_select_episodes_by_id(tmp_path):
+    store = EpisodeStore(tmp_path)
+    for i in range(4):
+        store.write(record(f"e{i}", seed=i))
+    assert {r.episode_id for r in store.records(episode_ids=["e1", "e3", "missing"])} == {"e1", "e3"}
+    assert store.stored_ids() == {"e0", "e1", "e2", "e3"} and len(store) == 4
+
+
+def test_rewriting_an_episode_replaces_it_and_leaves_no_temporary(tmp_path):
+    store = EpisodeStore(tmp_path)
+    store.write(record("a", seed=1))
+    store.write(record("a", seed=2))
+    assert len(store) == 1
+    assert_same(store.records()[0], record("a", seed=2))
+    assert not list((tmp_path / "episodes").rglob("*.tmp"))
+
+
+def test_half_written_files_of_dead_processes_are_ignored_and_cleaned(tmp_path):
+    store = EpisodeStore(tmp_path)
+    store.write(record("a"))
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    tmp = tmp_path / "episodes" / "noop" / f".b.parquet.{int(dead.stdout)}.tmp"
+    tmp.write_bytes(b"PAR1 truncated")
+    assert store.stored_ids() == {"a"}
+    assert store.clean_stale_temporaries() == 1 and not tmp.exists()
+
+
+def test_claims_exclude_live_processes_and_are_taken_over_from_dead_ones(tmp_path):
+    store = EpisodeStore(tmp_path)
+    assert store.claim("e1")
+    assert store.claim("e1")  # our own claim
+    assert store.held_by_others(["e1"]) == set()
+    store.release("e1")
+
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (tmp_path / "claims" / "e2.claim").write_text(f"{os.uname().nodename} {other.pid} 0\n")
+        assert not store.claim("e2")
+        assert store.held_by_others(["e1", "e2"]) == {"e2"}
+    finally:
+        other.kill()
+        other.wait()
+    assert store.claim("e2")  # its owner is gone
+
+    (tmp_path / "claims" / "e3.claim").write_text("another-host 1 0\n")
+    assert not store.claim("e3")  # a process on another machine cannot be checked: respected
+
+
+def test_empty_store_reads_as_nothing(tmp_path):
+    store = EpisodeStore(tmp_path / "missing")
+    assert store.records() == [] and len(store) == 0
+    assert store.read_table().num_rows == 0
+
+
+@pytest.mark.parametrize("bad", ["eef_pos", "actions"])
+def test_schema_rejects_arrays_of_the_wrong_width(tmp_path, bad):
+    wrong = record("a")
+    setattr(wrong, bad, np.zeros((3, 5)))
+    with pytest.raises(Exception):
+        EpisodeStore(tmp_path).write(wrong)
