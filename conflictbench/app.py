@@ -125,7 +125,7 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
                     progress=options.progress)
     result = runner.run(plan)
     print(f"conflictbench: {result.played} played, {result.already_stored} already stored, "
-          f"{result.errors} with errors", file=sys.stderr)
+          f"{result.played_elsewhere} played by another job, {result.errors} with errors", file=sys.stderr)
     if options.report:
         records = store.records(episode_ids=result.episode_ids)
         report_records(records, plugins, out_dir=store.root / "report", metrics=options.metrics)

@@ -33,8 +33,13 @@ fi
 # 2. The interpreter: 3.11 or 3.12 (LIBERO's pinned stack needs numpy 1.26).
 if [ -z "${PYTHON:-}" ]; then
   for candidate in python3.11 python3.12 python3; do
-    if command -v "$candidate" >/dev/null; then PYTHON=$candidate; break; fi
+    # `command -v` is not enough: a pyenv shim exists even where its version is not selected.
+    if "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] not in ((3, 11), (3, 12)))' 2>/dev/null; then
+      PYTHON=$candidate
+      break
+    fi
   done
+  PYTHON=${PYTHON:-python3}
 fi
 version=$("$PYTHON" -c 'import sys; print("%d.%d" % sys.version_info[:2])')
 case "$version" in

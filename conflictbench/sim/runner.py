@@ -41,6 +41,8 @@ START_TIMEOUT_S = 300
 class RunResult:
     planned: int = 0
     already_stored: int = 0
+    played_elsewhere: int = 0
+    """Episodes another job sharing the store was playing when this one reached them."""
     played: int = 0
     succeeded: int = 0
     errors: int = 0
@@ -172,7 +174,7 @@ class Runner:
             for stream in streams:
                 self._start_worker(stream, settings)
             self._await_ready(streams)
-            self._loop(streams, deque(todo), traits, result, bar)
+            self._loop(streams, deque(todo), result, traits)
         finally:
             for stream in streams:
                 if stream.item is not None:
@@ -186,10 +188,14 @@ class Runner:
                     stream.policy.close()
         return result
 
-    def _next_item(self, stream: _Stream, queue: deque, deferred: list[_Item], stored: set[str]) -> _Item | None:
-        """The next episode for this stream, preferring its current base task (env reuse)."""
+    def _next_item(self, stream: _Stream, queue: deque, deferred: list[_Item], stored: set[str],
+                   busy_tasks: set[tuple[str, int]]) -> _Item | None:
+        """The next episode for this stream: its current base task first (its env is built), then a
+        base task no other worker is on (so each env is built by as few workers as possible)."""
         while queue:
-            pick = next((i for i in queue if i.spec.task_key == stream.task_key), None) or queue[0]
+            pick = (next((i for i in queue if i.spec.task_key == stream.task_key), None)
+                    or next((i for i in queue if i.spec.task_key not in busy_tasks), None)
+                    or queue[0])
             queue.remove(pick)
             if pick.job.episode_id in stored:
                 continue
@@ -209,7 +215,8 @@ class Runner:
             return
         stream.conn.send(("episode", job))
 
-    def _loop(self, streams: list[_Stream], queue: deque, traits: PolicyTraits, result: RunResult, bar) -> None:
+    def _loop(self, streams: list[_Stream], queue: deque, result: RunResult, traits: PolicyTraits) -> None:
+        bar = self._bar
         deferred: list[_Item] = []
         stored = self.store.stored_ids()
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
@@ -217,7 +224,8 @@ class Runner:
         def fill() -> None:
             for stream in streams:
                 while stream.item is None:
-                    item = self._next_item(stream, queue, deferred, stored)
+                    busy_tasks = {s.task_key for s in streams if s.item is not None}
+                    item = self._next_item(stream, queue, deferred, stored, busy_tasks)
                     if item is None:
                         break
                     self._assign(stream, item, result)
@@ -234,6 +242,7 @@ class Runner:
                 for item in list(deferred):
                     if item.job.episode_id in stored:
                         deferred.remove(item)
+                        result.played_elsewhere += 1
                         bar.update(1)
                     elif not self.store.held_by_others([item.job.episode_id]):
                         deferred.remove(item)

@@ -19,6 +19,8 @@ class WaveConfig:
     """Steps per oscillation."""
     chunk: int = 1
     """Actions returned per query (executed open-loop)."""
+    images: bool = False
+    """Ask for camera images (as a VLA would)."""
 
 
 class WavePolicy:
@@ -27,6 +29,7 @@ class WavePolicy:
 
     def __init__(self, cfg: WaveConfig):
         self.cfg = cfg
+        self.needs_images = cfg.images
         self.instructions = []
 
     def reset(self, instruction: str) -> None:

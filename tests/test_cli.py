@@ -1,0 +1,61 @@
+"""The command line without simulation: discovery, listings, and bad input (one line, exit code 2)."""
+
+from __future__ import annotations
+
+import pytest
+
+
+def test_list_shows_builtins_and_the_pip_installed_third_party_plugin(cli):
+    out = cli("list")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert any(line.split()[:3] == ["demo-wave", "conflictbench-demo", "0.3.1"] for line in lines)
+    assert any(line.split()[:2] == ["noop", "conflictbench"] for line in lines)
+    assert any(line.split()[:3] == ["demo_path_ratio", "conflictbench-demo", "0.3.1"] for line in lines)
+    for family in ("instruction", "grounding", "spatial", "physical"):
+        assert any(line.split()[:1] == [family] for line in lines)
+
+
+def test_help_lists_the_verbs(cli):
+    out = cli("--help")
+    assert out.returncode == 0 and "conflictbench list" in out.stdout and "conflictbench report DIR" in out.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["model=nope"], "unknown model 'nope'; valid choices: demo-wave, noop, random"),
+    (["suite=physicl"], "unknown suite 'physicl'; valid choices: all, grounding, instruction, physical, spatial"),
+    (["level=L5"], "unknown level 'L5'; valid choices: L1, L2, L3, L4, all"),
+    (["prompt=p3"], "unknown prompt 'p3'; valid choices: both, p0, p1"),
+    (["run=fast"], "unknown run 'fast'"),
+    (["-m", "model=noop,nope"], "unknown model 'nope'"),
+    (["run.metrics=[no_such_metric]"], "unknown metric 'no_such_metric'; valid choices:"),
+    (["run.workers=0"], "run.workers must be an integer >= 1"),
+    (["run.init_states=77"], "50 fixed initial states"),
+    (["model=random", "model.sed=3"], "model.sed"),
+    (["suite.file=/no/such/suite.jsonl"], "suite file not found: /no/such/suite.jsonl"),
+    (["report", "/no/such/dir"], "no such directory: /no/such/dir"),
+    (["report"], "the following arguments are required: DIR"),
+    (["list", "--bogus"], "unrecognized arguments: --bogus"),
+])
+def test_bad_input_is_one_clear_line_and_exit_code_2(cli, args, message):
+    out = cli(*args)
+    assert out.returncode == 2, (out.returncode, out.stdout, out.stderr)
+    assert message in out.stderr + out.stdout
+    assert "Traceback" not in out.stderr
+
+
+def test_report_on_a_directory_without_episodes_is_a_user_error(cli, tmp_path):
+    (tmp_path / "empty").mkdir()
+    out = cli("report", str(tmp_path / "empty"))
+    assert out.returncode == 2 and "holds no stored episodes" in out.stderr
+
+
+def test_a_tampered_suite_file_names_the_line_and_field(cli, tmp_path):
+    from conflictbench.tasks.suite_file import shipped_suite_path
+
+    lines = shipped_suite_path().read_text().splitlines()
+    lines[3] = lines[3].replace('"level": "L', '"level": "X')
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("\n".join(lines) + "\n")
+    out = cli(f"suite.file={bad}")
+    assert out.returncode == 2 and "line 4, field 'level'" in out.stderr and "Traceback" not in out.stderr
