@@ -6,9 +6,7 @@ import dataclasses
 import datetime as _dt
 import hashlib
 import json
-import multiprocessing as mp
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 from typing import Any, Callable
@@ -21,7 +19,6 @@ from conflictbench.core import (
     PolicyError,
     PolicySpec,
     PolicyTraits,
-    SimulatorUnavailable,
     UserError,
     as_action_chunk,
 )
@@ -30,11 +27,10 @@ from conflictbench.core.policy import batch_outputs
 from conflictbench.store.episodes import EpisodeStore
 from conflictbench.tasks.libero_tasks import base_task
 
-from .libero_env import EnvSettings
+from .libero_env import EnvSettings, simulator_versions
 from .plan import EpisodeSpec, episode_id
-from .worker import EpisodeJob, worker_main
-
-START_TIMEOUT_S = 300
+from .pool import EpisodeQueue, Item, Slot, WorkerPool
+from .worker import EpisodeJob
 
 
 @dataclass
@@ -49,23 +45,6 @@ class RunResult:
     episode_ids: list[str] = field(default_factory=list)
 
 
-@dataclass
-class _Item:
-    spec: EpisodeSpec
-    job: EpisodeJob
-
-
-@dataclass
-class _Stream:
-    index: int
-    process: Any = None
-    conn: Any = None
-    policy: Any = None
-    item: _Item | None = None
-    task_key: tuple[str, int] | None = None
-    started: float = 0.0
-
-
 class Runner:
     """Plays episodes for one policy and writes each finished one to the store."""
 
@@ -78,9 +57,8 @@ class Runner:
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
         self.progress, self.on_episode = progress, on_episode
-        self._versions: dict[str, str] = {}
         self._bar: Any = _NoBar()
-        self._ctx = mp.get_context("spawn")  # never fork a process that may hold GL or CUDA state
+        self._pool: WorkerPool | None = None
 
     # -- policy ----------------------------------------------------------------------------
     def _load_policy(self) -> Any:
@@ -96,7 +74,7 @@ class Runner:
         return policy
 
     # -- planning --------------------------------------------------------------------------
-    def jobs(self, plan: list[EpisodeSpec], traits: PolicyTraits) -> list[_Item]:
+    def jobs(self, plan: list[EpisodeSpec], traits: PolicyTraits) -> list[Item]:
         items = []
         for spec in plan:
             task = base_task(spec.suite, spec.task_id)
@@ -110,43 +88,8 @@ class Runner:
                 max_steps=traits.max_steps[spec.suite], needs_privileged=traits.needs_privileged,
                 case=spec.case,
             )
-            items.append(_Item(spec, job))
+            items.append(Item(spec, job))
         return items
-
-    # -- workers ---------------------------------------------------------------------------
-    def _start_worker(self, stream: _Stream, settings: EnvSettings) -> None:
-        parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=worker_main, args=(child, settings), daemon=True,
-                                 name=f"conflictbench-worker-{stream.index}")
-        proc.start()
-        child.close()
-        stream.process, stream.conn, stream.item, stream.task_key = proc, parent, None, None
-
-    def _await_ready(self, streams: list[_Stream]) -> None:
-        for stream in streams:
-            if not stream.conn.poll(START_TIMEOUT_S):
-                raise SimulatorUnavailable(f"a simulator worker did not start within {START_TIMEOUT_S} s")
-            try:
-                kind, payload = stream.conn.recv()
-            except EOFError:
-                raise SimulatorUnavailable(f"a simulator worker died while starting (exit code {stream.process.exitcode})") from None
-            if kind == "fatal":
-                raise SimulatorUnavailable(payload)
-            self._versions = payload
-
-    @staticmethod
-    def _stop(streams: list[_Stream]) -> None:
-        for stream in streams:
-            try:
-                if stream.conn is not None:
-                    stream.conn.send(("stop",))
-            except (BrokenPipeError, OSError):
-                pass
-        for stream in streams:
-            if stream.process is not None:
-                stream.process.join(timeout=10)
-                if stream.process.is_alive():
-                    stream.process.kill()
 
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
@@ -166,73 +109,61 @@ class Runner:
             return result
 
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
-        streams = [_Stream(index=i) for i in range(min(self.workers, len(todo)))]
-        for stream in streams:
-            stream.policy = policy if (traits.batched or stream.index == 0) else self._load_policy()
-        bar = self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
+        pool = self._pool = WorkerPool(settings, size=min(self.workers, len(todo)))
+        for slot in pool.slots:
+            slot.policy = policy if (traits.batched or slot.index == 0) else self._load_policy()
+        self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
         try:
-            for stream in streams:
-                self._start_worker(stream, settings)
-            self._await_ready(streams)
-            self._loop(streams, deque(todo), result, traits)
+            pool.start_all()
+            self._loop(EpisodeQueue(todo), result, traits)
         finally:
-            for stream in streams:
-                if stream.item is not None:
-                    self.store.release(stream.item.job.episode_id)
-            self._stop(streams)
-            bar.close()
-            closed = set()
-            for stream in streams:
-                if id(stream.policy) not in closed and callable(getattr(stream.policy, "close", None)):
-                    closed.add(id(stream.policy))
-                    stream.policy.close()
+            for slot in pool.slots:
+                if slot.item is not None:
+                    self.store.release(slot.item.job.episode_id)
+            pool.stop()
+            self._bar.close()
+            pool.close_policies()
         return result
 
-    def _next_item(self, stream: _Stream, queue: deque, deferred: list[_Item], stored: set[str],
-                   busy_tasks: set[tuple[str, int]]) -> _Item | None:
-        """The next episode for this stream: its current base task first (its env is built), then a
-        base task no other worker is on (so each env is built by as few workers as possible)."""
-        while queue:
-            pick = (next((i for i in queue if i.spec.task_key == stream.task_key), None)
-                    or next((i for i in queue if i.spec.task_key not in busy_tasks), None)
-                    or queue[0])
-            queue.remove(pick)
-            if pick.job.episode_id in stored:
+    def _next_item(self, slot: Slot, queue: EpisodeQueue, deferred: list[Item], stored: set[str],
+                   busy: set) -> Item | None:
+        """The next episode this slot can claim (see EpisodeQueue.pop_for for the order)."""
+        while (item := queue.pop_for(slot.task_key, busy)) is not None:
+            if item.job.episode_id in stored:
                 continue
-            if self.store.claim(pick.job.episode_id):
-                return pick
-            deferred.append(pick)  # another job is playing it right now
+            if self.store.claim(item.job.episode_id):
+                return item
+            deferred.append(item)  # another job is playing it right now
         return None
 
-    def _assign(self, stream: _Stream, item: _Item, result: RunResult) -> None:
-        job = EpisodeJob(**{**item.job.__dict__, "stream": stream.index})
-        item = _Item(item.spec, job)
-        stream.item, stream.task_key, stream.started = item, item.spec.task_key, time.time()
+    def _assign(self, slot: Slot, item: Item, result: RunResult) -> None:
+        job = dataclasses.replace(item.job, stream=slot.index)
+        item = Item(item.spec, job)
+        slot.item, slot.task_key, slot.started = item, item.spec.task_key, time.time()
         try:
-            stream.policy.reset(job.instruction)
+            slot.policy.reset(job.instruction)
         except Exception as exc:
-            self._finish(stream, {"error": f"policy reset raised {type(exc).__name__}: {exc}"}, result)
+            self._finish(slot, {"error": f"policy reset raised {type(exc).__name__}: {exc}"}, result)
             return
-        stream.conn.send(("episode", job))
+        slot.conn.send(("episode", job))
 
-    def _loop(self, streams: list[_Stream], queue: deque, result: RunResult, traits: PolicyTraits) -> None:
-        bar = self._bar
-        deferred: list[_Item] = []
+    def _loop(self, queue: EpisodeQueue, result: RunResult, traits: PolicyTraits) -> None:
+        slots = self._pool.slots
+        deferred: list[Item] = []
         stored = self.store.stored_ids()
-        settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
 
         def fill() -> None:
-            for stream in streams:
-                while stream.item is None:
-                    busy_tasks = {s.task_key for s in streams if s.item is not None}
-                    item = self._next_item(stream, queue, deferred, stored, busy_tasks)
+            for slot in slots:
+                while slot.item is None:
+                    busy = {s.task_key for s in slots if s.item is not None}
+                    item = self._next_item(slot, queue, deferred, stored, busy)
                     if item is None:
                         break
-                    self._assign(stream, item, result)
+                    self._assign(slot, item, result)
 
         fill()
         while True:
-            busy = [s for s in streams if s.item is not None]
+            busy = [s for s in slots if s.item is not None]
             if not busy:
                 if not deferred:
                     return
@@ -243,36 +174,34 @@ class Runner:
                     if item.job.episode_id in stored:
                         deferred.remove(item)
                         result.played_elsewhere += 1
-                        bar.update(1)
+                        self._bar.update(1)
                     elif not self.store.held_by_others([item.job.episode_id]):
                         deferred.remove(item)
-                        queue.append(item)
+                        queue.push(item)
                 fill()
                 continue
-            waiting: list[tuple[_Stream, Any]] = []
-            for conn in wait([s.conn for s in busy] + [s.process.sentinel for s in busy]):
-                stream = next((s for s in busy if conn in (s.conn, s.process.sentinel)), None)
-                if stream is None or stream.item is None or any(w[0] is stream for w in waiting):
+            waiting: list[tuple[Slot, Any]] = []
+            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy]):
+                slot = next((s for s in busy if ready in (s.conn, s.process.sentinel)), None)
+                if slot is None or slot.item is None or any(w[0] is slot for w in waiting):
                     continue
                 try:
-                    if conn is stream.process.sentinel and not stream.conn.poll():
+                    if ready is slot.process.sentinel and not slot.conn.poll():
                         raise EOFError
-                    kind, payload = stream.conn.recv()
+                    kind, payload = slot.conn.recv()
                 except (EOFError, ConnectionResetError):
-                    code = stream.process.exitcode
-                    self._finish(stream, {"error": f"simulator worker died (exit code {code})"}, result)
-                    self._start_worker(stream, settings)
-                    self._await_ready([stream])
+                    self._finish(slot, {"error": f"simulator worker died (exit code {slot.process.exitcode})"}, result)
+                    self._pool.restart(slot)
                     continue
                 if kind == "obs":
-                    waiting.append((stream, payload))
+                    waiting.append((slot, payload))
                 elif kind == "done":
-                    self._finish(stream, payload, result)
+                    self._finish(slot, payload, result)
             if waiting:
                 self._decide(waiting, traits)
             fill()
 
-    def _decide(self, waiting: list[tuple[_Stream, Any]], traits: PolicyTraits) -> None:
+    def _decide(self, waiting: list[tuple[Slot, Any]], traits: PolicyTraits) -> None:
         outputs: list[Any]
         if traits.batched:
             try:
@@ -281,35 +210,35 @@ class Runner:
                 outputs = [_as_error(exc)] * len(waiting)
         else:
             outputs = []
-            for stream, obs in waiting:
+            for slot, obs in waiting:
                 try:
-                    outputs.append(stream.policy.act(obs))
+                    outputs.append(slot.policy.act(obs))
                 except Exception as exc:
                     outputs.append(_as_error(exc))
-        for (stream, obs), raw in zip(waiting, outputs):
+        for (slot, obs), raw in zip(waiting, outputs):
             try:
                 if isinstance(raw, PolicyError):
                     raise raw
                 chunk = as_action_chunk(raw)
-                job = stream.item.job
+                job = slot.item.job
                 executed = np.stack([
                     self.plugins.postprocess_action(action.copy(), ActionContext(
                         policy=self.spec.name, suite=job.suite, task_id=job.task_id,
-                        prompt=stream.item.spec.prompt, case_id=stream.item.spec.case_id,
+                        prompt=slot.item.spec.prompt, case_id=slot.item.spec.case_id,
                         step=obs.step + i, chunk_index=i))
                     for i, action in enumerate(chunk)])
                 if not np.all(np.isfinite(executed)):
                     raise PolicyError("post-processing produced a non-finite action")
             except PolicyError as exc:
-                stream.conn.send(("abort", str(exc)))
+                slot.conn.send(("abort", str(exc)))
                 continue
             except Exception as exc:
-                stream.conn.send(("abort", f"action post-processing raised {type(exc).__name__}: {exc}"))
+                slot.conn.send(("abort", f"action post-processing raised {type(exc).__name__}: {exc}"))
                 continue
-            stream.conn.send(("act", chunk, executed))
+            slot.conn.send(("act", chunk, executed))
 
-    def _finish(self, stream: _Stream, payload: dict, result: RunResult) -> None:
-        item = stream.item
+    def _finish(self, slot: Slot, payload: dict, result: RunResult) -> None:
+        item = slot.item
         assert item is not None
         spec, job = item.spec, item.job
         case = spec.case
@@ -322,7 +251,7 @@ class Runner:
             target_pos=np.zeros((0, len(job.targets), 3)),
             conflictbench_version=_own_version(), plugin=self.spec.plugin, plugin_version=self.spec.plugin_version,
             config_hash=self.config_hash, created_at=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            wall_time_s=time.time() - stream.started, **self._versions,
+            wall_time_s=time.time() - slot.started, **self._pool.versions,
         )
         for key, value in payload.items():
             if key != "wall_time_s":
@@ -332,7 +261,7 @@ class Runner:
         result.played += 1
         result.succeeded += int(record.success)
         result.errors += int(record.error is not None)
-        stream.item = None
+        slot.item = None
         self._bar.update(1)
         self._bar.set_postfix(success=result.succeeded, errors=result.errors)
         if self.on_episode is not None:
@@ -340,9 +269,11 @@ class Runner:
 
 
 def config_hash(policy: str, config: Any, traits: PolicyTraits) -> str:
-    """Identifies everything about the policy that can change a rollout (not the run's bookkeeping)."""
+    """Identifies everything besides the episode itself that can change a rollout: the policy, its
+    settings and declared traits, and the simulator stack (a store never mixes MuJoCo versions)."""
     settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
-    blob = json.dumps({"policy": policy, "config": settings, "traits": traits.as_dict()}, sort_keys=True, default=repr)
+    blob = json.dumps({"policy": policy, "config": settings, "traits": traits.as_dict(),
+                       "simulator": simulator_versions()}, sort_keys=True, default=repr)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 

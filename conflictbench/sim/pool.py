@@ -1,0 +1,127 @@
+"""The worker pool's parts: simulator processes and the queue of episodes waiting for them."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from collections import OrderedDict, deque
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable
+
+from conflictbench.core import SimulatorUnavailable
+
+from .libero_env import EnvSettings
+from .plan import EpisodeSpec
+from .worker import EpisodeJob, worker_main
+
+START_TIMEOUT_S = 300
+TaskKey = tuple[str, int]
+
+
+@dataclass
+class Item:
+    """A planned episode with everything its worker needs."""
+
+    spec: EpisodeSpec
+    job: EpisodeJob
+
+
+@dataclass
+class Slot:
+    """One worker process and what it is doing (``stream`` in observations is its index)."""
+
+    index: int
+    process: Any = None
+    conn: Any = None
+    policy: Any = None
+    item: Item | None = None
+    task_key: TaskKey | None = None
+    started: float = 0.0
+
+
+class EpisodeQueue:
+    """Episodes grouped by base task, so a worker can stay on the task whose env it has built."""
+
+    def __init__(self, items: Iterable[Item] = ()):
+        self._groups: OrderedDict[TaskKey, deque[Item]] = OrderedDict()
+        for item in items:
+            self.push(item)
+
+    def push(self, item: Item) -> None:
+        self._groups.setdefault(item.spec.task_key, deque()).append(item)
+
+    def __bool__(self) -> bool:
+        return bool(self._groups)
+
+    def pop_for(self, current: TaskKey | None, busy: set[TaskKey]) -> Item | None:
+        """The next episode: of ``current`` if any, else of a task no worker is busy with, else any."""
+        if not self._groups:
+            return None
+        key = current if current in self._groups else next((k for k in self._groups if k not in busy),
+                                                           next(iter(self._groups)))
+        group = self._groups[key]
+        item = group.popleft()
+        if not group:
+            del self._groups[key]
+        return item
+
+
+class WorkerPool:
+    """Starts, watches and stops the simulator processes (started with 'spawn': never fork GL/CUDA state)."""
+
+    def __init__(self, settings: EnvSettings, size: int):
+        self.settings = settings
+        self.slots = [Slot(index=i) for i in range(size)]
+        self.versions: dict[str, str] = {}
+        self._ctx = mp.get_context("spawn")
+
+    def start(self, slot: Slot) -> None:
+        parent, child = self._ctx.Pipe()
+        proc = self._ctx.Process(target=worker_main, args=(child, self.settings), daemon=True,
+                                 name=f"conflictbench-worker-{slot.index}")
+        proc.start()
+        child.close()
+        slot.process, slot.conn, slot.item, slot.task_key = proc, parent, None, None
+
+    def await_ready(self, slots: list[Slot]) -> None:
+        """Wait for each worker's simulator import; a worker that cannot start stops the run."""
+        for slot in slots:
+            if not slot.conn.poll(START_TIMEOUT_S):
+                raise SimulatorUnavailable(f"a simulator worker did not start within {START_TIMEOUT_S} s")
+            try:
+                kind, payload = slot.conn.recv()
+            except EOFError:
+                raise SimulatorUnavailable(
+                    f"a simulator worker died while starting (exit code {slot.process.exitcode})") from None
+            if kind == "fatal":
+                raise SimulatorUnavailable(payload)
+            self.versions = payload
+
+    def start_all(self) -> None:
+        for slot in self.slots:
+            self.start(slot)
+        self.await_ready(self.slots)
+
+    def restart(self, slot: Slot) -> None:
+        self.start(slot)
+        self.await_ready([slot])
+
+    def stop(self) -> None:
+        for slot in self.slots:
+            try:
+                if slot.conn is not None:
+                    slot.conn.send(("stop",))
+            except (BrokenPipeError, OSError):
+                pass
+        for slot in self.slots:
+            if slot.process is not None:
+                slot.process.join(timeout=10)
+                if slot.process.is_alive():
+                    slot.process.kill()
+
+    def close_policies(self) -> None:
+        closed: set[int] = set()
+        for slot in self.slots:
+            close: Callable[[], None] | None = getattr(slot.policy, "close", None)
+            if id(slot.policy) not in closed and callable(close):
+                closed.add(id(slot.policy))
+                close()
