@@ -18,7 +18,7 @@ class Rate:
         return self.k / self.n if self.n else None
 
     def __str__(self) -> str:
-        return f"{100 * self.k / self.n:.1f}% ({self.k}/{self.n})" if self.n else f"n/a (0/0)"
+        return f"{100 * self.k / self.n:.1f}% ({self.k}/{self.n})" if self.n else "n/a (0/0)"
 
 
 def reference_succeeded(pair: Pair) -> bool:

@@ -1,5 +1,6 @@
-"""Reports over the episode store: tables in the terminal and as files."""
+"""Reports over the episode store: the paper's tables (terminal, Markdown, LaTeX, CSV) and figures."""
 
-from .summary import report_records, summary_frame
+from .summary import report_records, select_metrics
+from .tables import DIRECTIONS, paper_tables
 
-__all__ = ["report_records", "summary_frame"]
+__all__ = ["DIRECTIONS", "paper_tables", "report_records", "select_metrics"]

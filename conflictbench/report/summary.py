@@ -1,134 +1,157 @@
-"""The summary table printed at the end of a run and by ``conflictbench report``.
+"""The report printed at the end of a run and by ``conflictbench report DIR``.
 
-Rows: each model overall, then per conflict family. Columns: the outcome measures with their
-counts, then the mean of every registered per-pair metric over the pairs where it is defined.
+From the episodes: pairs (episodes a simulator failure ended are left out, and said so; a policy
+error counts as a failed episode), every metric per
+pair through the fast path, aggregates per model/family/level/suite/case and prompt condition,
+the paper's three tables, paired P0 - P1 differences, and with ``out_dir`` the files:
+
+- ``table1_overall``, ``table2_by_family``, ``table3_qualified_failures`` as ``.md``, ``.tex``
+  and ``.csv`` (percentages with their counts), and ``report.md`` with all tables together;
+- ``pairs.csv`` (one row per pair), ``aggregates_<grouping>.csv`` (fractions and counts),
+  ``prompt_couples.csv`` and ``prompt_differences.csv`` when P0 and P1 episodes match;
+- ``fig_qf_distributions.png``, ``fig_prompt_differences.png``, ``fig_dsr_heatmap.png``.
 """
 
 from __future__ import annotations
 
-import math
 import sys
-import warnings
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence, TextIO
+from typing import Iterable, Mapping, Sequence, TextIO
 
 import pandas as pd
 
-from conflictbench.core import EpisodeRecord, MetricSpec, Pair, UserError
-from conflictbench.core.plugins import Plugins, unknown_choice
-from conflictbench.metrics import delta_sr, failure_rate, make_pairs, pcsr, rgsr
+from conflictbench.core import EpisodeRecord, MetricSpec
+from conflictbench.core.plugins import Plugins
+from conflictbench.metrics import (BUILTIN_METRICS, GROUPINGS, aggregate, evaluate_pairs, make_pairs, metric_specs, prompt_couples,
+                                   prompt_differences, with_model)
 
-GROUPINGS = {"overall": ("policy",), "family": ("policy", "family")}
+from .tables import LABELS, TableSpec, csv_frame, paper_tables, render_latex, render_markdown, render_text
 
-
-@dataclass
-class MetricValues:
-    """Per-pair values of the selected metrics (None where undefined)."""
-
-    names: list[str]
-    values: list[dict[str, float | None]]
+PERCENT = {"PCSR", "RGSR", *BUILTIN_METRICS}
+TABLE_KEYS = {"table1_overall": "overall", "table2_by_family": "family", "table3_qualified_failures": "qualified_failures"}
 
 
 def select_metrics(plugins: Plugins, names: Sequence[str] | None) -> list[MetricSpec]:
-    available = plugins.metrics()
-    if names is None:
-        return list(available.values())
-    for name in names:
-        if name not in available:
-            raise UserError(unknown_choice("metric", name, available))
-    return [available[n] for n in names]
+    """The metrics a report shows: all (built-ins and registered), or those named (UserError if unknown)."""
+    return metric_specs(plugins, names)
 
 
-def compute_metrics(pairs: Sequence[Pair], metrics: Sequence[MetricSpec]) -> MetricValues:
-    values: list[dict[str, float | None]] = []
-    failed: set[str] = set()
-    for pair in pairs:
-        row: dict[str, float | None] = {}
-        for metric in metrics:
-            try:
-                value = metric.compute(pair)
-                row[metric.name] = None if value is None or not math.isfinite(float(value)) else float(value)
-            except Exception as exc:  # a broken third-party metric must not sink the report
-                row[metric.name] = None
-                if metric.name not in failed:
-                    failed.add(metric.name)
-                    warnings.warn(f"metric {metric.name!r} ({metric.plugin}) raised {type(exc).__name__}: {exc}")
-        values.append(row)
-    return MetricValues([m.name for m in metrics], values)
+def _signed(value: float, ci: float, n: int, percent: bool = True) -> str:
+    if n == 0 or pd.isna(value):
+        return f"n/a (n={n})"
+    if not percent:  # a plugin metric, in its own units
+        return f"{value:+.4g}{'' if pd.isna(ci) else f' ±{ci:.2g}'} (n={n})"
+    half = "" if pd.isna(ci) else f" ±{100 * ci:.1f}"
+    return f"{100 * value:+.1f}{half} (n={n})"
 
 
-def summary_frame(pairs: Sequence[Pair], metrics: Sequence[MetricSpec], by: Sequence[str]) -> pd.DataFrame:
-    computed = compute_metrics(pairs, metrics)
-    groups: dict[tuple, list[int]] = {}
-    for i, pair in enumerate(pairs):
-        key = tuple(getattr(pair.conflict, field) for field in by)
-        groups.setdefault(key, []).append(i)
-    rows = []
-    for key in sorted(groups, key=lambda k: tuple("" if v is None else str(v) for v in k)):
-        members = [pairs[i] for i in groups[key]]
-        p, r, f = pcsr(members), rgsr(members), failure_rate(members)
-        row = {**dict(zip(by, key)), "pairs": len(members),
-               "PCSR": p.value, "PCSR_k": p.k, "RGSR": r.value, "RGSR_k": r.k, "dSR": delta_sr(members),
-               "FR": f.value, "FR_k": f.k, "FR_n": f.n}
-        for name in computed.names:
-            defined = [computed.values[i][name] for i in groups[key] if computed.values[i][name] is not None]
-            row[name] = sum(defined) / len(defined) if defined else None
-            row[f"{name}_n"] = len(defined)
-        rows.append(row)
-    return pd.DataFrame(rows)
-
-
-def _fmt_rate(value: float | None, k: int, n: int) -> str:
-    return "n/a (0/0)" if value is None or n == 0 else f"{100 * value:.1f} ({k}/{n})"
-
-
-def render(frame: pd.DataFrame, by: Sequence[str], metric_names: Sequence[str]) -> str:
-    if frame.empty:
-        return "no pairs (a conflict episode and its reference) in this selection"
-    header = [*by, "pairs", "PCSR", "RGSR", "dSR", "FR", *metric_names]
-    lines = []
-    for _, row in frame.iterrows():
-        cells = [str(row[c]) if row[c] is not None else "-" for c in by]
-        cells.append(str(row["pairs"]))
-        cells.append(_fmt_rate(row["PCSR"], row["PCSR_k"], row["pairs"]))
-        cells.append(_fmt_rate(row["RGSR"], row["RGSR_k"], row["pairs"]))
-        cells.append("n/a" if row["dSR"] is None or pd.isna(row["dSR"]) else f"{100 * row['dSR']:.1f}")
-        cells.append(_fmt_rate(row["FR"], row["FR_k"], row["FR_n"]))
-        for name in metric_names:
-            value, n = row[name], row[f"{name}_n"]
-            cells.append(f"n/a (n=0)" if value is None or pd.isna(value) else f"{100 * value:.1f} (n={n})")
-        lines.append(cells)
-    widths = [max(len(h), *(len(c[i]) for c in lines)) for i, h in enumerate(header)]
-    out = ["  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
-    out += ["  ".join(c.ljust(w) for c, w in zip(cells, widths)) for cells in lines]
-    return "\n".join(out)
+def render_differences(summary: pd.DataFrame, metrics: Sequence[str]) -> str:
+    """Mean paired P0 - P1 differences per model (percentage points for the built-ins), ±95% half-widths."""
+    measures = ["PCSR", "RGSR", *metrics]
+    header = ["model", "couples", *(LABELS.get(m, m) for m in measures)]
+    rows = [[str(r["model"]), str(int(r["couples"]))]
+            + [_signed(r[f"{m}_diff"], r[f"{m}_ci95"], int(r[f"{m}_n"]), m in PERCENT) for m in measures]
+            for _, r in summary.iterrows()]
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    lines = ["== Paired P0 - P1 differences (same case, init state and settings; percentage points, ±95%) ==",
+             "  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+    return "\n".join(lines)
 
 
 def report_records(records: Iterable[EpisodeRecord], plugins: Plugins, *, out_dir: str | Path | None = None,
-                   metrics: Sequence[str] | None = None, stream: TextIO | None = None) -> dict[str, pd.DataFrame]:
-    """Print the summary tables for these episodes and, with ``out_dir``, write them as CSV."""
+                   metrics: Sequence[str] | None = None, stream: TextIO | None = None, figures: bool = True,
+                   directions: Mapping[str, str] | None = None) -> dict[str, pd.DataFrame]:
+    """Print the tables for these episodes and, with ``out_dir``, write them and the figures.
+
+    ``metrics`` restricts the columns (default: every registered metric); ``directions`` maps a
+    metric name to "higher"/"lower" to mark its most favourable value (plugin metrics are unmarked
+    otherwise). Returns the frames by name: ``pairs``, ``overall``, ``family``,
+    ``qualified_failures``, ``aggregates_<grouping>``, ``prompt_couples``, ``prompt_differences``.
+    """
     stream = stream or sys.stdout
-    selected = select_metrics(plugins, metrics)
+    names = [m.name for m in select_metrics(plugins, metrics)]
     records = list(records)
-    pairs, orphans = make_pairs(records)
-    frames = {}
-    names = [m.name for m in selected]
-    for title, by in GROUPINGS.items():
-        frame = summary_frame(pairs, selected, by)
-        frames[title] = frame
-        print(f"\n== {title} (rates in %, counts in brackets) ==", file=stream)
-        print(render(frame, by, names), file=stream)
+    # A policy error ends an episode as a failure; a simulator failure says nothing about the policy.
+    crashed = [r for r in records if r.simulator_failed]
+    policy_errors = [r for r in records if r.error is not None and not r.simulator_failed]
+    pairs, orphans = make_pairs(r for r in records if not r.simulator_failed)
+    frame = with_model(evaluate_pairs([p.reference for p in pairs], [p.conflict for p in pairs],
+                                      plugins=plugins, metrics=names))
+    aggregates = {grouping: aggregate(frame, by, names) for grouping, by in GROUPINGS.items()}
+    specs = paper_tables(names, directions)
+    couples = prompt_couples(frame, names)
+    differences = prompt_differences(couples, names)
+
+    for spec in specs:
+        print("\n" + render_text(aggregates[spec.grouping], spec), file=stream)
+    if len(differences):
+        print("\n" + render_differences(differences, names), file=stream)
     references = sum(r.is_reference for r in records)
-    errors = sum(r.error is not None for r in records)
     print(f"\n{len(records)} episodes ({references} reference, {len(records) - references} conflict), "
-          f"{len(pairs)} pairs, {errors} with errors", file=stream)
+          f"{len(pairs)} pairs", file=stream)
+    if policy_errors:
+        print(f"{len(policy_errors)} episode(s) ended with a policy error and count as failed "
+              f"(e.g. {policy_errors[0].episode_id}: {policy_errors[0].error})", file=stream)
+    if crashed:
+        print(f"{len(crashed)} episode(s) ended with a simulator failure and are left out, with their pairs "
+              f"(e.g. {crashed[0].episode_id}: {crashed[0].error})", file=stream)
     if orphans:
-        print(f"{len(orphans)} conflict episode(s) have no stored reference yet and are left out", file=stream)
+        print(f"{len(orphans)} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
+
+    result = {"pairs": frame, **{TABLE_KEYS[s.name]: aggregates[s.grouping] for s in specs},
+              **{f"aggregates_{g}": a for g, a in aggregates.items()},
+              "prompt_couples": couples, "prompt_differences": differences}
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        for title, frame in frames.items():
-            frame.to_csv(out / f"summary_{title}.csv", index=False)
-        print(f"tables written to {out}/", file=stream)
-    return frames
+        write_files(out, frame, aggregates, specs, couples, differences, names, figures=figures)
+        print(f"tables{' and figures' if figures else ''} written to {out}/", file=stream)
+    return result
+
+
+def write_files(out: Path, frame: pd.DataFrame, aggregates: dict[str, pd.DataFrame], specs: Sequence[TableSpec],
+                couples: pd.DataFrame, differences: pd.DataFrame, metrics: Sequence[str], *,
+                figures: bool = True) -> list[Path]:
+    written = []
+    report = ["# conflictbench report", ""]
+    for spec in specs:
+        table = aggregates[spec.grouping]
+        markdown = render_markdown(table, spec)
+        for suffix, text in ((".md", markdown), (".tex", render_latex(table, spec))):
+            path = out / f"{spec.name}{suffix}"
+            path.write_text(text)
+            written.append(path)
+        path = out / f"{spec.name}.csv"
+        csv_frame(table, spec).to_csv(path, index=False, na_rep="n/a")
+        written.append(path)
+        report.append(markdown)
+    if len(differences):
+        report += ["### Paired P0 - P1 differences (percentage points, ±95%)", "", "```",
+                   render_differences(differences, metrics), "```", ""]
+    for grouping, table in aggregates.items():
+        path = out / f"aggregates_{grouping}.csv"
+        table.to_csv(path, index=False, na_rep="n/a")
+        written.append(path)
+    path = out / "pairs.csv"
+    frame.to_csv(path, index=False, na_rep="n/a")
+    written.append(path)
+    if len(couples):
+        for name, table in (("prompt_couples", couples), ("prompt_differences", differences)):
+            path = out / f"{name}.csv"
+            table.to_csv(path, index=False, na_rep="n/a")
+            written.append(path)
+    if figures:
+        from . import figures as figs  # matplotlib is imported only when figures are drawn
+
+        shown = [m for m in BUILTIN_METRICS if m in metrics]
+        if shown:
+            written.append(figs.qualified_failure_distributions(frame, out / "fig_qf_distributions.png", shown))
+        written.append(figs.prompt_difference_figure(differences, out / "fig_prompt_differences.png",
+                                                     ["RGSR", *shown]))
+        written.append(figs.dsr_heatmap(aggregates["family_level"], out / "fig_dsr_heatmap.png"))
+        report += ["## Figures", ""] + [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"] + [""]
+    path = out / "report.md"
+    path.write_text("\n".join(report))
+    written.append(path)
+    return written

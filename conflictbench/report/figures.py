@@ -1,0 +1,157 @@
+"""PNG figures: process measures over qualified failures, paired P0 - P1 differences, dSR heatmap.
+
+Figures are drawn on ``matplotlib.figure.Figure`` objects with the Agg canvas, never through
+pyplot, so reporting does not change the backend or state of the caller's matplotlib. An empty
+subset draws an "n/a (n=0)" note in its place.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from conflictbench.core import FAMILIES, LEVELS, PROMPT_CONDITIONS
+from conflictbench.metrics import qualified_failure_mask, with_model
+
+from .tables import LABELS
+
+TITLES = {"tar": "TAR", "early20_ts": "Early20 TS", "ts": "TS", "ams": "AMS", "PCSR": "PCSR", "RGSR": "RGSR"}
+PROMPT_COLOURS = {"p0": "#4C72B0", "p1": "#DD8452"}
+DPI = 150
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=DPI, bbox_inches="tight")
+    return path
+
+
+def _empty(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, fontsize=10, color="0.35")
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+def qualified_failure_distributions(frame: pd.DataFrame, path: Path,
+                                    metrics: Sequence[str] = ("tar", "early20_ts", "ts", "ams")) -> Path:
+    """Box plots of each measure over D_QF, one box per model (and prompt condition, side by side)."""
+    frame = with_model(frame)
+    qf = frame[qualified_failure_mask(frame)] if len(frame) else frame
+    models = sorted(frame["model"].unique()) if len(frame) else []
+    prompts = [p for p in PROMPT_CONDITIONS if len(frame) and (frame["prompt"] == p).any()] or ["p0"]
+    width = 0.8 / len(prompts)
+    fig = Figure(figsize=(3.2 * len(metrics), 2.6 + 0.25 * max(len(models), 1)), layout="constrained")
+    axes = fig.subplots(1, len(metrics), squeeze=False)[0]
+    for ax, metric in zip(axes, metrics):
+        ax.set_title(f"{TITLES.get(metric, LABELS.get(metric, metric))} over D_QF (%)", fontsize=10)
+        if not models:
+            _empty(ax, "n/a (n=0)")
+            continue
+        drawn = False
+        for pi, prompt in enumerate(prompts):
+            for mi, model in enumerate(models):
+                values = qf.loc[(qf["model"] == model) & (qf["prompt"] == prompt), metric].astype(float)
+                values = 100 * values[values.notna()].to_numpy()
+                pos = mi + (pi - (len(prompts) - 1) / 2) * width
+                if len(values) == 0:
+                    ax.text(0, pos, " n/a (n=0)", va="center", fontsize=7, color="0.4")
+                    continue
+                box = ax.boxplot([values], positions=[pos], widths=width * 0.85, orientation="horizontal", patch_artist=True,
+                                 showfliers=True, flierprops={"markersize": 2, "alpha": 0.5},
+                                 medianprops={"color": "black"})
+                box["boxes"][0].set_facecolor(PROMPT_COLOURS.get(prompt, "0.7"))
+                box["boxes"][0].set_alpha(0.8)
+                ax.text(104, pos, f"n={len(values)}", va="center", fontsize=6, color="0.3")
+                drawn = True
+        ax.set_yticks(range(len(models)), models, fontsize=8)
+        ax.set_xlim(-2, 120)
+        ax.set_ylim(len(models) - 0.5, -0.5)
+        ax.grid(axis="x", alpha=0.3)
+        if not drawn:
+            ax.text(50, -0.45, "no qualified failures", ha="center", va="top", fontsize=8, color="0.4")
+    if len(prompts) > 1:
+        handles = [_patch(PROMPT_COLOURS[p], p.upper()) for p in prompts]
+        fig.legend(handles=handles, loc="outside lower center", ncol=len(prompts), fontsize=8, frameon=False)
+    return _save(fig, path)
+
+
+def _patch(colour: str, label: str):
+    from matplotlib.patches import Patch
+
+    return Patch(facecolor=colour, label=label, alpha=0.8)
+
+
+def prompt_difference_figure(summary: pd.DataFrame, path: Path,
+                             measures: Sequence[str] = ("RGSR", "tar", "early20_ts", "ts", "ams")) -> Path:
+    """Mean paired P0 - P1 difference per model (percentage points) with 95% intervals."""
+    fig = Figure(figsize=(2.8 * len(measures), 1.6 + 0.35 * max(len(summary), 1)), layout="constrained")
+    axes = fig.subplots(1, len(measures), squeeze=False, sharey=True)[0]
+    models = list(summary["model"]) if len(summary) else []
+    for ax, measure in zip(axes, measures):
+        ax.set_title(f"{TITLES.get(measure, LABELS.get(measure, measure))}: P0 − P1 (pp)", fontsize=10)
+        if not models:
+            _empty(ax, "n/a: no matched P0/P1\nconflict pairs (n=0)")
+            continue
+        diff = 100 * summary[f"{measure}_diff"].astype(float).to_numpy()
+        ci = 100 * summary[f"{measure}_ci95"].astype(float).to_numpy()
+        n = summary[f"{measure}_n"].astype(int).to_numpy()
+        y = np.arange(len(models))
+        shown = np.nan_to_num(diff)
+        ax.barh(y, shown, color="#4C72B0", alpha=0.85, xerr=np.where(np.isnan(ci), 0, ci),
+                error_kw={"elinewidth": 1, "capsize": 2})
+        ax.axvline(0, color="black", linewidth=0.8)
+        span = max(5.0, float(np.nanmax(np.abs(diff) + np.nan_to_num(ci))) if np.isfinite(diff).any() else 5.0)
+        ax.set_xlim(-1.35 * span, 1.35 * span)
+        for yi, d, k in zip(y, diff, n):
+            label = f"n={k}" if np.isfinite(d) else "n/a (n=0)"
+            ax.text(1.33 * span, yi, label, va="center", ha="right", fontsize=6, color="0.3")
+        ax.set_yticks(y, models, fontsize=8)
+        ax.set_ylim(len(models) - 0.5, -0.5)
+        ax.grid(axis="x", alpha=0.3)
+    fig.suptitle("Mean paired difference P0 − P1 per model (bar; > 0: higher under P0), 95% interval (whiskers)",
+                 fontsize=9)
+    return _save(fig, path)
+
+
+def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
+    """dSR (%) per conflict family x level, one panel per model and prompt condition."""
+    panels = (family_level[["model", "prompt"]].drop_duplicates().itertuples(index=False, name=None)
+              if len(family_level) else [])
+    panels = list(panels) or [("n/a", "")]
+    ncols = min(4, len(panels))
+    nrows = -(-len(panels) // ncols)
+    present = set(family_level["family"].dropna()) if len(family_level) else set()
+    families = [*FAMILIES, *sorted(str(f) for f in present - set(FAMILIES))]  # plugin families after ours
+    fig = Figure(figsize=(3.4 * ncols, (1.0 + 0.48 * len(families)) * nrows), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    image = None
+    for ax, (model, prompt) in zip(axes.flat, panels):
+        sub = family_level[(family_level["model"] == model) & (family_level["prompt"] == prompt)] \
+            if len(family_level) else family_level
+        grid = np.full((len(families), len(LEVELS)), np.nan)
+        counts = np.zeros_like(grid, dtype=int)
+        for row in sub.itertuples(index=False):
+            if row.family in families and row.level in LEVELS:
+                i, j = families.index(row.family), LEVELS.index(row.level)
+                grid[i, j] = 100 * row.dSR
+                counts[i, j] = row.pairs
+        image = ax.imshow(np.ma.masked_invalid(grid), cmap="RdBu", vmin=-100, vmax=100, aspect="auto")
+        ax.set_facecolor("0.9")
+        for i in range(len(families)):
+            for j in range(len(LEVELS)):
+                text = f"{grid[i, j]:.1f}\nn={counts[i, j]}" if counts[i, j] else "n/a\nn=0"
+                dark = np.isfinite(grid[i, j]) and abs(grid[i, j]) > 60
+                ax.text(j, i, text, ha="center", va="center", fontsize=7, color="white" if dark else "black")
+        ax.set_xticks(range(len(LEVELS)), LEVELS, fontsize=8)
+        ax.set_yticks(range(len(families)), families, fontsize=8)
+        ax.set_title(f"{model} {prompt.upper()}".strip() + ": dSR (%)", fontsize=9)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.set_visible(False)
+    if image is not None:
+        fig.colorbar(image, ax=axes, shrink=0.8, label="dSR = PCSR − RGSR (%)")
+    return _save(fig, path)

@@ -1,0 +1,197 @@
+"""The report: the paper's tables and figures from a real Parquet store, plugin metrics, empty subsets."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import conflictbench
+from conflictbench.core import EpisodeRecord, Plugins, hookimpl
+from conflictbench.report import report_records
+from conflictbench.store import EpisodeStore
+from conflictbench.verbs import report_command
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def episode(policy, case, x_end, move, success, family=None, level=None, steps=1, init=0, error=None):
+    """Two recorded states on the x axis (target at the origin) and one action of size ``move``."""
+    return EpisodeRecord(policy=policy, suite="libero_object", task_id=3, init_state=init, prompt="p0",
+                         instruction="pick", case_id=case, family=family, level=level, success=success,
+                         steps=steps, error=error, eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
+                         target_pos=np.zeros((2, 1, 3)), target_names=("alphabet_soup_1",),
+                         actions=np.array([[move, 0, 0, 0, 0, 0, 1.0]]),
+                         episode_id=f"{policy}-{case}-{init}", config_hash="cfg")
+
+
+def two_models() -> list[EpisodeRecord]:
+    # Both references go 0.5 -> 0.1 (A+ = 0.4) moving 0.2 (I+ = 1) and succeed.
+    # alpha/c1 fails: 0.5 -> 0.3, move 0.1: TAR 0.5, AMS 0.5, DTW: diagonal 0 + 0.2 over 2 cells
+    #   -> TS = exp(-0.2 / (0.1 * 2)) = exp(-1)
+    # alpha/c2 succeeds, same as the reference: TAR 1, TS 1, AMS 0
+    # beta/c1 and beta/c2 fail and stay at 0.5 without moving: TAR 0, AMS 1; costs c00 = 0,
+    #   c11 = 0.4, c10 = 0: diagonal 0.4 (2 cells) ties with (0,0)->(1,0)->(1,1) (3 cells): L = 2
+    #   -> TS = exp(-0.4 / 0.2) = exp(-2)
+    return [
+        episode("alpha", None, 0.1, 0.2, True, steps=40),
+        episode("alpha", "c1", 0.3, 0.1, False, "grounding", "L1", steps=10),
+        episode("alpha", "c2", 0.1, 0.2, True, "spatial", "L2", steps=20),
+        episode("beta", None, 0.1, 0.2, True, steps=40),
+        episode("beta", "c1", 0.5, 0.0, False, "grounding", "L1", steps=40),
+        episode("beta", "c2", 0.5, 0.0, False, "spatial", "L2", steps=40),
+    ]
+
+
+@pytest.fixture
+def plugins():
+    return conflictbench.plugins(entry_points=False)
+
+
+def stored(tmp_path, records) -> list[EpisodeRecord]:
+    store = EpisodeStore(tmp_path / "run")
+    for r in records:
+        store.write(r)
+    return EpisodeStore(tmp_path / "run").records()
+
+
+def test_tables_from_a_parquet_store_match_hand_counts(tmp_path, plugins):
+    records = stored(tmp_path, two_models())
+    assert len(records) == 6
+    out = io.StringIO()
+    frames = report_records(records, plugins, out_dir=tmp_path / "report", stream=out)
+    t1 = pd.read_csv(tmp_path / "report" / "table1_overall.csv").set_index("model")
+    for column in ("PCSR", "RGSR", "dSR", "TAR", "Early20_TS", "TS", "AMS"):  # the paper's layout
+        assert column in t1.columns
+    alpha, beta = t1.loc["alpha"], t1.loc["beta"]
+    assert (alpha["PCSR"], alpha["PCSR_k"], alpha["PCSR_n"]) == (100.0, 2, 2)
+    assert (alpha["RGSR"], alpha["RGSR_k"], beta["RGSR"], beta["RGSR_k"]) == (50.0, 1, 0.0, 0)
+    assert (alpha["dSR"], beta["dSR"]) == (50.0, 100.0)
+    assert alpha["TAR"] == pytest.approx(75.0) and beta["TAR"] == 0.0
+    assert alpha["TS"] == pytest.approx(100 * (math.exp(-1) + 1) / 2)
+    assert beta["TS"] == pytest.approx(100 * math.exp(-2)) and beta["Early20_TS"] == pytest.approx(100 * math.exp(-2))
+    assert alpha["AMS"] == pytest.approx(25.0) and beta["AMS"] == pytest.approx(100.0) and beta["AMS_n"] == 2
+
+    t3 = pd.read_csv(tmp_path / "report" / "table3_qualified_failures.csv").set_index("model")
+    assert list(t3.columns[:3]) == ["prompt", "FR", "FR_k"]
+    assert (t3.loc["alpha", "FR"], t3.loc["alpha", "FR_k"], t3.loc["alpha", "FR_n"]) == (50.0, 1, 2)
+    assert t3.loc["beta", "FR"] == 100.0
+    # over D_QF only: alpha's qualified failure is c1 alone
+    assert t3.loc["alpha", "TAR"] == pytest.approx(50.0) and t3.loc["alpha", "TAR_n"] == 1
+    assert t3.loc["alpha", "TS"] == pytest.approx(100 * math.exp(-1))
+
+    t2 = pd.read_csv(tmp_path / "report" / "table2_by_family.csv")
+    assert list(t2["family"]) == ["grounding", "spatial", "grounding", "spatial"]
+    spatial_alpha = t2[(t2["model"] == "alpha") & (t2["family"] == "spatial")].iloc[0]
+    assert (spatial_alpha["RGSR"], spatial_alpha["TAR"]) == (100.0, 100.0)
+
+    text = out.getvalue()
+    assert "Table 1" in text and "Table 2" in text and "Table 3" in text
+    assert "50.0 (1/2)" in text and "100.0 (2/2)" in text  # rates with their counts
+    assert "6 episodes (2 reference, 4 conflict), 4 pairs" in text
+    assert len(frames["pairs"]) == 4
+
+
+def test_most_favourable_values_are_marked_in_every_format(tmp_path, plugins):
+    out = io.StringIO()
+    report_records(two_models(), plugins, out_dir=tmp_path, stream=out, figures=False)
+    rows = {}
+    for line in out.getvalue().splitlines():
+        if line.startswith(("alpha ", "beta ")):
+            rows.setdefault(line.split()[0], line)
+    # table 1 is printed first: beta has the lower RGSR and TAR, the higher dSR and AMS;
+    # both have PCSR 100: a tie marks nothing
+    beta, alpha = rows["beta"], rows["alpha"]
+    assert "0.0 (0/2)*" in beta and "100.0 (n=2)*" in beta
+    assert "*" not in alpha.split("100.0 (2/2)")[1].split("(1/2)")[0]
+    assert "100.0 (2/2)*" not in alpha and "100.0 (2/2)*" not in beta
+    md = (tmp_path / "table1_overall.md").read_text()
+    assert "| beta | p0 | 100.0 (2/2) | **0.0 (0/2)** | **100.0 (n=2)** | **0.0 (n=2)** |" in md
+    tex = (tmp_path / "table1_overall.tex").read_text()
+    assert r"\textbf{0.0}\,{\scriptsize (0/2)}" in tex and r"\begin{tabular}" in tex
+
+
+def test_figures_are_written_as_png(tmp_path, plugins):
+    records = two_models()
+    records += [episode("alpha", None, 0.1, 0.2, True, steps=40, init=1)]
+    records += [r for r in (episode("alpha", "c1", 0.2, 0.1, False, "grounding", "L1", init=1),)]
+    p1 = [EpisodeRecord(**{**r.__dict__, "prompt": "p1", "episode_id": r.episode_id + "-p1"}) for r in records]
+    report_records(records + p1, plugins, out_dir=tmp_path, stream=io.StringIO())
+    for name in ("fig_qf_distributions.png", "fig_prompt_differences.png", "fig_dsr_heatmap.png"):
+        data = (tmp_path / name).read_bytes()
+        assert data.startswith(PNG) and len(data) > 10_000
+    differences = pd.read_csv(tmp_path / "prompt_differences.csv")
+    assert list(differences["couples"]) == [3, 2]  # alpha: c1 x 2 states + c2; beta: c1, c2
+    assert list(differences["RGSR_diff"]) == [0.0, 0.0]  # the same outcomes under both prompts
+
+
+class StepRatio:
+    @hookimpl
+    def conflictbench_register_metrics(self, register):
+        register("step_ratio", compute=lambda pair: pair.conflict.steps / pair.reference.steps,
+                 description="conflict steps / reference steps")
+
+
+def test_a_plugin_metric_appears_beside_the_builtins(tmp_path):
+    plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[StepRatio()])
+    records = stored(tmp_path, two_models())
+    out = io.StringIO()
+    report_records(records, plugins, out_dir=tmp_path / "report", stream=out)
+    t1 = pd.read_csv(tmp_path / "report" / "table1_overall.csv").set_index("model")
+    # alpha: 10/40 and 20/40 -> 0.375 (a plugin metric keeps its own units); beta: 1.0
+    assert list(t1.columns).index("step_ratio") > list(t1.columns).index("AMS")
+    assert t1.loc["alpha", "step_ratio"] == pytest.approx(0.375) and t1.loc["alpha", "step_ratio_n"] == 2
+    assert t1.loc["beta", "step_ratio"] == pytest.approx(1.0)
+    t3 = pd.read_csv(tmp_path / "report" / "table3_qualified_failures.csv").set_index("model")
+    assert t3.loc["alpha", "step_ratio"] == pytest.approx(0.25)  # D_QF: c1 only
+    assert "step_ratio" in pd.read_csv(tmp_path / "report" / "pairs.csv").columns
+    assert "0.375 (n=2)" in out.getvalue()
+
+
+def test_empty_subsets_read_na_with_counts(tmp_path, plugins):
+    # gamma's reference failed: D_Q is empty, so FR and every mean over D_QF are n/a
+    records = two_models() + [episode("gamma", None, 0.5, 0.0, False),
+                              episode("gamma", "c1", 0.5, 0.0, False, "physical", "L3")]
+    out = io.StringIO()
+    report_records(records, plugins, out_dir=tmp_path, stream=out)
+    gamma = [line for line in out.getvalue().splitlines() if line.startswith("gamma")]
+    table3 = gamma[-1]
+    assert "n/a (0/0)" in table3 and table3.count("n/a (n=0)") == 4
+    assert "nan" not in out.getvalue().lower()
+    t3 = pd.read_csv(tmp_path / "table3_qualified_failures.csv").set_index("model")
+    assert math.isnan(t3.loc["gamma", "FR"]) and t3.loc["gamma", "FR_n"] == 0
+    assert "n/a" in (tmp_path / "table3_qualified_failures.csv").read_text()
+
+
+def test_no_pairs_at_all_still_reports(tmp_path, plugins):
+    out = io.StringIO()
+    frames = report_records([episode("alpha", None, 0.1, 0.2, True)], plugins, out_dir=tmp_path, stream=out)
+    assert "n/a" in out.getvalue() and "0 pairs" in out.getvalue()
+    assert frames["overall"].empty
+    assert (tmp_path / "table1_overall.md").exists() and (tmp_path / "fig_dsr_heatmap.png").exists()
+
+
+def test_policy_errors_count_as_failures_and_simulator_failures_are_left_out(plugins):
+    from conflictbench.core import SIMULATOR_ERROR_PREFIX
+
+    crashed = episode("alpha", "c3", 0.5, 0.0, False, "physical", "L1", error=f"{SIMULATOR_ERROR_PREFIX}: died")
+    broke = episode("alpha", "c4", 0.5, 0.0, False, "physical", "L1", error="policy returned NaN")
+    out = io.StringIO()
+    frames = report_records(two_models() + [crashed, broke], plugins, stream=out)
+    pairs = frames["pairs"]
+    assert len(pairs) == 5 and set(pairs["case_id"]) == {"c1", "c2", "c4"}
+    assert not pairs.loc[pairs["case_id"] == "c4", "conflict_success"].item()
+    text = out.getvalue()
+    assert "1 episode(s) ended with a policy error and count as failed" in text
+    assert "1 episode(s) ended with a simulator failure and are left out" in text
+
+
+def test_report_verb_reads_a_store_directory(tmp_path, plugins, capsys):
+    stored(tmp_path, two_models())
+    assert report_command([str(tmp_path / "run"), "--metrics", "ts,ams"], plugins) == 0
+    t1 = pd.read_csv(tmp_path / "run" / "report" / "table1_overall.csv")
+    assert "TS" in t1.columns and "TAR" not in t1.columns
+    assert "Table 1" in capsys.readouterr().out
