@@ -22,9 +22,34 @@ from conflictbench.store import EpisodeStore
 
 pytestmark = pytest.mark.sim
 
-# 4 L1 cases on 2 libero_goal tasks (one per family) x 2 initial states + 4 references = 12 episodes
-SMALL_RUN = ("model=demo-wave", "suite=all", "level=L1", "run.libero_suites=[libero_goal]", "run.init_states=2")
+# A suite of our own, so these runs do not depend on the shipped one: two base tasks of libero_goal.
+CASES = [
+    ("t-inst-1", 8, "instruction", "L1", "put the bowl on the plate without moving the bowl"),
+    ("t-grnd-1", 1, "grounding", "L1", "put the bowl on the toaster"),
+    ("t-spat-1", 8, "spatial", "L1", "put the bowl that sits on top of the cabinet on the plate"),
+    ("t-phys-1", 1, "physical", "L1", "pick up the stove and put it on the plate"),
+    ("t-spat-3", 3, "spatial", "L3", "open the top drawer and put the bowl from the bottom drawer into it"),
+    ("t-phys-3", 3, "physical", "L3", "open the top drawer and put the wine rack inside"),
+]
+# 4 L1 cases on 2 tasks x 2 initial states + 2 tasks x 2 states of references = 12 episodes
 SMALL_RUN_EPISODES = 12
+
+
+@pytest.fixture
+def suite_file(tmp_path) -> Path:
+    from conflictbench.core import ConflictCase
+    from conflictbench.tasks.libero_tasks import base_task
+    from conflictbench.tasks.suite_file import case_line
+
+    path = tmp_path / "cases.jsonl"
+    path.write_text("".join(case_line(ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language,
+                                                   text, family, level)) + "\n"
+                            for cid, task, family, level, text in CASES))
+    return path
+
+
+def small_run(suite_file: Path) -> tuple[str, ...]:
+    return ("model=demo-wave", "level=L1", "run.init_states=2", f"suite.file={suite_file}")
 
 
 def counts(stderr: str) -> dict[str, int]:
@@ -39,9 +64,9 @@ def test_a_pip_installed_plugin_runs_end_to_end_and_its_metric_is_reported(cli, 
     assert out.returncode == 0, out.stderr[-3000:]
     assert counts(out.stderr) == {"played": 2, "stored": 0, "elsewhere": 0, "errors": 0}
     assert "demo_path_ratio" in out.stdout and "physical" in out.stdout
-    summary = pd.read_csv(tmp_path / "results" / "report" / "summary_overall.csv")
-    assert summary.loc[0, "policy"] == "demo-wave" and summary.loc[0, "pairs"] == 1
-    assert 0 < summary.loc[0, "demo_path_ratio"] < 10
+    table = pd.read_csv(tmp_path / "results" / "report" / "table1_overall.csv")
+    assert table.loc[0, "model"] == "demo-wave" and table.loc[0, "PCSR_n"] == 1
+    assert 0 < table.loc[0, "demo_path_ratio"] < 10 and table.loc[0, "demo_path_ratio_n"] == 1
 
     records = EpisodeStore(tmp_path / "results").records()
     assert len(records) == 2 and {r.plugin for r in records} == {"conflictbench-demo"}
@@ -52,8 +77,8 @@ def test_a_pip_installed_plugin_runs_end_to_end_and_its_metric_is_reported(cli, 
     assert np.isclose(np.abs(conflict.raw_actions[:, 0]).max(), 0.8, atol=0.05)  # model.amplitude reached it
 
 
-def test_a_sweep_shares_one_store_and_never_replays_a_reference(cli, tmp_path):
-    out = cli("-m", "model=demo-wave", "suite=spatial,physical", "level=L3", "run.libero_suites=[libero_goal]")
+def test_a_sweep_shares_one_store_and_never_replays_a_reference(cli, tmp_path, suite_file):
+    out = cli("-m", "model=demo-wave", "suite=spatial,physical", "level=L3", f"suite.file={suite_file}")
     assert out.returncode == 0, out.stderr[-3000:]
     jobs = [counts(m.group(0)) for m in re.finditer(r"\d+ played, \d+ already stored, \d+ played by another job, \d+ with errors", out.stderr)]
     assert jobs == [{"played": 2, "stored": 0, "elsewhere": 0, "errors": 0},
@@ -69,9 +94,9 @@ def _start(cli_args, cwd: Path, demo_site: Path) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 
-def test_sigkill_loses_no_finished_episode_and_the_rerun_duplicates_none(cli, tmp_path, demo_plugin_site):
+def test_sigkill_loses_no_finished_episode_and_the_rerun_duplicates_none(cli, tmp_path, demo_plugin_site, suite_file):
     store = EpisodeStore(tmp_path / "results")
-    proc = _start(SMALL_RUN, tmp_path, demo_plugin_site)
+    proc = _start(small_run(suite_file), tmp_path, demo_plugin_site)
     deadline = time.time() + 300
     while len(store) < 3 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)
@@ -82,7 +107,7 @@ def test_sigkill_loses_no_finished_episode_and_the_rerun_duplicates_none(cli, tm
     assert 3 <= len(before) < SMALL_RUN_EPISODES
     assert len(store.records()) == len(before)  # every file on disk is a whole, readable episode
 
-    out = cli(*SMALL_RUN)
+    out = cli(*small_run(suite_file))
     assert out.returncode == 0, out.stderr[-3000:]
     c = counts(out.stderr)
     assert c["stored"] == len(before) and c["played"] == SMALL_RUN_EPISODES - len(before)
@@ -93,10 +118,10 @@ def test_sigkill_loses_no_finished_episode_and_the_rerun_duplicates_none(cli, tm
     assert not list((tmp_path / "results" / "claims").glob("*.claim"))
 
 
-def test_two_jobs_on_one_store_play_every_episode_exactly_once(tmp_path, demo_plugin_site):
+def test_two_jobs_on_one_store_play_every_episode_exactly_once(tmp_path, demo_plugin_site, suite_file):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    args = (*SMALL_RUN, f"run.out={tmp_path / 'shared'}")
+    args = (*small_run(suite_file), f"run.out={tmp_path / 'shared'}")
     first = _start(args, tmp_path / "a", demo_plugin_site)
     time.sleep(1.0)
     second = _start(args, tmp_path / "b", demo_plugin_site)

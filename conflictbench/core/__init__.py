@@ -11,6 +11,7 @@ from .records import (
     LEVELS,
     LIBERO_SUITES,
     PROMPT_CONDITIONS,
+    SIMULATOR_ERROR_PREFIX,
     ActionContext,
     ConflictCase,
     EpisodeRecord,
@@ -23,6 +24,6 @@ __all__ = [
     "ACTION_DIM", "ActionContext", "ConflictCase", "ConflictbenchError", "DEFAULT_MAX_STEPS",
     "EpisodeRecord", "FAMILIES", "LEVELS", "LIBERO_SUITES", "MetricSpec", "Observation",
     "P1_PREAMBLE", "PROMPT_CONDITIONS", "Pair", "PluginError", "Plugins", "Policy", "PolicyError",
-    "PolicySpec", "PolicyTraits", "PrivilegedState", "SimulatorUnavailable", "UserError",
+    "PolicySpec", "PolicyTraits", "PrivilegedState", "SIMULATOR_ERROR_PREFIX", "SimulatorUnavailable", "UserError",
     "as_action_chunk", "default_format_prompt", "hookimpl", "hookspec",
 ]

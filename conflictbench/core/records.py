@@ -12,6 +12,8 @@ from typing import Any, Mapping
 import numpy as np
 
 ACTION_DIM = 7
+#: How the ``error`` of an episode ended by the simulator (not the policy) begins.
+SIMULATOR_ERROR_PREFIX = "simulator error"
 LIBERO_SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
 PROMPT_CONDITIONS = ("p0", "p1")
 FAMILIES = ("instruction", "grounding", "spatial", "physical")
@@ -161,6 +163,14 @@ class EpisodeRecord:
     @property
     def is_reference(self) -> bool:
         return self.case_id is None
+
+    @property
+    def simulator_failed(self) -> bool:
+        """The environment, not the policy, ended this episode: it says nothing about the policy.
+
+        A policy error (raised, NaN, wrong shape) is different: that episode counts as failed.
+        """
+        return self.error is not None and self.error.startswith(SIMULATOR_ERROR_PREFIX)
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from conflictbench.core import (
     PolicyError,
     PolicySpec,
     PolicyTraits,
+    SIMULATOR_ERROR_PREFIX,
     UserError,
     as_action_chunk,
 )
@@ -190,7 +191,8 @@ class Runner:
                         raise EOFError
                     kind, payload = slot.conn.recv()
                 except (EOFError, ConnectionResetError):
-                    self._finish(slot, {"error": f"simulator worker died (exit code {slot.process.exitcode})"}, result)
+                    self._finish(slot, {"error": f"{SIMULATOR_ERROR_PREFIX}: the worker process died "
+                                             f"(exit code {slot.process.exitcode})"}, result)
                     self._pool.restart(slot)
                     continue
                 if kind == "obs":

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from conflictbench.core import ConflictCase
+from conflictbench.core import SIMULATOR_ERROR_PREFIX, ConflictCase
 
 NOOP_ACTION = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])
 
@@ -152,7 +152,7 @@ class EpisodePlayer:
                     if out.steps >= job.max_steps:
                         break
         except Exception as exc:  # the simulator failed: keep what was recorded, report, go on
-            out.error = f"simulator error: {type(exc).__name__}: {exc}"
+            out.error = f"{SIMULATOR_ERROR_PREFIX}: {type(exc).__name__}: {exc}"
             out.success = False
             self.close()
             traceback.print_exc()
