@@ -90,7 +90,7 @@ def register_model_configs(plugins: Plugins) -> None:
 
 def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     """Play the composed run and print its report. Returns the process exit code."""
-    from conflictbench.report import report_records
+    from conflictbench.report import report_store
     from conflictbench.sim.plan import build_plan
     from conflictbench.sim.runner import Runner
     from conflictbench.store import EpisodeStore
@@ -127,6 +127,6 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     print(f"conflictbench: {result.played} played, {result.already_stored} already stored, "
           f"{result.played_elsewhere} played by another job, {result.errors} with errors", file=sys.stderr)
     if options.report:
-        records = store.records(episode_ids=result.episode_ids)
-        report_records(records, plugins, out_dir=store.root / "report", metrics=options.metrics)
+        report_store(store, plugins, episode_ids=result.episode_ids, out_dir=store.root / "report",
+                     metrics=options.metrics)
     return 0

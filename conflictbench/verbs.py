@@ -53,7 +53,7 @@ def report_command(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--metrics", help="comma-separated metric names (default: all registered)")
     parser.add_argument("--out", help="where to write the table files (default: DIR/report)")
     args = parser.parse_args(argv)
-    from conflictbench.report import report_records
+    from conflictbench.report import report_store
     from conflictbench.store import EpisodeStore
 
     root = Path(args.store)
@@ -63,5 +63,5 @@ def report_command(argv: Sequence[str], plugins: Plugins) -> int:
     if len(store) == 0:
         raise UserError(f"{root} holds no stored episodes (expected {root}/episodes/<policy>/*.parquet)")
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
-    report_records(store.records(), plugins, out_dir=Path(args.out) if args.out else root / "report", metrics=metrics)
+    report_store(store, plugins, out_dir=Path(args.out) if args.out else root / "report", metrics=metrics)
     return 0

@@ -15,12 +15,13 @@ the paper's three tables, paired P0 - P1 differences, and with ``out_dir`` the f
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence, TextIO
 
 import pandas as pd
 
-from conflictbench.core import EpisodeRecord, MetricSpec
+from conflictbench.core import EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
 from conflictbench.metrics import (BUILTIN_METRICS, GROUPINGS, aggregate, evaluate_pairs, make_pairs, metric_specs, prompt_couples,
                                    prompt_differences, with_model)
@@ -59,6 +60,30 @@ def render_differences(summary: pd.DataFrame, metrics: Sequence[str]) -> str:
     return "\n".join(lines)
 
 
+@dataclass
+class EpisodeCounts:
+    """What the report says about the episodes behind its pairs."""
+
+    episodes: int = 0
+    references: int = 0
+    pairs: int = 0
+    orphans: int = 0
+    policy_errors: list[EpisodeRecord] = field(default_factory=list)
+    crashed: list[EpisodeRecord] = field(default_factory=list)
+
+
+def pair_up(records: Iterable[EpisodeRecord]) -> tuple[list[Pair], EpisodeCounts]:
+    """Pairs for the report. A policy error ends an episode as a failure (it stays in); a simulator
+    failure says nothing about the policy, so such episodes are left out with their pairs."""
+    records = list(records)
+    counts = EpisodeCounts(episodes=len(records), references=sum(r.is_reference for r in records),
+                           policy_errors=[r for r in records if r.error is not None and not r.simulator_failed],
+                           crashed=[r for r in records if r.simulator_failed])
+    pairs, orphans = make_pairs(r for r in records if not r.simulator_failed)
+    counts.pairs, counts.orphans = len(pairs), len(orphans)
+    return pairs, counts
+
+
 def report_records(records: Iterable[EpisodeRecord], plugins: Plugins, *, out_dir: str | Path | None = None,
                    metrics: Sequence[str] | None = None, stream: TextIO | None = None, figures: bool = True,
                    directions: Mapping[str, str] | None = None) -> dict[str, pd.DataFrame]:
@@ -69,15 +94,18 @@ def report_records(records: Iterable[EpisodeRecord], plugins: Plugins, *, out_di
     otherwise). Returns the frames by name: ``pairs``, ``overall``, ``family``,
     ``qualified_failures``, ``aggregates_<grouping>``, ``prompt_couples``, ``prompt_differences``.
     """
-    stream = stream or sys.stdout
     names = [m.name for m in select_metrics(plugins, metrics)]
-    records = list(records)
-    # A policy error ends an episode as a failure; a simulator failure says nothing about the policy.
-    crashed = [r for r in records if r.simulator_failed]
-    policy_errors = [r for r in records if r.error is not None and not r.simulator_failed]
-    pairs, orphans = make_pairs(r for r in records if not r.simulator_failed)
-    frame = with_model(evaluate_pairs([p.reference for p in pairs], [p.conflict for p in pairs],
-                                      plugins=plugins, metrics=names))
+    pairs, counts = pair_up(records)
+    frame = evaluate_pairs([p.reference for p in pairs], [p.conflict for p in pairs], plugins=plugins, metrics=names)
+    return report_frame(frame, counts, names, out_dir=out_dir, stream=stream, figures=figures, directions=directions)
+
+
+def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, names: Sequence[str], *,
+                 out_dir: str | Path | None = None, stream: TextIO | None = None, figures: bool = True,
+                 directions: Mapping[str, str] | None = None) -> dict[str, pd.DataFrame]:
+    """Everything after the per-pair frame: aggregates, tables, differences, files and figures."""
+    stream = stream or sys.stdout
+    frame = with_model(frame)
     aggregates = {grouping: aggregate(frame, by, names) for grouping, by in GROUPINGS.items()}
     specs = paper_tables(names, directions)
     couples = prompt_couples(frame, names)
@@ -87,17 +115,18 @@ def report_records(records: Iterable[EpisodeRecord], plugins: Plugins, *, out_di
         print("\n" + render_text(aggregates[spec.grouping], spec), file=stream)
     if len(differences):
         print("\n" + render_differences(differences, names), file=stream)
-    references = sum(r.is_reference for r in records)
-    print(f"\n{len(records)} episodes ({references} reference, {len(records) - references} conflict), "
-          f"{len(pairs)} pairs", file=stream)
-    if policy_errors:
-        print(f"{len(policy_errors)} episode(s) ended with a policy error and count as failed "
-              f"(e.g. {policy_errors[0].episode_id}: {policy_errors[0].error})", file=stream)
-    if crashed:
-        print(f"{len(crashed)} episode(s) ended with a simulator failure and are left out, with their pairs "
-              f"(e.g. {crashed[0].episode_id}: {crashed[0].error})", file=stream)
-    if orphans:
-        print(f"{len(orphans)} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
+    print(f"\n{counts.episodes} episodes ({counts.references} reference, {counts.episodes - counts.references} "
+          f"conflict), {counts.pairs} pairs", file=stream)
+    if counts.policy_errors:
+        first = counts.policy_errors[0]
+        print(f"{len(counts.policy_errors)} episode(s) ended with a policy error and count as failed "
+              f"(e.g. {first.episode_id}: {first.error})", file=stream)
+    if counts.crashed:
+        first = counts.crashed[0]
+        print(f"{len(counts.crashed)} episode(s) ended with a simulator failure and are left out, with their pairs "
+              f"(e.g. {first.episode_id}: {first.error})", file=stream)
+    if counts.orphans:
+        print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
 
     result = {"pairs": frame, **{TABLE_KEYS[s.name]: aggregates[s.grouping] for s in specs},
               **{f"aggregates_{g}": a for g, a in aggregates.items()},

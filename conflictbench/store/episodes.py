@@ -79,6 +79,13 @@ class EpisodeStore:
         dataset = ds.dataset([str(f) for f in files], format="parquet", schema=SCHEMA)
         return dataset.to_table(columns=list(columns) if columns is not None else None)
 
+    def load(self, keys: Iterable[tuple[str, str]]) -> list[EpisodeRecord]:
+        """The episodes named by (episode_id, policy), read straight from their files."""
+        paths = [str(self.path_for(policy, eid)) for eid, policy in keys]
+        if not paths:
+            return []
+        return table_to_records(ds.dataset(paths, format="parquet", schema=SCHEMA).to_table())
+
     def records(self, episode_ids: Iterable[str] | None = None) -> list[EpisodeRecord]:
         return table_to_records(self.read_table(episode_ids=episode_ids))
 

@@ -1,0 +1,59 @@
+"""Reports straight from an episode store, streaming: at paper scale (8 models x 14,530 episodes)
+the arrays of every episode would not fit in memory, so only one chunk of them is loaded at a time.
+
+The key columns of every episode are read first (cheap), pairs are formed on them, then the
+arrays are loaded chunk by chunk for the metric kernels; references, shared by many pairs, are
+loaded once and kept.
+"""
+
+from __future__ import annotations
+
+from itertools import tee
+from typing import Iterable, Iterator, Sequence
+
+import pandas as pd
+
+from conflictbench.core import EpisodeRecord, Pair
+from conflictbench.core.plugins import Plugins
+from conflictbench.metrics import evaluate_pairs
+from conflictbench.store import EpisodeStore
+from conflictbench.store.schema import ARRAY_COLUMNS, SCHEMA
+
+from .summary import pair_up, report_frame, select_metrics
+
+KEY_COLUMNS = [name for name in SCHEMA.names if name not in ARRAY_COLUMNS]
+CHUNK_PAIRS = 2048
+
+
+def light_records(store: EpisodeStore, episode_ids: Iterable[str] | None = None) -> list[EpisodeRecord]:
+    """Every episode's keys, outcome and provenance, without its arrays."""
+    rows = store.read_table(columns=KEY_COLUMNS, episode_ids=episode_ids).to_pylist()
+    for row in rows:
+        row["target_names"] = tuple(row["target_names"] or ())
+    return [EpisodeRecord(**row) for row in rows]
+
+
+def loaded_pairs(store: EpisodeStore, pairs: Sequence[Pair], chunk: int = CHUNK_PAIRS) -> Iterator[tuple[EpisodeRecord, EpisodeRecord]]:
+    """The pairs again, with arrays, ``chunk`` conflict episodes at a time."""
+    references: dict[str, EpisodeRecord] = {}
+    for start in range(0, len(pairs), chunk):
+        part = pairs[start:start + chunk]
+        wanted = {p.conflict.episode_id: p.conflict.policy for p in part}
+        wanted.update({p.reference.episode_id: p.reference.policy for p in part
+                       if p.reference.episode_id not in references})
+        loaded = {r.episode_id: r for r in store.load(wanted.items())}
+        for pair in part:
+            references.setdefault(pair.reference.episode_id, loaded.get(pair.reference.episode_id))
+        for pair in part:
+            yield references[pair.reference.episode_id], loaded[pair.conflict.episode_id]
+
+
+def report_store(store: EpisodeStore, plugins: Plugins, *, episode_ids: Iterable[str] | None = None,
+                 metrics: Sequence[str] | None = None, chunk: int = CHUNK_PAIRS, **options) -> dict[str, pd.DataFrame]:
+    """:func:`~conflictbench.report.summary.report_records` for the episodes of a store (or some of them)."""
+    names = [m.name for m in select_metrics(plugins, metrics)]
+    pairs, counts = pair_up(light_records(store, episode_ids))
+    first, second = tee(loaded_pairs(store, pairs, chunk))
+    frame = evaluate_pairs((r for r, _ in first), (c for _, c in second), plugins=plugins, metrics=names,
+                           chunk_size=chunk)
+    return report_frame(frame, counts, names, **options)
