@@ -104,8 +104,12 @@ def test_claims_exclude_live_processes_and_are_taken_over_from_dead_ones(tmp_pat
         other.wait()
     assert store.claim("e2")  # its owner is gone
 
-    (tmp_path / "claims" / "e3.claim").write_text("another-host 1 0\n")
-    assert not store.claim("e3")  # a process on another machine cannot be checked: respected
+    import time
+
+    (tmp_path / "claims" / "e3.claim").write_text(f"another-host 1 {time.time():.0f}\n")
+    assert not store.claim("e3")  # a process on another machine cannot be checked: respected...
+    (tmp_path / "claims" / "e4.claim").write_text(f"another-host 1 {time.time() - 3 * 3600:.0f}\n")
+    assert store.claim("e4")  # ...but not forever
 
 
 def test_empty_store_reads_as_nothing(tmp_path):

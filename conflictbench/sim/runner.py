@@ -169,6 +169,7 @@ class Runner:
                 if not deferred:
                     return
                 # Episodes another job is playing: wait for them to land, or take them over.
+                self._bar.set_postfix(waiting_for_other_jobs=len(deferred))
                 time.sleep(1.0)
                 stored = self.store.stored_ids()
                 for item in list(deferred):

@@ -22,6 +22,8 @@ from conflictbench.core import EpisodeRecord
 from .schema import SCHEMA, records_to_table, table_to_records
 
 SUFFIX = ".parquet"
+#: How long a claim made on another machine holds (its process cannot be checked from here).
+REMOTE_CLAIM_TTL_S = 2 * 3600
 
 
 def _pid_alive(pid: int) -> bool:
@@ -96,11 +98,12 @@ class EpisodeStore:
     def _claimed_by_other(self, path: Path) -> bool:
         """Whether a live process other than this one holds the claim at ``path``."""
         try:
-            host, pid, _ = path.read_text().split()
+            host, pid, stamp = path.read_text().split()
         except (OSError, ValueError):
             return False
         if host != self._host:
-            return True  # another machine's process: cannot check, so respect it
+            # Another machine's process cannot be checked: respect its claim for a while.
+            return time.time() - float(stamp) < REMOTE_CLAIM_TTL_S
         return int(pid) != os.getpid() and _pid_alive(int(pid))
 
     def claim(self, episode_id: str) -> bool:
