@@ -21,7 +21,7 @@ except _metadata.PackageNotFoundError:  # running from a source tree that was ne
     __version__ = "0+unknown"
 
 #: Modules whose hook implementations ship with conflictbench (registered like any plugin).
-BUILTIN_PLUGINS = ("conflictbench.policies", "conflictbench.metrics")
+BUILTIN_PLUGINS = ("conflictbench.policies", "conflictbench.metrics", "conflictbench.tasks")
 
 
 def plugins(**kwargs):

@@ -3,6 +3,7 @@
     conflictbench [hydra overrides]      compose and play a run (``-m`` for sweeps)
     conflictbench list                   policies, metrics, families, levels, prompts, presets
     conflictbench report DIR             tables from an episode store, running nothing
+    conflictbench suite ...              validate, inspect, sample, export or rebuild the conflict suite
 
 A mistake of the user's prints one line and exits with code 2; a simulator that cannot run
 here prints what to install and exits with code 3.
@@ -17,11 +18,12 @@ from typing import Sequence
 from conflictbench.core import SimulatorUnavailable, UserError
 from conflictbench.core.plugins import Plugins, unknown_choice
 
-VERBS = ("list", "report")
+VERBS = ("list", "report", "suite")
 USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noop suite=physical prompt=p1
        conflictbench -m [OVERRIDE ...]     sweep, e.g. -m model=noop,random prompt=p0,p1
        conflictbench list                  what can be chosen, and which package provides it
        conflictbench report DIR            tables from the episode store in DIR
+       conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
        conflictbench --hydra-help          Hydra's own options
 """
 
@@ -100,6 +102,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from conflictbench.verbs import report_command
 
             return report_command(argv[1:], plugins)
+        if argv[:1] == ["suite"]:
+            from conflictbench.suite_verbs import suite_command
+
+            return suite_command(argv[1:], plugins)
         return _hydra_main(argv, plugins)
     except (UserError, SimulatorUnavailable) as exc:
         print(f"conflictbench: error: {exc}", file=sys.stderr)

@@ -66,3 +66,27 @@ def conflictbench_register_metrics(register):
     ``None`` where the measure is undefined for that pair. A metric is averaged over the pairs
     where it is defined and appears in every report and CSV beside the built-ins.
     """
+
+
+@hookspec
+def conflictbench_register_conflict_operators(register):
+    """Declare conflict operators: generators of premise-conflict cases, per family.
+
+    Call ``register(name, family=..., generate=..., levels=("L1", "L2", "L3", "L4"),
+    witness_type=None, check=None, description="")`` once per operator:
+
+    - ``family``: one of ``instruction``, ``grounding``, ``spatial``, ``physical``, or a new family
+      name (then ``witness_type`` and ``check`` are required, since no built-in rule knows it);
+    - ``generate(model, level, rng)``: yields drafts for one base task and level. ``model`` is the
+      base task as the suite builder sees it (``model.task`` the LIBERO task with ``language`` and
+      ``goal``, ``model.names`` entity -> noun phrase, ``model.steps`` its subgoals,
+      ``model.facts`` what holds in its 50 initial states); ``rng`` a seeded ``random.Random``
+      (use only it, so builds stay deterministic). A draft is a dict with ``instruction``,
+      ``factors`` (list of str), ``premise``, ``witness`` (dict with a ``type``) and optionally
+      ``init_states``;
+    - ``check(case, model) -> list[str]``: the validation rule for ``witness_type``, returning the
+      reasons a case breaks it (empty when valid).
+
+    ``conflictbench suite build`` runs every registered operator; ``suite validate`` applies every
+    registered check. The built-in operators register through this same hook.
+    """

@@ -19,7 +19,7 @@ import pluggy
 
 from . import hookspecs, prompts
 from .errors import PluginError, PolicyError, UserError
-from .records import ACTION_DIM, ActionContext
+from .records import ACTION_DIM, FAMILIES, LEVELS, ActionContext
 
 ENTRY_POINT_GROUP = hookspecs.PROJECT_NAME
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -59,6 +59,19 @@ class MetricSpec:
 
 
 @dataclass(frozen=True)
+class ConflictOperatorSpec:
+    name: str
+    family: str
+    generate: Callable[..., Any]
+    levels: tuple[str, ...]
+    witness_type: str | None
+    check: Callable[..., Any] | None
+    description: str
+    plugin: str
+    plugin_version: str
+
+
+@dataclass(frozen=True)
 class PluginSource:
     distribution: str
     version: str
@@ -87,6 +100,7 @@ class Plugins:
             self._load_entry_points()
         self._policies: dict[str, PolicySpec] | None = None
         self._metrics: dict[str, MetricSpec] | None = None
+        self._operators: dict[str, ConflictOperatorSpec] | None = None
         self._postprocessors: list[Any] | None = None
 
     # -- discovery -------------------------------------------------------------------------
@@ -159,6 +173,42 @@ class Plugins:
             self._call_each(self.pm.hook.conflictbench_register_metrics, register=make_register)
             self._metrics = found
         return self._metrics
+
+    def conflict_operators(self) -> dict[str, ConflictOperatorSpec]:
+        if self._operators is None:
+            found: dict[str, ConflictOperatorSpec] = {}
+
+            def make_register(plugin_name: str) -> Callable[..., None]:
+                def register(name: str, family: str, generate: Callable[..., Any], levels: Sequence[str] = LEVELS,
+                             witness_type: str | None = None, check: Callable[..., Any] | None = None,
+                             description: str = "") -> None:
+                    _check_name("conflict operator", name, plugin_name)
+                    where = f"conflict operator {name!r} from {plugin_name}"
+                    if not callable(generate) or (check is not None and not callable(check)):
+                        raise PluginError(f"{where}: generate and check must be callable")
+                    if not isinstance(family, str) or not _NAME.match(family):
+                        raise PluginError(f"{where}: family {family!r} is not a valid name")
+                    if family not in FAMILIES and (check is None or not witness_type):
+                        raise PluginError(f"{where}: the new family {family!r} needs a witness_type and a check")
+                    bad = [lv for lv in levels if lv not in LEVELS]
+                    if bad or not levels:
+                        raise PluginError(f"{where}: levels must be among {', '.join(LEVELS)}, got {list(levels)}")
+                    if name in found:
+                        raise PluginError(f"conflict operator {name!r} registered twice ({found[name].plugin} and {self.source(plugin_name).distribution})")
+                    src = self.source(plugin_name)
+                    found[name] = ConflictOperatorSpec(name, family, generate, tuple(levels), witness_type, check,
+                                                       description, src.distribution, src.version)
+
+                return register
+
+            self._call_each(self.pm.hook.conflictbench_register_conflict_operators, register=make_register)
+            self._operators = found
+        return self._operators
+
+    def families(self) -> tuple[str, ...]:
+        """The built-in families, then any a plugin's operators add."""
+        extra = sorted({s.family for s in self.conflict_operators().values()} - set(FAMILIES))
+        return (*FAMILIES, *extra)
 
     def policy(self, name: str) -> PolicySpec:
         specs = self.policies()

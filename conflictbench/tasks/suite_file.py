@@ -25,6 +25,8 @@ from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, ConflictCase, Us
 FORMAT = "conflictbench-suite"
 FORMAT_VERSION = 1
 STATUSES = ("accepted", "revised", "removed", "pending")
+USABLE = ("accepted", "revised")
+"""Statuses of cases a run may play: validated, and accepted or revised in review."""
 SHIPPED = "suite.jsonl"
 
 
@@ -40,7 +42,8 @@ class Suite:
     path: str = ""
 
     def accepted(self) -> list[ConflictCase]:
-        return [c for c in self.cases if c.status == "accepted"]
+        """The usable cases: accepted, or revised in review (removed and pending ones are not)."""
+        return [c for c in self.cases if c.status in USABLE]
 
 
 _REQUIRED: dict[str, type | tuple[type, ...]] = {
@@ -53,7 +56,7 @@ _OPTIONAL: dict[str, Any] = {
 }
 
 
-def _case_from(obj: Any, where: str) -> ConflictCase:
+def _case_from(obj: Any, where: str, families: tuple[str, ...] = FAMILIES) -> ConflictCase:
     if not isinstance(obj, dict):
         raise SuiteFormatError(f"{where}: expected a JSON object, got {type(obj).__name__}")
     for name, kind in _REQUIRED.items():
@@ -67,7 +70,7 @@ def _case_from(obj: Any, where: str) -> ConflictCase:
         if not isinstance(value, kind):
             raise SuiteFormatError(f"{where}, field {name!r}: has the wrong type ({value!r})")
         values[name] = value
-    for name, allowed in (("suite", LIBERO_SUITES), ("family", FAMILIES), ("level", LEVELS), ("status", STATUSES)):
+    for name, allowed in (("suite", LIBERO_SUITES), ("family", families), ("level", LEVELS), ("status", STATUSES)):
         if values[name] not in allowed:
             raise SuiteFormatError(f"{where}, field {name!r}: {values[name]!r} is not one of {', '.join(allowed)}")
     states = values["init_states"]
@@ -91,7 +94,9 @@ def checksum(lines: Iterable[str]) -> str:
     return digest.hexdigest()
 
 
-def parse_suite(text: str, *, source: str = "<suite>", require_header: bool = False) -> Suite:
+def parse_suite(text: str, *, source: str = "<suite>", require_header: bool = False,
+                families: tuple[str, ...] = FAMILIES) -> Suite:
+    """Read a suite file's text; ``families`` widens the accepted families (plugins may add some)."""
     lines = text.splitlines()
     header: dict[str, Any] | None = None
     first = 0
@@ -118,7 +123,7 @@ def parse_suite(text: str, *, source: str = "<suite>", require_header: bool = Fa
             obj = json.loads(line)
         except json.JSONDecodeError as exc:
             raise SuiteFormatError(f"{source} line {number}: not valid JSON ({exc.msg})") from None
-        case = _case_from(obj, f"{source} line {number}")
+        case = _case_from(obj, f"{source} line {number}", families)
         if case.case_id in seen:
             raise SuiteFormatError(f"{source} line {number}, field 'case_id': {case.case_id!r} repeats line {seen[case.case_id]}")
         seen[case.case_id] = number
@@ -134,7 +139,7 @@ def parse_suite(text: str, *, source: str = "<suite>", require_header: bool = Fa
     return Suite(name=name, version=version, cases=tuple(cases), path=source)
 
 
-def read_suite(path: str | Path, *, require_header: bool = False) -> Suite:
+def read_suite(path: str | Path, *, require_header: bool = False, families: tuple[str, ...] = FAMILIES) -> Suite:
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -142,12 +147,13 @@ def read_suite(path: str | Path, *, require_header: bool = False) -> Suite:
         raise SuiteFormatError(f"suite file not found: {path}") from None
     except UnicodeDecodeError:
         raise SuiteFormatError(f"{path}: not UTF-8 text") from None
-    return parse_suite(text, source=str(path), require_header=require_header)
+    return parse_suite(text, source=str(path), require_header=require_header, families=families)
 
 
-def format_suite(cases: Iterable[ConflictCase], *, name: str, version: str) -> str:
+def format_suite(cases: Iterable[ConflictCase], *, name: str, version: str, extra: dict[str, Any] | None = None) -> str:
+    """The file text; ``extra`` adds header fields (the build records its seed there)."""
     lines = [case_line(c) for c in cases]
-    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": name, "version": version,
+    header = {**(extra or {}), "format": FORMAT, "format_version": FORMAT_VERSION, "name": name, "version": version,
               "cases": len(lines), "sha256": checksum(lines)}
     return "\n".join([json.dumps(header, sort_keys=True)] + lines) + "\n"
 
@@ -156,8 +162,8 @@ def shipped_suite_path() -> Path:
     return Path(str(resources.files("conflictbench.tasks") / "data" / SHIPPED))
 
 
-def load_suite(path: str | Path | None = None) -> Suite:
+def load_suite(path: str | Path | None = None, *, families: tuple[str, ...] = FAMILIES) -> Suite:
     """The shipped suite (header and checksum required), or a suite file the user names."""
     if path is None:
-        return read_suite(shipped_suite_path(), require_header=True)
-    return read_suite(path)
+        return read_suite(shipped_suite_path(), require_header=True, families=families)
+    return read_suite(path, families=families)

@@ -1,0 +1,162 @@
+"""Conflict operators: the shared machinery (drafts, step frames, realisation) and the registry.
+
+An operator is ``generate(model, level, rng) -> iterable of Draft``: given a base task (as a
+:class:`~.frames.TaskModel`) and a level, it proposes conflict cases of its family. Levels:
+
+- L1: one step, one conflict factor;
+- L2: one step, several factors on that same requirement;
+- L3: several ordered steps, one factor in one step, the other steps plausible;
+- L4: several steps, factors in at least two of them.
+
+A *frame* is the list of steps an instruction will have. Single-step frames take one of the base
+task's steps; multi-step frames take all base steps when there are several, split a pick-and-place
+into "pick up X" then "place it ...", or add a plausible extra step the scene allows (open a
+closed drawer, switch on a stove that is off, move a bystander object out of the way).
+
+Built-in operators register through the ``conflictbench_register_conflict_operators`` hook like
+any plugin's (:mod:`conflictbench.tasks` holds the implementation).
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable
+
+from .affordances import category
+from .frames import Step, TaskModel
+from .phrasing import Clause, coordinate, join
+
+SINGLE_LEVELS = ("L1", "L2")
+
+
+@dataclass(frozen=True)
+class Draft:
+    """A proposed conflict case, before it gets its id and status."""
+
+    family: str
+    level: str
+    instruction: str
+    factors: tuple[str, ...]
+    premise: str
+    witness: dict[str, Any]
+    init_states: tuple[int, ...] | None = None
+    operator: str = ""
+
+
+@dataclass
+class Slot:
+    kind: str
+    """Clause kind: place, push, pick, place_it, open, close, turn_on, turn_off, move_aside."""
+    step: Step
+    objects: tuple[str, ...]
+    dest: str | None = None
+    prep: str | None = None
+    aux: bool = False
+    pronoun: bool = False
+
+
+@dataclass
+class Mods:
+    """What an operator changes in one slot of a frame."""
+
+    obj: str | None = None
+    dest: str | None = None
+    frame: str | None = None
+    extras: list[str] = field(default_factory=list)
+    locating: bool = False
+    """The object phrase carries a locating modifier (see :class:`.phrasing.Clause`)."""
+    entity: str | None = None
+    """The entity a replaced object phrase now names (physical operators check its affordances)."""
+
+
+def slot_of(step: Step, aux: bool = False) -> Slot:
+    return Slot(step.kind, step, step.objects, step.dest, step.prep, aux)
+
+
+def aux_steps(model: TaskModel) -> list[Slot]:
+    """Plausible extra steps: each can be done in every initial state and touches no target."""
+    out: list[Slot] = []
+    targets = model.targets() | {model.parent(t) for t in model.targets()}
+    for name, entity in sorted(model.facts.entities.items()):
+        if entity.kind == "region" and "drawer" in model.dest_phrases.get(name, ("", ""))[1] \
+                and name not in targets and model.parent(name) in model.names:
+            if model.never("open", name):
+                out.append(Slot("open", Step("open", (name,), goal=(("open", name),)), (name,), aux=True))
+    for name in model.fixtures():
+        if category(model.category_of(name)).has("turnable") and name not in targets:
+            if model.never("turnon", name) and model.facts.predicate("turnoff", name):
+                out.append(Slot("turn_on", Step("turn_on", (name,), goal=(("turnon", name),)), (name,), aux=True))
+    for name in model.objects():
+        info = category(model.category_of(name))
+        if info.has("graspable") and name not in targets:
+            out.append(Slot("move_aside", Step("move_aside", (name,), goal=(("moved", name),)), (name,), aux=True))
+    return out
+
+
+def single_frames(model: TaskModel) -> list[list[Slot]]:
+    return [[slot_of(s)] for s in model.steps]
+
+
+def multi_frames(model: TaskModel) -> list[list[Slot]]:
+    frames: list[list[Slot]] = []
+    if len(model.steps) >= 2:
+        frames.append([slot_of(s) for s in model.steps])
+    for i, step in enumerate(model.steps):
+        rest_before = [slot_of(s) for s in model.steps[:i]]
+        rest_after = [slot_of(s) for s in model.steps[i + 1:]]
+        if step.kind == "place" and len(step.objects) == 1:
+            split = [Slot("pick", step, step.objects), Slot("place_it", step, step.objects, step.dest, step.prep, pronoun=True)]
+            frames.append(rest_before + split + rest_after)
+        elif step.kind == "place" and len(step.objects) == 2:
+            one = [Slot("place", step, (o,), step.dest, step.prep) for o in step.objects]
+            frames.append(rest_before + one + rest_after)
+    if len(model.steps) == 1:
+        base = slot_of(model.steps[0])
+        for aux in aux_steps(model)[:4]:
+            frames.append([aux, base])
+            frames.append([slot_of(model.steps[0]), Slot(aux.kind, aux.step, aux.objects, aux=True)])
+    return [f for f in frames if len(f) >= 2]
+
+
+def frames_for_level(model: TaskModel, level: str) -> list[list[Slot]]:
+    return single_frames(model) if level in SINGLE_LEVELS else multi_frames(model)
+
+
+AUX_FRAMES = {"move_aside": ("move {o} out of the way", "push {o} aside", "slide {o} to one side")}
+
+
+def realise(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], rng: random.Random) -> tuple[str, list[str], list[Clause]]:
+    """Write a frame as one instruction; returns (instruction, step bodies, clauses)."""
+    clauses: list[Clause] = []
+    for i, slot in enumerate(frame):
+        m = mods.get(i, Mods())
+        obj = m.obj or coordinate([model.name(o) if o in model.names else model.dest_phrases[o][1] for o in slot.objects])
+        dest = m.dest if m.dest is not None else (model.dest_text(slot.dest, slot.prep) if slot.dest else None)
+        frame_text = m.frame
+        if frame_text is None and slot.kind in AUX_FRAMES:
+            frame_text = AUX_FRAMES[slot.kind][rng.randrange(len(AUX_FRAMES[slot.kind]))]
+        clause = Clause(slot.kind, obj, dest, plural=len(slot.objects) > 1, frame=frame_text,
+                        pronoun=slot.pronoun and m.obj is None, extras=list(m.extras),
+                        locating=m.locating or (m.obj is None and bool(set(slot.objects) & model.goal_twins())))
+        clause.render(rng, prep=slot.prep)
+        clauses.append(clause)
+    # The witness's steps are the clause bodies: a reviewer may re-punctuate the constraints
+    # around them without breaking the witness.
+    return join([c.text for c in clauses], rng), [c.body for c in clauses], clauses
+
+
+def step_label(level: str, index: int, what: str) -> str:
+    """Factor label: plain for single-step levels, ``step k: ...`` for multi-step ones."""
+    return what if level in SINGLE_LEVELS else f"step {index + 1}: {what}"
+
+
+# -- the built-in operator table ------------------------------------------------------------------
+Generate = Callable[[TaskModel, str, random.Random], Iterable[Draft]]
+
+
+def builtin_operators() -> list[tuple[str, str, Generate]]:
+    """(name, family, generate) of every built-in operator."""
+    from . import ops_grounding, ops_instruction, ops_physical, ops_spatial
+
+    return [*ops_instruction.OPERATORS, *ops_grounding.OPERATORS, *ops_spatial.OPERATORS, *ops_physical.OPERATORS]

@@ -1,0 +1,152 @@
+"""Manual review: stratified samples for reviewers, and the decisions the build honours.
+
+Decisions live beside the suite in ``data/review.jsonl``, one per line::
+
+    {"case_id": "...", "decision": "accepted" | "revised" | "removed", "note": "why",
+     "instruction": "...", "premise": "...", "witness": {...}}   # the last three only for "revised"
+
+The build applies them after generation: a removed case stays in the file with status
+``removed`` (its id stays reserved, planners skip it); a revised case takes the reviewer's text and
+status ``revised`` and must still pass validation (the witness, the reviewer's if given, must point
+into the new text: rewording around the witnessed phrases keeps the original witness valid); an
+accepted one keeps status ``accepted``. A decision for a case the generator no longer produces
+stops the build: the generator changed under the reviewer, and the sample needs a new look.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from collections import defaultdict
+from dataclasses import dataclass, replace
+from importlib import resources
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from conflictbench.core import ConflictCase, UserError
+
+REVIEW_FILE = "review.jsonl"
+DECISIONS = ("accepted", "revised", "removed")
+
+
+class ReviewError(UserError):
+    pass
+
+
+@dataclass(frozen=True)
+class Decision:
+    case_id: str
+    decision: str
+    note: str
+    instruction: str | None = None
+    premise: str | None = None
+    witness: dict | None = None
+    line: int = 0
+
+
+def review_path() -> Path:
+    return Path(str(resources.files("conflictbench.tasks") / "data" / REVIEW_FILE))
+
+
+def parse_reviews(text: str, source: str) -> list[Decision]:
+    out: list[Decision] = []
+    seen: dict[str, int] = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        where = f"{source} line {number}"
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise ReviewError(f"{where}: not valid JSON ({exc.msg})") from None
+        if not isinstance(row, dict):
+            raise ReviewError(f"{where}: expected a JSON object")
+        for key in ("case_id", "decision", "note"):
+            if not isinstance(row.get(key), str) or (key != "note" and not row[key]):
+                raise ReviewError(f"{where}, field {key!r}: missing or not a string")
+        if row["decision"] not in DECISIONS:
+            raise ReviewError(f"{where}, field 'decision': {row['decision']!r} is not one of {', '.join(DECISIONS)}")
+        if row["decision"] == "revised" and not isinstance(row.get("instruction"), str):
+            raise ReviewError(f"{where}, field 'instruction': a revised case needs its new instruction")
+        if row.get("witness") is not None and not isinstance(row["witness"], dict):
+            raise ReviewError(f"{where}, field 'witness': expected a JSON object")
+        if row["case_id"] in seen:
+            raise ReviewError(f"{where}, field 'case_id': {row['case_id']!r} was decided on line {seen[row['case_id']]}")
+        seen[row["case_id"]] = number
+        out.append(Decision(row["case_id"], row["decision"], row["note"], row.get("instruction"), row.get("premise"),
+                            row.get("witness"), number))
+    return out
+
+
+def load_reviews(path: str | Path | None = None) -> list[Decision]:
+    p = Path(path) if path else review_path()
+    if not p.exists():
+        if path:
+            raise ReviewError(f"review file not found: {p}")
+        return []
+    return parse_reviews(p.read_text(encoding="utf-8"), str(p))
+
+
+def apply_reviews(cases: Sequence[ConflictCase], decisions: Iterable[Decision], ctx=None) -> list[ConflictCase]:
+    from .validate import validate_case
+
+    by_id = {c.case_id: i for i, c in enumerate(cases)}
+    out = list(cases)
+    for d in decisions:
+        if d.case_id not in by_id:
+            raise ReviewError(f"review line {d.line}: case {d.case_id!r} is not produced by the generator any more; "
+                              "review the new sample and update the decision")
+        i = by_id[d.case_id]
+        case = out[i]
+        if d.decision == "removed":
+            out[i] = replace(case, status="removed")
+        elif d.decision == "revised":
+            out[i] = replace(case, instruction=d.instruction, premise=d.premise or case.premise,
+                             witness=d.witness or case.witness, status="revised")
+            if ctx is not None:
+                problems = validate_case(out[i], ctx)
+                if problems:
+                    raise ReviewError(f"review line {d.line}: the revised {d.case_id} fails validation: {problems[0]}")
+        else:
+            out[i] = replace(case, status="accepted")
+    return out
+
+
+def sample_for_review(cases: Sequence[ConflictCase], per_cell: int, seed: int = 0) -> list[ConflictCase]:
+    """At most ``per_cell`` usable cases per (family, level), spread over LIBERO suites and base
+    tasks: suites take turns in a seeded order, and within a suite no base task repeats before
+    every other task of the suite had its turn."""
+    cells: dict[tuple[str, str], list[ConflictCase]] = defaultdict(list)
+    for c in cases:
+        if c.status in ("accepted", "revised"):
+            cells[(c.family, c.level)].append(c)
+    chosen: list[ConflictCase] = []
+    for cell in sorted(cells):
+        rng = random.Random(f"review|{seed}|{cell[0]}|{cell[1]}")
+        by_suite: dict[str, list[ConflictCase]] = defaultdict(list)
+        for c in sorted(cells[cell], key=lambda c: c.case_id):
+            by_suite[c.suite].append(c)
+        for group in by_suite.values():
+            rng.shuffle(group)
+            turn: dict[int, int] = defaultdict(int)
+            ranked = []
+            for c in group:  # the n-th case of a task gets turn n: tasks alternate
+                ranked.append((turn[c.task_id], c))
+                turn[c.task_id] += 1
+            group[:] = [c for _, c in sorted(ranked, key=lambda r: r[0])]
+        order = sorted(by_suite)
+        rng.shuffle(order)
+        picked: list[ConflictCase] = []
+        while len(picked) < per_cell and any(by_suite.values()):
+            for suite in order:
+                if by_suite[suite] and len(picked) < per_cell:
+                    picked.append(by_suite[suite].pop(0))
+        chosen += picked
+    return sorted(chosen, key=lambda c: (c.family, c.level, c.case_id))
+
+
+def review_template(case: ConflictCase) -> dict:
+    """One line of a review sheet: the case as a reviewer needs it, with the decision left blank."""
+    return {"case_id": case.case_id, "family": case.family, "level": case.level, "suite": case.suite,
+            "task_id": case.task_id, "base_instruction": case.base_instruction, "instruction": case.instruction,
+            "premise": case.premise, "factors": list(case.factors), "decision": "", "note": ""}

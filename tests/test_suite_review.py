@@ -1,0 +1,117 @@
+"""Review decisions: stored beside the suite, honoured by the build, refused when stale or broken."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conflictbench.tasks.build import generate_task_cases, operator_entries
+from conflictbench.tasks.frames import build_model
+from conflictbench.tasks.libero_tasks import base_task
+from conflictbench.tasks.review import (
+    ReviewError,
+    apply_reviews,
+    load_reviews,
+    parse_reviews,
+    review_path,
+    sample_for_review,
+)
+from conflictbench.tasks.scene import load_scene_facts
+from conflictbench.tasks.suite_file import load_suite
+from conflictbench.tasks.validate import new_context
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    return new_context()
+
+
+@pytest.fixture(scope="module")
+def cases(ctx):
+    key = ("libero_goal", 8)
+    model = build_model(base_task(*key), load_scene_facts()[key])
+    return generate_task_cases(model, operator_entries(), 0, ctx)
+
+
+def decisions(*rows) -> list:
+    return parse_reviews("\n".join(json.dumps(r) for r in rows), "review.jsonl")
+
+
+def test_removed_and_accepted_and_revised(cases, ctx):
+    a, b, c = cases[0], cases[1], next(x for x in cases if x.family == "grounding")
+    ref = c.witness["referents"][0]["text"]
+    new_text = f"please, {c.instruction}"
+    out = apply_reviews(cases, decisions(
+        {"case_id": a.case_id, "decision": "removed", "note": "ambiguous"},
+        {"case_id": b.case_id, "decision": "accepted", "note": "fine"},
+        {"case_id": c.case_id, "decision": "revised", "note": "politer", "instruction": new_text}), ctx)
+    by_id = {x.case_id: x for x in out}
+    assert by_id[a.case_id].status == "removed" and by_id[b.case_id].status == "accepted"
+    assert by_id[c.case_id].status == "revised" and by_id[c.case_id].instruction == new_text and ref in new_text
+    assert len(out) == len(cases)
+
+
+def test_a_revision_that_breaks_its_witness_is_refused(cases, ctx):
+    c = next(x for x in cases if x.family == "grounding")
+    with pytest.raises(ReviewError, match="fails validation"):
+        apply_reviews(cases, decisions({"case_id": c.case_id, "decision": "revised", "note": "x",
+                                        "instruction": "put the bowl somewhere nice"}), ctx)
+
+
+def test_a_revision_may_bring_its_own_witness(cases, ctx):
+    c = next(x for x in cases if x.family == "grounding" and x.level == "L1")
+    text = "put the bowl on the purple trampoline"
+    witness = {"type": "absent_referent", "steps": [text],
+               "referents": [{"step": 1, "role": "destination", "text": "the purple trampoline"}]}
+    out = apply_reviews(cases, decisions({"case_id": c.case_id, "decision": "revised", "note": "x",
+                                          "instruction": text, "witness": witness}), ctx)
+    assert next(x for x in out if x.case_id == c.case_id).witness == witness
+
+
+def test_a_stale_decision_stops_the_build(cases):
+    with pytest.raises(ReviewError, match="not produced by the generator"):
+        apply_reviews(cases, decisions({"case_id": "goal08-gro-L1-00000000", "decision": "accepted", "note": ""}))
+
+
+@pytest.mark.parametrize("row,message", [
+    ({"case_id": "x", "decision": "maybe", "note": ""}, "field 'decision': 'maybe' is not one of"),
+    ({"case_id": "x", "decision": "revised", "note": ""}, "field 'instruction': a revised case needs"),
+    ({"decision": "accepted", "note": ""}, "field 'case_id': missing"),
+    ({"case_id": "x", "decision": "removed"}, "field 'note': missing"),
+])
+def test_malformed_decisions_name_line_and_field(row, message):
+    with pytest.raises(ReviewError, match=f"review.jsonl line 2, {message}"):
+        decisions({"case_id": "y", "decision": "accepted", "note": ""}, row)
+
+
+def test_a_repeated_decision_is_refused():
+    row = {"case_id": "x", "decision": "accepted", "note": ""}
+    with pytest.raises(ReviewError, match="line 2, field 'case_id': 'x' was decided on line 1"):
+        decisions(row, row)
+
+
+def test_the_shipped_decisions_are_honoured_by_the_shipped_suite():
+    shipped = {c.case_id: c for c in load_suite().cases}
+    reviews = load_reviews()
+    assert len(reviews) >= 64 and review_path().exists()
+    for d in reviews:
+        case = shipped[d.case_id]
+        assert case.status == d.decision
+        if d.decision == "revised":
+            assert case.instruction == d.instruction
+    assert {d.decision for d in reviews} == {"accepted", "revised", "removed"}
+
+
+def test_sampling_is_stratified_deterministic_and_skips_removed():
+    suite = load_suite()
+    sample = sample_for_review(suite.cases, 3, seed=5)
+    assert sample == sample_for_review(suite.cases, 3, seed=5)
+    assert sample != sample_for_review(suite.cases, 3, seed=6)
+    cells = {}
+    for c in sample:
+        cells.setdefault((c.family, c.level), []).append(c)
+        assert c.status in ("accepted", "revised")
+    assert len(cells) == 16 and all(len(v) == 3 for v in cells.values())
+    for group in cells.values():
+        assert len({c.suite for c in group}) == 3
