@@ -43,8 +43,9 @@ def test_family_level_and_libero_suite_filters():
     assert got == {"d"}
 
 
-def test_cases_not_accepted_are_never_planned():
-    assert not [e for e in plan([case("a", status="removed"), case("b", status="pending")]) if e.case]
+def test_only_accepted_and_revised_cases_are_planned():
+    cases = [case("a", status="removed"), case("b", status="pending"), case("c", status="revised"), case("d")]
+    assert {e.case_id for e in plan(cases) if e.case} == {"c", "d"}
 
 
 def test_case_initial_states_restrict_pairing():

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 from conflictbench.core import ConflictCase, UserError
+from conflictbench.tasks.suite_file import USABLE
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,7 @@ def build_plan(
     if cases_per_cell is not None and cases_per_cell < 0:
         raise UserError(f"run.cases_per_cell must be >= 0 or 'all', got {cases_per_cell}")
     suites = set(libero_suites) if libero_suites else {s for s, _ in base_instructions}
-    eligible = [c for c in cases if c.status == "accepted" and c.family in families and c.level in levels
+    eligible = [c for c in cases if c.status in USABLE and c.family in families and c.level in levels
                 and c.suite in suites and (c.suite, c.task_id) in base_instructions]
     chosen = [] if cases_per_cell == 0 else sample_cases(eligible, cases_per_cell, sample_seed)
 
