@@ -190,3 +190,13 @@ def test_core_imports_nothing_else_of_ours_nor_heavy_libraries():
                 assert not name.startswith("conflictbench"), f"{path.name} imports {name}"
                 assert name.split(".")[0] not in {"libero", "robosuite", "mujoco", "torch", "pandas", "hydra"}, \
                     f"{path.name} imports {name}"
+
+
+def test_a_register_call_with_wrong_arguments_names_the_plugin():
+    class Sloppy:
+        @hookimpl
+        def conflictbench_register_metrics(self, register):
+            register("m2", lambda pair: 0.0, "desc", "one too many")
+
+    with pytest.raises(PluginError, match=r"metric 'm2' from .*Sloppy.*positional argument"):
+        make(Sloppy()).metrics()

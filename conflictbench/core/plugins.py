@@ -98,9 +98,7 @@ class Plugins:
             self._register(plugin, getattr(plugin, "__name__", repr(plugin)), PluginSource("(in-process)", ""))
         if entry_points:
             self._load_entry_points()
-        self._policies: dict[str, PolicySpec] | None = None
-        self._metrics: dict[str, MetricSpec] | None = None
-        self._operators: dict[str, ConflictOperatorSpec] | None = None
+        self._registries: dict[str, dict[str, Any]] = {}
         self._postprocessors: list[Any] | None = None
 
     # -- discovery -------------------------------------------------------------------------
@@ -132,78 +130,40 @@ class Plugins:
             impl.function(**{k: v(impl.plugin_name) for k, v in kwargs.items() if k in impl.argnames})
 
     # -- registries ------------------------------------------------------------------------
-    def policies(self) -> dict[str, PolicySpec]:
-        if self._policies is None:
-            found: dict[str, PolicySpec] = {}
+    def _collect(self, hook_name: str, kind: str, build: Callable[..., Any]) -> dict[str, Any]:
+        """Fill one registry, once. Each implementation of the register hook gets its own
+        ``register`` that knows which plugin calls it; ``build(where, source, name, ...)`` checks
+        the call's arguments and makes the spec."""
+        if hook_name not in self._registries:
+            found: dict[str, Any] = {}
 
             def make_register(plugin_name: str) -> Callable[..., None]:
-                def register(name: str, load: Callable[[Any], Any], config: type | None = None) -> None:
-                    _check_name("policy", name, plugin_name)
-                    if not callable(load):
-                        raise PluginError(f"policy {name!r} from {plugin_name}: load must be callable")
-                    if config is not None and not (isinstance(config, type) and dataclasses.is_dataclass(config)):
-                        raise PluginError(f"policy {name!r} from {plugin_name}: config must be a dataclass type")
+                source = self.source(plugin_name)
+
+                def register(name: str, *args: Any, **kwargs: Any) -> None:
+                    _check_name(kind, name, plugin_name)
                     if name in found:
-                        raise PluginError(f"policy {name!r} registered twice ({found[name].plugin} and {self.source(plugin_name).distribution})")
-                    src = self.source(plugin_name)
-                    found[name] = PolicySpec(name, load, config, src.distribution, src.version)
+                        raise PluginError(f"{kind} {name!r} registered twice ({found[name].plugin} and {source.distribution})")
+                    where = f"{kind} {name!r} from {plugin_name}"
+                    try:
+                        found[name] = build(where, source, name, *args, **kwargs)
+                    except TypeError as exc:  # wrong arguments to register()
+                        raise PluginError(f"{where}: {exc}") from None
 
                 return register
 
-            self._call_each(self.pm.hook.conflictbench_register_policies, register=make_register)
-            self._policies = found
-        return self._policies
+            self._call_each(getattr(self.pm.hook, hook_name), register=make_register)
+            self._registries[hook_name] = found
+        return self._registries[hook_name]
+
+    def policies(self) -> dict[str, PolicySpec]:
+        return self._collect("conflictbench_register_policies", "policy", _policy_spec)
 
     def metrics(self) -> dict[str, MetricSpec]:
-        if self._metrics is None:
-            found: dict[str, MetricSpec] = {}
-
-            def make_register(plugin_name: str) -> Callable[..., None]:
-                def register(name: str, compute: Callable[[Any], float | None], description: str = "") -> None:
-                    _check_name("metric", name, plugin_name)
-                    if not callable(compute):
-                        raise PluginError(f"metric {name!r} from {plugin_name}: compute must be callable")
-                    if name in found:
-                        raise PluginError(f"metric {name!r} registered twice ({found[name].plugin} and {self.source(plugin_name).distribution})")
-                    src = self.source(plugin_name)
-                    found[name] = MetricSpec(name, compute, description, src.distribution, src.version)
-
-                return register
-
-            self._call_each(self.pm.hook.conflictbench_register_metrics, register=make_register)
-            self._metrics = found
-        return self._metrics
+        return self._collect("conflictbench_register_metrics", "metric", _metric_spec)
 
     def conflict_operators(self) -> dict[str, ConflictOperatorSpec]:
-        if self._operators is None:
-            found: dict[str, ConflictOperatorSpec] = {}
-
-            def make_register(plugin_name: str) -> Callable[..., None]:
-                def register(name: str, family: str, generate: Callable[..., Any], levels: Sequence[str] = LEVELS,
-                             witness_type: str | None = None, check: Callable[..., Any] | None = None,
-                             description: str = "") -> None:
-                    _check_name("conflict operator", name, plugin_name)
-                    where = f"conflict operator {name!r} from {plugin_name}"
-                    if not callable(generate) or (check is not None and not callable(check)):
-                        raise PluginError(f"{where}: generate and check must be callable")
-                    if not isinstance(family, str) or not _NAME.match(family):
-                        raise PluginError(f"{where}: family {family!r} is not a valid name")
-                    if family not in FAMILIES and (check is None or not witness_type):
-                        raise PluginError(f"{where}: the new family {family!r} needs a witness_type and a check")
-                    bad = [lv for lv in levels if lv not in LEVELS]
-                    if bad or not levels:
-                        raise PluginError(f"{where}: levels must be among {', '.join(LEVELS)}, got {list(levels)}")
-                    if name in found:
-                        raise PluginError(f"conflict operator {name!r} registered twice ({found[name].plugin} and {self.source(plugin_name).distribution})")
-                    src = self.source(plugin_name)
-                    found[name] = ConflictOperatorSpec(name, family, generate, tuple(levels), witness_type, check,
-                                                       description, src.distribution, src.version)
-
-                return register
-
-            self._call_each(self.pm.hook.conflictbench_register_conflict_operators, register=make_register)
-            self._operators = found
-        return self._operators
+        return self._collect("conflictbench_register_conflict_operators", "conflict operator", _operator_spec)
 
     def families(self) -> tuple[str, ...]:
         """The built-in families, then any a plugin's operators add."""
@@ -238,6 +198,37 @@ class Plugins:
                     raise PolicyError(f"post-processor {impl.plugin_name} returned shape {out.shape}, expected ({ACTION_DIM},)")
                 action = out
         return action
+
+
+def _policy_spec(where: str, src: PluginSource, name: str, load: Callable[[Any], Any],
+                 config: type | None = None) -> PolicySpec:
+    if not callable(load):
+        raise PluginError(f"{where}: load must be callable")
+    if config is not None and not (isinstance(config, type) and dataclasses.is_dataclass(config)):
+        raise PluginError(f"{where}: config must be a dataclass type")
+    return PolicySpec(name, load, config, src.distribution, src.version)
+
+
+def _metric_spec(where: str, src: PluginSource, name: str, compute: Callable[[Any], float | None],
+                 description: str = "") -> MetricSpec:
+    if not callable(compute):
+        raise PluginError(f"{where}: compute must be callable")
+    return MetricSpec(name, compute, description, src.distribution, src.version)
+
+
+def _operator_spec(where: str, src: PluginSource, name: str, family: str, generate: Callable[..., Any],
+                   levels: Sequence[str] = LEVELS, witness_type: str | None = None,
+                   check: Callable[..., Any] | None = None, description: str = "") -> ConflictOperatorSpec:
+    if not callable(generate) or (check is not None and not callable(check)):
+        raise PluginError(f"{where}: generate and check must be callable")
+    if not isinstance(family, str) or not _NAME.match(family):
+        raise PluginError(f"{where}: family {family!r} is not a valid name")
+    if family not in FAMILIES and (check is None or not witness_type):
+        raise PluginError(f"{where}: the new family {family!r} needs a witness_type and a check")
+    if not levels or any(level not in LEVELS for level in levels):
+        raise PluginError(f"{where}: levels must be among {', '.join(LEVELS)}, got {list(levels)}")
+    return ConflictOperatorSpec(name, family, generate, tuple(levels), witness_type, check, description,
+                                src.distribution, src.version)
 
 
 def unknown_choice(what: str, value: str, choices: Iterable[str], failures: dict[str, str] | None = None) -> str:
