@@ -29,8 +29,9 @@ def test_default_composition_is_the_quick_slice(composed):
     assert list(cfg.suite.families) == list(FAMILIES)
     assert list(cfg.level.levels) == list(LEVELS)
     assert list(cfg.prompt.conditions) == ["p0"]
-    assert opts.init_states == [0] and opts.cases_per_cell == 1 and opts.workers == 1
+    assert opts.init_states == [0] and opts.cases_per_cell == 1 and opts.workers == 2
     assert str(opts.out) == "results"
+    assert cfg.model.max_steps["libero_10"] > 0  # the scripted expert's settings: it is the default model
 
 
 @pytest.mark.parametrize("group", ["suite", "level", "prompt", "run"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from conflictbench.core import hookimpl
 
+from .scripted import OraclePolicy, ScriptedConfig, ScriptedPolicy
 from .simple import NoopPolicy, RandomConfig, RandomPolicy
 
 
@@ -11,6 +12,8 @@ from .simple import NoopPolicy, RandomConfig, RandomPolicy
 def conflictbench_register_policies(register):
     register("noop", load=lambda cfg: NoopPolicy())
     register("random", load=RandomPolicy, config=RandomConfig)
+    register("scripted", load=ScriptedPolicy, config=ScriptedConfig)
+    register("oracle", load=OraclePolicy, config=ScriptedConfig)
 
 
-__all__ = ["NoopPolicy", "RandomConfig", "RandomPolicy"]
+__all__ = ["NoopPolicy", "OraclePolicy", "RandomConfig", "RandomPolicy", "ScriptedConfig", "ScriptedPolicy"]

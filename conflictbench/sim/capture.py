@@ -55,19 +55,164 @@ def quat2axisangle(quat: np.ndarray) -> np.ndarray:
     return np.asarray(convert(np.array(quat, dtype=np.float64)), dtype=np.float64)
 
 
+class _SceneStatic:
+    """Facts about one MuJoCo model that never change during an episode (computed once per model)."""
+
+    def __init__(self, env):
+        inner, model = env.env, env.sim.model
+        self.model = model  # held so that a new model (every reset rebuilds it) is never mistaken for this one
+        nbody = model.nbody
+        parent = np.asarray(model.body_parentid)
+        # Root object/fixture of every body: walk up until a body registered in obj_body_id.
+        root_of_body = {int(body): name for name, body in inner.obj_body_id.items()}
+        owner = [None] * nbody
+        for b in range(nbody):
+            x = b
+            while x != 0 and x not in root_of_body:
+                x = int(parent[x])
+            owner[b] = root_of_body.get(x)
+        self.body_names = [model.body_id2name(b) for b in range(nbody)]
+        # Bodies moved by a hinge or slide joint of the scene (drawers, doors, knobs).
+        self.joints, self.joint_kind = [], {}
+        moving = set()
+        for j in range(model.njnt):
+            name = model.joint_id2name(j) or ""
+            if model.jnt_type[j] in (2, 3) and not name.startswith(("robot0_", "gripper0_")):
+                body = int(model.jnt_bodyid[j])
+                self.joints.append((name, j, body, int(model.jnt_qposadr[j]), np.array(model.jnt_range[j], dtype=float)))
+                self.joint_kind[name] = int(model.jnt_type[j])
+                moving.add(body)
+        movers = set(moving)
+        for b in range(nbody):  # children of a moving body move with it
+            x = b
+            while x != 0:
+                if x in moving:
+                    movers.add(b)
+                    break
+                x = int(parent[x])
+        # Collision geoms of the scene, as the 8 corners of their bounding box in the geom frame.
+        geoms, corners = [], []
+        for g in range(model.ngeom):
+            b = int(model.geom_bodyid[g])
+            if owner[b] is None or not (model.geom_contype[g] or model.geom_conaffinity[g]):
+                continue
+            size = np.asarray(model.geom_size[g], dtype=float)
+            kind = int(model.geom_type[g])
+            if kind == 6:  # box
+                half = size[:3]
+            elif kind == 2:  # sphere
+                half = np.full(3, size[0])
+            elif kind == 3:  # capsule
+                half = np.array([size[0], size[0], size[1] + size[0]])
+            elif kind in (4, 5):  # ellipsoid, cylinder
+                half = size[:3] if kind == 4 else np.array([size[0], size[0], size[1]])
+            elif kind == 7:  # mesh: its vertices' extent in the geom frame
+                adr, num = model.mesh_vertadr[model.geom_dataid[g]], model.mesh_vertnum[model.geom_dataid[g]]
+                half = np.abs(np.asarray(model.mesh_vert[adr:adr + num])).max(axis=0)
+            else:
+                continue
+            geoms.append((g, b))
+            corners.append(np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half)
+        self.geom_ids = np.array([g for g, _ in geoms], dtype=int)
+        self.geom_body = np.array([b for _, b in geoms], dtype=int)
+        self.corners = np.array(corners).reshape(-1, 8, 3)
+        geom_owner = np.array([owner[b] for b in self.geom_body], dtype=object)
+        self.owner_mask = {name: geom_owner == name for name in inner.obj_body_id}
+        self.mover_bodies = sorted(movers)
+        self.owner = owner
+        self.obj_body_id = dict(inner.obj_body_id)
+        self.movable = tuple(inner.objects_dict)
+        self.fixtures = tuple(inner.fixtures_dict)
+        site_names = {model.site_id2name(i) for i in range(model.nsite)}
+        self.sites = []
+        for name, site in inner.object_sites_dict.items():
+            if name in site_names:
+                size = np.asarray(site.size if site.size is not None else np.zeros(3), dtype=float)
+                self.sites.append((name, model.site_name2id(name), size, tuple(site.joints or ()), site.parent_name))
+        finger_bodies = {b for b in range(nbody) if (self.body_names[b] or "").startswith("gripper0_")}
+        self.finger_geom = np.array([int(model.geom_bodyid[g]) in finger_bodies for g in range(model.ngeom)])
+        self.geom_root = [owner[int(model.geom_bodyid[g])] for g in range(model.ngeom)]
+
+
+_STATIC: list[_SceneStatic] = []
+
+
+def _static_for(env) -> _SceneStatic:
+    if not _STATIC or _STATIC[0].model is not env.sim.model:
+        _STATIC[:] = [_SceneStatic(env)]
+    return _STATIC[0]
+
+
+def _geometry(env, st: _SceneStatic, goal) -> dict:
+    """Per-step geometry for experts (every box is an axis-aligned (2, 3) lower/upper corner pair).
+
+    ``aabb``: world box of the collision geoms of every object and fixture (union over its bodies)
+    and of every body moved by a scene joint (``wooden_cabinet_1_cabinet_top``).
+    ``geom_boxes``: object/fixture or moving body -> (n, 2, 3) world boxes of its collision geoms.
+    ``geom_frames``: the same geoms as oriented boxes: (centres (n, 3), rotations (n, 3, 3), half sizes (n, 3)).
+    ``local_aabb`` / ``local_geoms``: the same in the frame of the object's root body.
+    ``joints``: scene hinge/slide joint -> qpos, world axis and anchor, range, moving body.
+    ``sites``: region site -> world position, orientation matrix, half-size, joints, parent.
+    ``gripper_contacts``: objects and fixtures the gripper's fingers touch.
+    ``goal_holds``: whether each goal predicate holds now, by LIBERO's own predicate functions.
+    ``objects`` / ``fixtures``: names of the movable objects and of the fixtures.
+    """
+    data = env.sim.data
+    xpos = np.asarray(data.geom_xpos)[st.geom_ids]
+    xmat = np.asarray(data.geom_xmat)[st.geom_ids].reshape(-1, 3, 3)
+    points = xpos[:, None, :] + np.einsum("gij,gkj->gki", xmat, st.corners)
+    boxes = np.stack([points.min(axis=1), points.max(axis=1)], axis=1)
+    aabb, geom_boxes, geom_frames, local, local_geoms = {}, {}, {}, {}, {}
+    for name, body in st.obj_body_id.items():
+        sel = st.owner_mask[name]
+        if not sel.any():
+            continue
+        geom_boxes[name] = boxes[sel]
+        geom_frames[name] = (xpos[sel].copy(), xmat[sel].copy(), st.corners[sel, -1].copy())
+        aabb[name] = np.stack([boxes[sel, 0].min(axis=0), boxes[sel, 1].max(axis=0)])
+        rot = np.asarray(data.body_xmat[body]).reshape(3, 3)
+        pts = (points[sel] - data.body_xpos[body]) @ rot
+        local_geoms[name] = np.stack([pts.min(axis=1), pts.max(axis=1)], axis=1)
+        local[name] = np.stack([local_geoms[name][:, 0].min(axis=0), local_geoms[name][:, 1].max(axis=0)])
+    for body in st.mover_bodies:
+        sel = st.geom_body == body
+        if sel.any():
+            name = st.body_names[body]
+            geom_boxes[name] = boxes[sel]
+            geom_frames[name] = (xpos[sel].copy(), xmat[sel].copy(), st.corners[sel, -1].copy())
+            aabb[name] = np.stack([boxes[sel, 0].min(axis=0), boxes[sel, 1].max(axis=0)])
+    joints = {}
+    for name, j, body, adr, rng in st.joints:
+        joints[name] = {"qpos": float(data.qpos[adr]), "axis": np.array(data.xaxis[j]), "anchor": np.array(data.xanchor[j]),
+                        "range": rng.copy(), "body": st.body_names[body], "type": "slide" if st.joint_kind[name] == 2 else "hinge"}
+    sites = {name: {"pos": np.array(data.site_xpos[sid]), "xmat": np.array(data.site_xmat[sid]).reshape(3, 3),
+                    "size": size.copy(), "joints": sjoints, "parent": parent}
+             for name, sid, size, sjoints, parent in st.sites}
+    touching = set()
+    for i in range(data.ncon):
+        c = data.contact[i]
+        g1, g2 = int(c.geom1), int(c.geom2)
+        if st.finger_geom[g1] and st.geom_root[g2]:
+            touching.add(st.geom_root[g2])
+        elif st.finger_geom[g2] and st.geom_root[g1]:
+            touching.add(st.geom_root[g1])
+    holds = tuple(bool(env.env._eval_predicate(tuple(p))) for p in goal)
+    return {"objects": st.movable, "fixtures": st.fixtures, "aabb": aabb, "geom_boxes": geom_boxes,
+            "geom_frames": geom_frames, "local_aabb": local, "local_geoms": local_geoms,
+            "joints": joints, "sites": sites, "gripper_contacts": tuple(sorted(touching)), "goal_holds": holds}
+
+
 def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase | None) -> PrivilegedState:
     inner, model, data = env.env, env.sim.model, env.sim.data
+    st = _static_for(env)
     poses = {}
     for name, body in inner.obj_body_id.items():
         poses[name] = np.concatenate([data.body_xpos[body], data.body_xquat[body]]).copy()
-    sites = {name: data.site_xpos[model.site_name2id(name)].copy() for name in inner.object_sites_dict
-             if name in {model.site_id2name(i) for i in range(model.nsite)}}
-    joints = {}
-    for j in range(model.njnt):
-        jname = model.joint_id2name(j) or ""
-        if model.jnt_type[j] != 0 and not jname.startswith(("robot0_", "gripper0_")):
-            joints[jname] = float(data.qpos[model.jnt_qposadr[j]])
-    return PrivilegedState(body_poses=poses, site_positions=sites, joint_positions=joints, goal=goal, case=case)
+    extras = _geometry(env, st, goal)
+    sites = {name: info["pos"].copy() for name, info in extras["sites"].items()}
+    joints = {name: info["qpos"] for name, info in extras["joints"].items()}
+    return PrivilegedState(body_poses=poses, site_positions=sites, joint_positions=joints, goal=goal, case=case,
+                           extras=extras)
 
 
 def make_observation(raw_obs: dict, *, step: int, instruction: str, stream: int, images: bool,

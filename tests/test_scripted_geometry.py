@@ -1,0 +1,94 @@
+"""The scripted expert's geometry and control helpers, on hand-made inputs (no simulator)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from conflictbench.core import Observation
+from conflictbench.policies.scripted.control import nearest_theta, servo
+from conflictbench.policies.scripted.grasp import collisions, gripper_points
+from conflictbench.policies.scripted.policy import order
+from conflictbench.policies.scripted.scene import Boxes, Scene, finger_frame, quat_xyzw_to_mat, rotvec
+
+
+def test_rotvec_inverts_scipy_rotations_including_half_turns():
+    rng = np.random.default_rng(0)
+    vectors = [rng.normal(size=3) for _ in range(20)] + [np.array([0.0, 0.0, math.pi]),
+                                                        np.array([math.pi, 0.0, 0.0]) * 0.9999999]
+    for v in vectors:
+        v = v / np.linalg.norm(v) * min(np.linalg.norm(v), math.pi)
+        got = rotvec(Rotation.from_rotvec(v).as_matrix())
+        # a half turn about v equals one about -v
+        assert np.allclose(got, v, atol=1e-5) or np.allclose(got, -v, atol=1e-5), (v, got)
+    assert np.all(rotvec(np.eye(3)) == 0.0)
+
+
+def test_finger_frame_points_down_with_fingers_along_theta():
+    for theta in (-math.pi / 2, 0.0, 0.7, 2.5):
+        frame = finger_frame(theta)
+        assert np.allclose(frame @ frame.T, np.eye(3)) and np.linalg.det(frame) == pytest.approx(1.0)
+        assert np.allclose(frame[:, 2], [0, 0, -1])
+        assert np.allclose(frame[:2, 1], [math.cos(theta), math.sin(theta)])
+
+
+def test_quaternion_convention_is_xyzw_as_robosuite_reports_it():
+    q = Rotation.from_euler("z", 0.3).as_quat()  # scipy: x, y, z, w
+    assert np.allclose(quat_xyzw_to_mat(q), Rotation.from_euler("z", 0.3).as_matrix())
+
+
+def test_nearest_theta_uses_the_fingers_symmetry():
+    assert nearest_theta(math.pi, 0.1) == pytest.approx(0.0, abs=1e-12)
+    assert nearest_theta(0.5, 0.4) == pytest.approx(0.5)
+    assert nearest_theta(0.5 + math.pi, 0.4) == pytest.approx(0.5)
+
+
+class _FakeScene:
+    eef = np.array([0.0, 0.0, 1.0])
+    rot = finger_frame(-math.pi / 2)
+
+
+def test_servo_saturates_far_away_and_is_proportional_close_by():
+    far = servo(_FakeScene, np.array([1.0, 0.0, 1.0]), -math.pi / 2, -1.0)
+    assert far[0] == 1.0 and np.all(far[1:6] == 0.0) and far[6] == -1.0
+    near = servo(_FakeScene, np.array([0.01, 0.0, 1.0]), -math.pi / 2, 1.0, gain=20.0)
+    assert near[0] == pytest.approx(0.2) and near[6] == 1.0
+    slow = servo(_FakeScene, np.array([1.0, 0.0, 1.0]), -math.pi / 2, -1.0, speed=0.4)
+    assert slow[0] == pytest.approx(0.4)
+    turn = servo(_FakeScene, _FakeScene.eef, 0.0, -1.0)  # a quarter turn about z: rotation only
+    assert np.all(turn[:3] == 0.0) and abs(turn[5]) == pytest.approx(1.0) and turn[3:5] == pytest.approx([0, 0])
+
+
+def test_boxes_contains_matches_the_definition_for_rotated_boxes():
+    rng = np.random.default_rng(1)
+    centers = rng.normal(size=(30, 3))
+    rots = Rotation.random(30, random_state=2).as_matrix()
+    halves = rng.uniform(0.05, 0.6, size=(30, 3))
+    points = rng.normal(size=(400, 3))
+    local = np.einsum("pbi,bij->pbj", points[:, None, :] - centers[None], rots)
+    expected = np.all(np.abs(local) < halves[None] + 0.01, axis=-1)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(Boxes(centers, rots, halves).contains(points, margin=0.01), expected)
+
+
+def test_gripper_collides_with_a_box_under_it_and_not_with_one_beside_it():
+    table_top = Boxes(np.array([[0.0, 0.0, 0.0]]), np.eye(3)[None], np.array([[0.3, 0.3, 0.02]]))
+    assert collisions(gripper_points(np.array([0.0, 0.0, 0.025]), 0.0), table_top) > 0
+    assert collisions(gripper_points(np.array([0.0, 0.0, 0.2]), 0.0), table_top) == 0
+    aside = Boxes(np.array([[0.5, 0.0, 0.0]]), np.eye(3)[None], np.array([[0.05, 0.05, 0.3]]))
+    assert collisions(gripper_points(np.array([0.0, 0.0, 0.025]), 0.0), aside) == 0
+
+
+def test_work_order_opens_first_places_next_closes_last():
+    goal = (("close", "drawer"), ("on", "bowl", "plate"), ("turnon", "stove"), ("open", "microwave"))
+    assert order(goal) == [2, 3, 1, 0]
+
+
+def test_the_expert_refuses_observations_without_privileged_state():
+    obs = Observation(step=0, instruction="x", eef_pos=np.zeros(3), eef_quat=np.array([0, 0, 0, 1.0]),
+                      gripper_qpos=np.zeros(2), state=np.zeros(8))
+    with pytest.raises(ValueError, match="privileged"):
+        Scene(obs)
