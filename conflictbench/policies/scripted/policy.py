@@ -19,7 +19,7 @@ ATTEMPTS = 3
 @dataclass
 class ScriptedConfig:
     max_steps: dict[str, int] = field(default_factory=lambda: {
-        "libero_spatial": 300, "libero_object": 300, "libero_goal": 400, "libero_10": 700})
+        "libero_spatial": 300, "libero_object": 300, "libero_goal": 600, "libero_10": 1000})
     """Episode budget per LIBERO suite (longer than learned policies get: the expert moves slowly)."""
 
 
