@@ -22,7 +22,7 @@ def test_help_lists_the_verbs(cli):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["model=nope"], "unknown model 'nope'; valid choices: demo-wave, noop, random"),
+    (["model=nope"], "unknown model 'nope'; valid choices: demo-wave, noop, oracle, random, scripted"),
     (["suite=physicl"], "unknown suite 'physicl'; valid choices: all, grounding, instruction, physical, spatial"),
     (["level=L5"], "unknown level 'L5'; valid choices: L1, L2, L3, L4, all"),
     (["prompt=p3"], "unknown prompt 'p3'; valid choices: both, p0, p1"),
