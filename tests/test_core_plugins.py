@@ -46,7 +46,7 @@ def test_policy_config_fields_become_settings_and_unknown_ones_are_refused():
 
 
 def test_unknown_policy_names_the_choices():
-    with pytest.raises(UserError, match=r"unknown model 'nope'; valid choices: noop, random"):
+    with pytest.raises(UserError, match=r"unknown model 'nope'; valid choices: noop, oracle, random, scripted"):
         make().policy("nope")
 
 

@@ -124,3 +124,30 @@ def test_schema_rejects_arrays_of_the_wrong_width(tmp_path, bad):
     setattr(wrong, bad, np.zeros((3, 5)))
     with pytest.raises(Exception):
         EpisodeStore(tmp_path).write(wrong)
+
+
+def test_an_episode_another_job_landed_after_the_snapshot_is_not_played_twice(tmp_path, plugins):
+    """Job B's list of stored episodes is a snapshot; job A may write an episode and release its
+    claim after it. B then wins the claim, and must still see the file and skip the episode."""
+    from conflictbench.core import PolicyTraits
+    from conflictbench.policies import NoopPolicy
+    from conflictbench.sim.pool import EpisodeQueue, Slot
+    from conflictbench.sim.runner import Runner, RunResult, config_hash
+
+    from conftest import reference_spec
+
+    store = EpisodeStore(tmp_path)
+    runner = Runner(plugins, plugins.policy("noop"), None, store=store, progress=False)
+    traits = PolicyTraits(NoopPolicy())
+    runner.config_hash = config_hash("noop", None, traits)
+    first, second = runner.jobs([reference_spec("libero_goal", 0, state) for state in (0, 1)], traits)
+    snapshot = store.stored_ids()
+    store.write(record(first.job.episode_id))  # the other job finished it, and let go of it
+
+    result = RunResult()
+    chosen = runner._next_item(Slot(0), EpisodeQueue([first, second]), [], snapshot, set(), result)
+    assert chosen is second
+    assert result.played_elsewhere == 1
+    assert store.held_by_others([first.job.episode_id]) == set()
+    assert not (tmp_path / "claims" / f"{first.job.episode_id}.claim").exists()
+    assert (tmp_path / "claims" / f"{second.job.episode_id}.claim").exists()

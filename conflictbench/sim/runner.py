@@ -127,14 +127,23 @@ class Runner:
         return result
 
     def _next_item(self, slot: Slot, queue: EpisodeQueue, deferred: list[Item], stored: set[str],
-                   busy: set) -> Item | None:
+                   busy: set, result: RunResult) -> Item | None:
         """The next episode this slot can claim (see EpisodeQueue.pop_for for the order)."""
         while (item := queue.pop_for(slot.task_key, busy)) is not None:
-            if item.job.episode_id in stored:
+            eid = item.job.episode_id
+            if eid in stored:
                 continue
-            if self.store.claim(item.job.episode_id):
-                return item
-            deferred.append(item)  # another job is playing it right now
+            if not self.store.claim(eid):
+                deferred.append(item)  # another job is playing it right now
+                continue
+            # `stored` is a snapshot: another job may have finished this episode (written, then
+            # released its claim) since. Writes come before releases, so this check is enough.
+            if self.store.path_for(self.spec.name, eid).exists():
+                self.store.release(eid)
+                result.played_elsewhere += 1
+                self._bar.update(1)
+                continue
+            return item
         return None
 
     def _assign(self, slot: Slot, item: Item, result: RunResult) -> None:
@@ -157,7 +166,7 @@ class Runner:
             for slot in slots:
                 while slot.item is None:
                     busy = {s.task_key for s in slots if s.item is not None}
-                    item = self._next_item(slot, queue, deferred, stored, busy)
+                    item = self._next_item(slot, queue, deferred, stored, busy, result)
                     if item is None:
                         break
                     self._assign(slot, item, result)
