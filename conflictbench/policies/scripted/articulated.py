@@ -15,6 +15,8 @@ from .primitives import Context, Skill, hold, move, set_gripper, transit
 from .scene import Scene
 
 UP = np.array([0.0, 0.0, 1.0])
+CLOSE_TILT = 0.5
+"""Radians from straight down that the gripper leans toward a drawer it pushes shut."""
 
 
 def _far_end(j: dict) -> float:
@@ -116,7 +118,10 @@ def _slide(ctx: Context, joint: str, opened: bool) -> Skill:
         frame = side_frame(-pull, UP)  # fingers close vertically on the handle bar
         grip_at = lambda sc: _handle(sc, j["body"], pull)[0]  # noqa: E731
     else:
-        frame = side_frame(-pull, side)  # fingers side by side: a flat pusher
+        # closed fingers side by side, tips leading: the hand trails up and back, clear of the
+        # table and of the drawer above (held horizontal, the arm cannot reach a bottom drawer)
+        lean = np.array([0.0, 0.0, -math.cos(CLOSE_TILT)]) - pull * math.sin(CLOSE_TILT)
+        frame = side_frame(lean, side)
         grip_at = lambda sc: _handle(sc, j["body"], pull)[2] + pull * 0.012  # noqa: E731
     ctx.grip = OPEN if opened else CLOSE
     stage = grip_at(s) + pull * 0.14

@@ -72,31 +72,53 @@ class Grasp:
     score: float = 0.0
 
 
-def _band_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str]]:
-    """(local point, local finger axis, kind) for the deepest graspable band under the top."""
+def _clusters(boxes: np.ndarray, gap: float = 0.004) -> list[np.ndarray]:
+    """Indices of groups of boxes (n, 2, 3) whose footprints touch (within ``gap``), transitively."""
+    n = len(boxes)
+    lo, hi = boxes[:, 0, :2] - gap / 2, boxes[:, 1, :2] + gap / 2
+    touch = np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=-1)
+    label = np.arange(n)
+    for _ in range(n):  # propagate the smallest label along touching pairs until stable
+        new = np.where(touch, label[None], n).min(axis=1)
+        if np.array_equal(new, label):
+            break
+        label = new
+    return [np.flatnonzero(label == k) for k in np.unique(label)]
+
+
+def _band_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str, np.ndarray]]:
+    """(local point, local finger axis, kind, geoms in the band) for the deepest graspable band
+    under the top: the whole top of a box or bottle, or separate narrow parts sticking up (the
+    knob of a moka pot's lid and its handle), each a candidate of its own."""
     top, bottom = lg[:, 1, 2].max(), lg[:, 0, 2].min()
     for depth in (0.045, 0.03, 0.018):
-        sel = lg[:, 1, 2] >= top - depth
-        lo, hi = lg[sel, 0, :2].min(axis=0), lg[sel, 1, :2].max(axis=0)
-        ext = hi - lo
-        if ext.min() > MAX_SPAN:
-            continue
-        center = (lo + hi) / 2
-        grip_z = max(top - min(depth, 0.03) + PAD_BELOW, bottom + TIP_BELOW + 0.003)
-        grip_z = min(grip_z, top - 0.004)
-        point = np.array([center[0], center[1], grip_z])
-        axes = []
-        if ext[0] <= MAX_SPAN:
-            axes.append(np.array([1.0, 0.0]))
-        if ext[1] <= MAX_SPAN:
-            axes.append(np.array([0.0, 1.0]))
-        if ext.max() <= 0.06:  # round enough to grasp from any side
-            axes += [np.array([1.0, 1.0]) / math.sqrt(2), np.array([1.0, -1.0]) / math.sqrt(2)]
-        return [(point, ax, "band") for ax in axes]
+        sel = np.flatnonzero(lg[:, 1, 2] >= top - depth)
+        out = []
+        for part in _clusters(lg[sel]):
+            idx = sel[part]
+            lo, hi = lg[idx, 0, :2].min(axis=0), lg[idx, 1, :2].max(axis=0)
+            ext = hi - lo
+            if ext.min() > MAX_SPAN:
+                continue
+            part_top = lg[idx, 1, 2].max()
+            center = (lo + hi) / 2
+            grip_z = max(part_top - min(depth, 0.03) + PAD_BELOW, bottom + TIP_BELOW + 0.003)
+            grip_z = min(grip_z, part_top - 0.004)
+            point = np.array([center[0], center[1], grip_z])
+            axes = []
+            if ext[0] <= MAX_SPAN:
+                axes.append(np.array([1.0, 0.0]))
+            if ext[1] <= MAX_SPAN:
+                axes.append(np.array([0.0, 1.0]))
+            if ext.max() <= 0.06 and ext.min() > 0.6 * ext.max():  # round enough to grasp from any side
+                axes += [np.array([1.0, 1.0]) / math.sqrt(2), np.array([1.0, -1.0]) / math.sqrt(2)]
+            out += [(point, ax, "band", idx) for ax in axes]
+        if out:
+            return out
     return []
 
 
-def _rim_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str]]:
+def _rim_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str, None]]:
     """Points on the rim of a wide, open-topped object (bowl, mug), fingers straddling the wall."""
     top, bottom = lg[:, 1, 2].max(), lg[:, 0, 2].min()
     # low objects (a plate): keep the fingertips off the table and off the plate's floor
@@ -115,7 +137,7 @@ def _rim_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str]]:
         if along[across < 0.02].max(initial=0.0) > radius + 0.01:
             continue
         p = center + d * (radius - 0.007)
-        out.append((np.array([p[0], p[1], grip_z]), d, "rim"))
+        out.append((np.array([p[0], p[1], grip_z]), d, "rim", None))
     return out
 
 
@@ -129,19 +151,25 @@ def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np
     if scene.upright(name):
         lg = scene.local_geoms(name)
         cands = _band_candidates(lg) or _rim_candidates(lg)
-        world = [(pos + rot @ p, rot[:2, :2] @ ax, kind) for p, ax, kind in cands]
+        world = [(pos + rot @ p, rot[:2, :2] @ ax, kind, idx) for p, ax, kind, idx in cands]
     else:  # tipped over: grasp the middle of its world box across its narrower side
         box = scene.box(name)
         ext = box[1] - box[0]
         c = (box[0] + box[1]) / 2
         p = np.array([c[0], c[1], max(box[1, 2] - 0.02, box[0, 2] + TIP_BELOW + 0.003)])
-        world = [(p, np.array([1.0, 0.0]) if ext[0] <= ext[1] else np.array([0.0, 1.0]), "band")]
+        world = [(p, np.array([1.0, 0.0]) if ext[0] <= ext[1] else np.array([0.0, 1.0]), "band", None)]
     boxes = scene.solids(exclude=(name,) + tuple(avoid))
     best = None
-    for point, ax, kind in world:
+    own = [np.asarray(a, dtype=float) for a in scene.ex["geom_frames"][name]]
+    for point, ax, kind, idx in world:
         theta = nearest_theta(math.atan2(ax[1], ax[0]), scene.finger_theta)
         pts = np.concatenate([gripper_points(point + np.array([0, 0, dz]), theta) for dz in (0.0, 0.04, 0.08)])
-        score = 10.0 * collisions(pts, boxes) + 0.3 * abs(wrap(theta - scene.finger_theta))
+        hits = collisions(pts, boxes)
+        if idx is not None and len(idx) < len(own[0]):
+            # the fingers closing on one part must also clear the object's other parts
+            rest = np.setdiff1d(np.arange(len(own[0])), idx)
+            hits += collisions(gripper_points(point, theta), Boxes(own[0][rest], own[1][rest], own[2][rest]))
+        score = 10.0 * hits + 0.3 * abs(wrap(theta - scene.finger_theta))
         score += reach_cost(point[:2])
         if then_xy is not None:
             score += reach_cost(np.asarray(then_xy)[:2] + point[:2] - pos[:2])
