@@ -52,7 +52,9 @@ def pick(ctx: Context, name: str, then_xy=None) -> Skill:
     ctx.held = name
     lift = ctx.scene.eef + np.array([0.0, 0.0, 0.08])
     yield from move(ctx, lift, tol=0.02, max_steps=40, speed=0.7)
-    if ctx.scene.pos(name)[2] < start[2] + 0.03 or not grasped(ctx.scene, name):
+    # risen with the fingers still on it: held (a thin bowl wall squeezes to about the width of
+    # fingers closed on nothing, so the width alone cannot tell)
+    if ctx.scene.pos(name)[2] < start[2] + 0.03 or not ctx.scene.touching(name):
         ctx.notes.append(f"dropped {name}")
         ctx.held = None
         yield from set_gripper(ctx, OPEN)
@@ -156,7 +158,7 @@ def plan_push(s: Scene, name: str, goal: np.ndarray, radius: float, table: float
     def cost_of(legs: list[np.ndarray]) -> float:
         hits, here, length, reach = 0, p, 0.0, 0.0
         for to in legs:
-            hits += _pusher_clear(s, name, here, to, radius, table) + 3 * _sweep_hits(s, name, here, to, radius)
+            hits += _pusher_clear(s, name, here, to, radius, table) + 3 * _sweep_hits(s, name, here, to, radius + 0.01)
             length += float(np.linalg.norm(to - here))
             d = (to - here) / max(float(np.linalg.norm(to - here)), 1e-6)
             reach += reach_cost(here - d * (radius + 0.03))
@@ -166,7 +168,7 @@ def plan_push(s: Scene, name: str, goal: np.ndarray, radius: float, table: float
     options = [[goal], [np.array([p[0], goal[1]]), goal], [np.array([goal[0], p[1]]), goal]]
     for k in range(24):
         phi = 2 * np.pi * k / 24
-        for dist in (0.06, 0.1, 0.15):
+        for dist in (0.06, 0.1, 0.15, 0.2, 0.25):
             options.append([p + dist * np.array([np.cos(phi), np.sin(phi)]), goal])
     return min(options, key=cost_of)
 

@@ -12,6 +12,8 @@ from .scene import Scene
 
 
 PUSH_FLAT = True
+FREE_MARGIN = 0.015
+"""Clearance kept between a placed object and its neighbours (they get nudged on the way)."""
 
 
 def achieve(ctx: Context, goal: tuple[tuple[str, ...], ...], index: int) -> Skill:
@@ -63,7 +65,7 @@ def _free_spot(scene: Scene, obj: str, site: dict) -> np.ndarray:
     for fx in np.linspace(-1.0, 1.0, 5):
         for fy in np.linspace(-1.0, 1.0, 5):
             c = site["pos"][:2] + half * np.array([fx, fy])
-            hits = _overlaps(scene, obj, c, radius, others)
+            hits = _overlaps(scene, obj, c, radius + FREE_MARGIN, others)
             cost = hits + float(np.linalg.norm(c - site["pos"][:2]))
             if cost < best_cost:
                 best, best_cost = c, cost
