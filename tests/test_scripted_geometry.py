@@ -92,3 +92,36 @@ def test_the_expert_refuses_observations_without_privileged_state():
                       gripper_qpos=np.zeros(2), state=np.zeros(8))
     with pytest.raises(ValueError, match="privileged"):
         Scene(obs)
+
+
+# A moka pot's collision boxes in its own frame, (n, 2, 3) as the simulator reports them: an
+# 8 cm body, a lid knob on top, and a handle on the +y side (measured on libero_10 task 2).
+MOKA_POT = np.array([
+    [[-0.025, -0.025, -0.066], [0.025, 0.025, 0.067]],   # body
+    [[-0.041, -0.041, -0.066], [0.041, 0.041, 0.067]],   # body, outer faces
+    [[-0.005, -0.007, 0.063], [0.005, 0.005, 0.086]],    # lid knob
+    [[-0.007, 0.060, 0.039], [0.007, 0.091, 0.068]],     # handle, top
+    [[-0.007, 0.054, 0.000], [0.007, 0.091, 0.056]],     # handle, grip
+])
+
+
+def test_clusters_group_touching_footprints_only():
+    from conflictbench.policies.scripted.grasp import _clusters
+
+    groups = sorted(sorted(g.tolist()) for g in _clusters(MOKA_POT))
+    assert groups == [[0, 1, 2], [3, 4]]  # the knob stands on the body; the handle is apart
+    assert len(_clusters(MOKA_POT[[2, 3]])) == 2
+
+
+def test_band_grasps_take_separate_parts_not_the_box_around_them():
+    from conflictbench.policies.scripted.grasp import _band_candidates
+
+    cands = _band_candidates(MOKA_POT)
+    # the body (8 cm, with the knob on it) is too wide; the handle, apart from it, is a part of its
+    # own: every candidate is on the handle, none in the gap between knob and handle (y ~ 0.04)
+    assert cands and all(sorted(idx.tolist()) == [3, 4] for _, _, _, idx in cands)
+    assert all(np.allclose(p[:2], [0.0, 0.0725]) and p[2] < 0.068 for p, _, _, _ in cands)
+    assert any(np.allclose(ax, [1.0, 0.0]) for _, ax, _, _ in cands)  # across the 1.4 cm plate
+    # without the handle, the same object is grasped by the knob, the only narrow part on top
+    knob = _band_candidates(MOKA_POT[:3])
+    assert knob and all(np.allclose(p[:2], [0.0, -0.001]) for p, _, _, _ in knob)
