@@ -116,6 +116,18 @@ def test_instruction_witness_pairs_are_real_contradictions():
             assert contradiction(reqs[a], reqs[b], facts, facts.states())
 
 
+def test_one_contrastive_but_per_step():
+    # two constraints on one step once read "... but leave it where it is, but never touch it"
+    seen_two_constraints = 0
+    for key in [("libero_spatial", 2), ("libero_object", 9), ("libero_goal", 4), ("libero_10", 4)]:
+        for d in drafts("instruction", key, "L2", limit=80):
+            assert f" {d.instruction} ".count(" but ") <= 1, d.instruction
+            texts = [r["text"] for r in d.witness["requirements"]]
+            assert all(t in d.instruction for t in texts), (d.instruction, texts)
+            seen_two_constraints += len(d.witness["conflicts"]) == 2
+    assert seen_two_constraints >= 10
+
+
 def test_levels_shape_the_text():
     key = ("libero_object", 4)
     single = drafts("grounding", key, "L1")[0]

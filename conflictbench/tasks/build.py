@@ -24,7 +24,8 @@ from .suite_file import format_suite
 from .validate import Context, new_context, normalise, validate_case
 
 SUITE_NAME = "conflictvla"
-SUITE_VERSION = "1.0.0"
+SUITE_VERSION = "1.1.0"
+"""Bumped whenever a case's text changes (1.1.0: one "but" per step in instruction-family L2)."""
 DEFAULT_SEED = 0
 PER_CELL = {"instruction": 3, "grounding": 3, "spatial": 3, "physical": 3}
 """Cases kept per (base task, family, level); fewer where a task offers fewer valid candidates."""

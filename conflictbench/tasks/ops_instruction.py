@@ -139,8 +139,9 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
         made.sort(key=lambda m: m[0].startswith("but "))
         texts = [made[0][0]]
         for text, *_ in made[1:]:
-            if not text.startswith("but "):
-                text = text.removeprefix("while ").removeprefix("and ")
+            # one "but" per step reads naturally ("anywhere but" counts); a second joins with "and": ", and never touch it"
+            if not text.startswith("but ") or any(" but " in f" {t}" for t in texts):
+                text = text.removeprefix("but ").removeprefix("while ").removeprefix("and ")
             texts.append(text)
         if len(set(texts)) < len(texts):
             return None
