@@ -125,3 +125,77 @@ def test_band_grasps_take_separate_parts_not_the_box_around_them():
     # without the handle, the same object is grasped by the knob, the only narrow part on top
     knob = _band_candidates(MOKA_POT[:3])
     assert knob and all(np.allclose(p[:2], [0.0, -0.001]) for p, _, _, _ in knob)
+
+
+# The yellow-and-white mug of libero_10 task 9 in its own frame: a 10.3 cm cup (wall boxes around
+# (-0.018, 0), radius 0.053, plus its floor) and a 1.8 cm thin handle on the +x side (measured).
+MUG = np.array([
+    [[-0.071, -0.053, 0.016], [-0.050, 0.053, 0.103]],   # wall, -x
+    [[0.013, -0.053, 0.016], [0.034, 0.053, 0.103]],     # wall, +x
+    [[-0.071, -0.053, 0.016], [0.034, -0.032, 0.103]],   # wall, -y
+    [[-0.071, 0.032, 0.016], [0.034, 0.053, 0.103]],     # wall, +y
+    [[-0.059, -0.041, 0.000], [0.022, 0.041, 0.021]],    # floor
+    [[0.060, -0.009, 0.027], [0.068, 0.009, 0.085]],     # handle, outer bar
+    [[0.015, -0.009, 0.017], [0.065, 0.009, 0.035]],     # handle, lower bar
+    [[0.024, -0.009, 0.073], [0.068, 0.009, 0.086]],     # handle, upper bar
+])
+
+
+def test_handle_grasp_pinches_the_outer_bar_with_the_hand_above_the_rim():
+    from conflictbench.policies.scripted.grasp import HAND_BOTTOM, _handle_candidates, handle_parts
+
+    assert handle_parts(MUG).tolist() == [5, 6, 7]
+    (point, axis, kind, idx), = _handle_candidates(MUG)
+    assert kind == "handle" and idx.tolist() == [5, 6, 7]
+    assert np.allclose(point[:2], [0.064, 0.0])  # the outermost bar, not the cup
+    assert np.allclose(np.abs(axis), [0.0, 1.0])  # across the handle's thin side
+    assert point[2] + HAND_BOTTOM > MUG[:, 1, 2].max()  # the hand's underside clears the rim
+    assert point[2] < 0.086  # and the fingers still close on the handle
+    assert _handle_candidates(MUG[:5]) == []  # a cup without a handle has none
+
+
+class _BoxScene:
+    """Just enough of a Scene for ``enclosed.opening``: one fixture made of axis-aligned boxes."""
+
+    def __init__(self, boxes, region_pos, region_size=(0.12, 0.08, 0.08)):
+        boxes = np.asarray(boxes, dtype=float)
+        centers, halves = boxes.mean(axis=1), (boxes[:, 1] - boxes[:, 0]) / 2
+        self.ex = {"geom_frames": {"oven": (centers, np.repeat(np.eye(3)[None], len(boxes), axis=0), halves)}}
+        self._site = {"pos": np.asarray(region_pos, dtype=float), "xmat": np.eye(3), "size": np.asarray(region_size),
+                      "joints": (), "parent": "oven"}
+
+    def site(self, name):
+        return self._site
+
+    def objects(self):
+        return ["oven"]
+
+    def solids(self, exclude=()):
+        frames = self.ex["geom_frames"]["oven"]
+        return Boxes(*frames) if "oven" not in exclude else Boxes(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+
+
+# A microwave-like box open toward -y: floor top 0.944, roof underside 1.088, walls at x -0.135 / 0.072,
+# back wall from y 0.421 (the numbers of libero_10 task 9's microwave).
+OVEN = [
+    [[-0.164, 0.252, 0.920], [0.181, 0.452, 0.944]],  # floor
+    [[-0.164, 0.252, 1.088], [0.181, 0.452, 1.107]],  # roof
+    [[-0.164, 0.252, 0.920], [-0.135, 0.452, 1.107]],  # left wall
+    [[0.072, 0.252, 0.920], [0.181, 0.452, 1.107]],  # right wall
+    [[-0.135, 0.421, 0.920], [0.072, 0.452, 1.107]],  # back wall
+]
+
+
+def test_opening_finds_the_open_side_the_roof_edge_and_the_room_inside():
+    from conflictbench.policies.scripted.enclosed import opening
+
+    o = opening(_BoxScene(OVEN, (0.009, 0.35, 1.016)), "heating", height=0.103)
+    assert np.allclose(o.inward, [0.0, 1.0]) and np.allclose(np.abs(o.lateral), [1.0, 0.0])
+    assert o.floor == pytest.approx(0.944) and o.roof == pytest.approx(1.088)
+    assert o.edge == pytest.approx(0.252) and o.back == pytest.approx(0.421, abs=0.005)
+    assert float(o.middle * o.lateral[0]) == pytest.approx((-0.135 + 0.072) / 2, abs=0.005)
+    # room enough above the object for a hand: the plain top-down way is fine
+    assert opening(_BoxScene(OVEN, (0.009, 0.35, 1.016)), "heating", height=0.03) is None
+    # closed on every side (a door across the front): no way in
+    shut = OVEN + [[[-0.164, 0.230, 0.920], [0.181, 0.252, 1.107]]]
+    assert opening(_BoxScene(shut, (0.009, 0.35, 1.016)), "heating", height=0.103) is None

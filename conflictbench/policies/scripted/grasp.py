@@ -68,7 +68,8 @@ class Grasp:
     theta: float
     """World angle of the fingers' closing axis."""
     kind: str
-    """``band`` (the fingers close on a part narrower than the gripper) or ``rim`` (on a wall)."""
+    """``band`` (the fingers close on a part narrower than the gripper), ``rim`` (on a wall) or
+    ``handle`` (across a mug's handle)."""
     score: float = 0.0
 
 
@@ -141,17 +142,60 @@ def _rim_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str, N
     return out
 
 
-def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np.ndarray | None = None) -> Grasp:
-    """The best-scoring grasp of object ``name``.
+HAND_BOTTOM = 0.035
+"""The hand's underside is this far above the grip site (the fingers hang below it)."""
+
+
+def handle_parts(lg: np.ndarray) -> np.ndarray:
+    """Indices of the geoms standing out past the rim of a wide open-topped object (a mug's handle)."""
+    top = lg[:, 1, 2].max()
+    rim = lg[lg[:, 1, 2] >= top - 0.008]
+    lo, hi = rim[:, 0, :2].min(axis=0), rim[:, 1, :2].max(axis=0)
+    mids = (lg[:, 0, :2] + lg[:, 1, :2]) / 2 - (lo + hi) / 2
+    return np.flatnonzero(np.linalg.norm(mids / np.maximum((hi - lo) / 2, 1e-6), axis=1) > 1.05)
+
+
+def _handle_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str, np.ndarray]]:
+    """The outer end of a handle, fingers closing across its thin side, the hand's underside
+    clear of the rim (so the object can be carried with the hand beside it, not above it)."""
+    idx = handle_parts(lg)
+    if len(idx) == 0:
+        return []
+    top = lg[:, 1, 2].max()
+    body = np.setdiff1d(np.arange(len(lg)), idx)
+    centre = (lg[body, 0, :2].min(axis=0) + lg[body, 1, :2].max(axis=0)) / 2
+    mids = (lg[idx, 0, :2] + lg[idx, 1, :2]) / 2
+    out = (mids - centre).mean(axis=0)
+    out /= max(float(np.linalg.norm(out)), 1e-9)
+    k = idx[int(np.argmax((mids - centre) @ out))]  # the outermost bar
+    across = np.array([-out[1], out[0]])
+    proj = lg[idx][:, :, :2] @ across
+    if proj.max() - proj.min() > MAX_SPAN:
+        return []
+    handle_top = lg[idx, 1, 2].max()
+    z = min(handle_top - 0.006, max((lg[k, 0, 2] + lg[k, 1, 2]) / 2, top - HAND_BOTTOM + 0.01))
+    xy = (lg[k, 0, :2] + lg[k, 1, :2]) / 2
+    return [(np.array([xy[0], xy[1], z]), across, "handle", idx)]
+
+
+def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np.ndarray | None = None,
+               kind: str | None = None) -> Grasp | None:
+    """The best-scoring grasp of object ``name`` (None when ``kind`` is asked for and it has none).
 
     ``then_xy``: where the object's origin will be carried; grasps that would leave the arm
     stretched there (the far rim of a bowl bound for a far plate) score worse.
+    ``kind``: ``"handle"`` grasps only the handle of a mug-like object.
     """
     pos, rot = scene.pos(name), scene.mat(name)
-    if scene.upright(name):
+    if kind == "handle":
+        cands = _handle_candidates(scene.local_geoms(name)) if scene.upright(name) else []
+        if not cands:
+            return None
+        world = [(pos + rot @ p, rot[:2, :2] @ ax, k, idx) for p, ax, k, idx in cands]
+    elif scene.upright(name):
         lg = scene.local_geoms(name)
         cands = _band_candidates(lg) or _rim_candidates(lg)
-        world = [(pos + rot @ p, rot[:2, :2] @ ax, kind, idx) for p, ax, kind, idx in cands]
+        world = [(pos + rot @ p, rot[:2, :2] @ ax, k, idx) for p, ax, k, idx in cands]
     else:  # tipped over: grasp the middle of its world box across its narrower side
         box = scene.box(name)
         ext = box[1] - box[0]
@@ -161,7 +205,7 @@ def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np
     boxes = scene.solids(exclude=(name,) + tuple(avoid))
     best = None
     own = [np.asarray(a, dtype=float) for a in scene.ex["geom_frames"][name]]
-    for point, ax, kind, idx in world:
+    for point, ax, grip_kind, idx in world:
         theta = nearest_theta(math.atan2(ax[1], ax[0]), scene.finger_theta)
         pts = np.concatenate([gripper_points(point + np.array([0, 0, dz]), theta) for dz in (0.0, 0.04, 0.08)])
         hits = collisions(pts, boxes)
@@ -174,7 +218,7 @@ def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np
         if then_xy is not None:
             score += reach_cost(np.asarray(then_xy)[:2] + point[:2] - pos[:2])
         if best is None or score < best.score:
-            best = Grasp(point=point, theta=theta, kind=kind, score=score)
+            best = Grasp(point=point, theta=theta, kind=grip_kind, score=score)
     return best
 
 

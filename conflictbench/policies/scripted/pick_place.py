@@ -18,18 +18,18 @@ def grasped(s: Scene, name: str) -> bool:
     return s.width > MIN_HOLD_WIDTH and s.touching(name)
 
 
-def pick(ctx: Context, name: str, then_xy=None) -> Skill:
+def pick(ctx: Context, name: str, then_xy=None, kind: str | None = None) -> Skill:
     """Grasp ``name`` and lift it clear of its support; True if it came up with the gripper.
 
     ``then_xy``: where it will be carried (a point or a function of the scene), to prefer grasps
-    that leave the arm a comfortable reach there.
+    that leave the arm a comfortable reach there. ``kind``: only grasps of that kind (``handle``).
     """
     if ctx.grip == CLOSE:
         yield from set_gripper(ctx, OPEN)
 
     def plan(s: Scene):
         dest = then_xy(s) if callable(then_xy) else then_xy
-        return plan_grasp(s, name, then_xy=dest)
+        return plan_grasp(s, name, then_xy=dest, kind=kind)
 
     grasp = plan(ctx.scene)
     ctx.theta = grasp.theta

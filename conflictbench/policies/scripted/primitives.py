@@ -11,7 +11,7 @@ from typing import Callable, Generator, Union
 
 import numpy as np
 
-from .control import CLOSE, OPEN, closest_frame, nearest_theta, orientation_error, servo
+from .control import OPEN, closest_frame, nearest_theta, orientation_error, servo
 from .grasp import TIP_BELOW, clear_height
 from .scene import Scene
 

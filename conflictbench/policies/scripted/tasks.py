@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import articulated
+from . import articulated, enclosed
 from .grasp import reach_cost
 from .pick_place import is_flat, pick, place, push
 from .primitives import Context, Skill
@@ -126,6 +126,8 @@ def _put(ctx: Context, goal: tuple[tuple[str, ...], ...], index: int) -> Skill:
         container_open = yield from articulated.ensure_open(ctx, target)
         if not container_open:
             return False
+    if ctx.held is None and s.is_site(target) and enclosed.can_insert(s, obj, target):
+        return (yield from enclosed.insert(ctx, obj, target))
     if ctx.held is None and is_flat(s, obj) and s.is_site(target) and not s.site(target)["parent"] and PUSH_FLAT:
         return (yield from push(ctx, obj, lambda sc: _slot(sc, goal, index)))
     if ctx.held != obj:
