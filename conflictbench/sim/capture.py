@@ -203,7 +203,7 @@ def _geometry(env, st: _SceneStatic, goal) -> dict:
 
 
 def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase | None) -> PrivilegedState:
-    inner, model, data = env.env, env.sim.model, env.sim.data
+    inner, data = env.env, env.sim.data
     st = _static_for(env)
     poses = {}
     for name, body in inner.obj_body_id.items():
