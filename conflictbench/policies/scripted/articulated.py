@@ -12,7 +12,7 @@ import numpy as np
 
 from .control import CLOSE, OPEN, side_frame
 from .primitives import Context, Skill, hold, move, set_gripper, transit
-from .scene import Scene
+from .scene import Boxes, Scene
 
 UP = np.array([0.0, 0.0, 1.0])
 CLOSE_TILT = 0.5
@@ -37,9 +37,8 @@ def _opened(j: dict) -> float:
 
 def _handle(s: Scene, body: str, pull: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(centre, half-extent along ``pull``, front point) of the part of ``body`` sticking out most along ``pull``."""
-    centers, rots, halves = (np.asarray(a, dtype=float) for a in s.ex["geom_frames"][body])
-    reach = np.abs(np.einsum("bij,i->bj", rots, pull))
-    ext = np.einsum("bj,bj->b", reach, halves)
+    boxes = Boxes(*(np.asarray(a, dtype=float) for a in s.ex["geom_frames"][body]))
+    centers, ext = boxes.centers, boxes.reach(pull)
     front = centers @ pull + ext
     k = int(np.argmax(front))
     return centers[k], ext[k], centers[k] + pull * ext[k]
@@ -215,8 +214,8 @@ def turn(ctx: Context, name: str, on: bool) -> Skill:
     target_q = 0.9 if on else _near_end(j)
 
     def lever(sc: Scene) -> tuple[np.ndarray, float]:
-        centers, rots, halves = (np.asarray(a, dtype=float) for a in sc.ex["geom_frames"][sc.joint(joint)["body"]])
-        tops = centers[:, 2] + np.einsum("bk,bk->b", np.abs(rots[:, 2, :]), halves)
+        boxes = Boxes(*(np.asarray(a, dtype=float) for a in sc.ex["geom_frames"][sc.joint(joint)["body"]]))
+        centers, rots, halves, tops = boxes.centers, boxes.rots, boxes.halves, boxes.tops
         k = int(np.argmax(tops))
         horiz = [i for i in range(3) if abs(rots[k][2, i]) < 0.5]
         long_i = max(horiz, key=lambda i: halves[k][i])

@@ -41,13 +41,19 @@ class Opening:
     """Midway between the side walls, as a coordinate along ``lateral``."""
 
 
-def _ray(boxes: Boxes, start: np.ndarray, direction: np.ndarray, reach: float = 0.4) -> float | None:
-    """Distance along ``direction`` (xy) from ``start`` to the first of ``boxes``, or None."""
-    for t in np.arange(0.0, reach, 0.004):
-        p = start + np.array([direction[0], direction[1], 0.0]) * t
-        if boxes.contains(p[None]).any():
-            return float(t)
-    return None
+UP = np.array([0.0, 0.0, 1.0])
+SIDES = ((1, 0), (-1, 0), (0, 1), (0, -1))
+
+
+def _ray(boxes: Boxes, start: np.ndarray, direction, reach: float = 0.4) -> float | None:
+    """Distance along ``direction`` (xy) from ``start`` to the first of ``boxes`` (4 mm steps), or None."""
+    ts = np.arange(0.0, reach, 0.004)
+    inside = boxes.contains(start + np.outer(ts, [direction[0], direction[1], 0.0])).any(axis=1)
+    return float(ts[np.argmax(inside)]) if inside.any() else None
+
+
+def _side(v: np.ndarray) -> tuple[int, int]:
+    return int(round(v[0])), int(round(v[1]))
 
 
 def opening(s: Scene, region: str, height: float) -> Opening | None:
@@ -63,7 +69,7 @@ def opening(s: Scene, region: str, height: float) -> Opening | None:
     floor = support_height(s, centre[:2], below=centre[2], exclude=tuple(n for n in s.objects() if n != parent))
     if floor is None:
         return None
-    bottoms = boxes.centers[:, 2] - np.einsum("bk,bk->b", np.abs(boxes.rots[:, 2, :]), boxes.halves)
+    bottoms = boxes.centers[:, 2] - boxes.reach(UP)
     over = bottoms > centre[2]
     above = boxes.contains(np.array([[centre[0], centre[1], z] for z in np.arange(centre[2], centre[2] + 0.3, 0.004)]))
     hit = above.any(axis=0) & over
@@ -73,44 +79,40 @@ def opening(s: Scene, region: str, height: float) -> Opening | None:
     if roof - floor > height + HAND_BOTTOM + 0.06:
         return None
     mid = np.array([centre[0], centre[1], (floor + roof) / 2])
-    dirs = [np.array(d, dtype=float) for d in ((1, 0), (-1, 0), (0, 1), (0, -1))]
-    dist = [_ray(boxes, mid, d) for d in dirs]
-    open_sides = [d for d, t in zip(dirs, dist) if t is None]
+    dist = {side: _ray(boxes, mid, side) for side in SIDES}
+    open_sides = [side for side, t in dist.items() if t is None]
     if len(open_sides) != 1:
         return None
-    inward = -open_sides[0]
+    inward = -np.array(open_sides[0], dtype=float)
     lateral = np.array([-inward[1], inward[0]])
-    back = float(mid[:2] @ inward) + dist[[i for i, d in enumerate(dirs) if np.allclose(d, inward)][0]]
-    left, right = (dist[[i for i, d in enumerate(dirs) if np.allclose(d, sign * lateral)][0]] for sign in (1, -1))
-    middle = float(mid[:2] @ lateral) + (left - right) / 2
+    back = float(mid[:2] @ inward) + dist[_side(inward)]
+    middle = float(mid[:2] @ lateral) + (dist[_side(lateral)] - dist[_side(-lateral)]) / 2
     # the roof's front edge: the outermost point of the geoms over the region
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
-    corners = boxes.centers[hit][:, None, :2] + np.einsum(
-        "bij,bkj->bki", boxes.rots[hit], signs[None] * boxes.halves[hit][:, None, :])[:, :, :2]
-    edge = float((corners @ inward).min())
+    inward3 = np.append(inward, 0.0)
+    edge = float((boxes.centers[hit] @ inward3 - boxes.reach(inward3)[hit]).min())
     return Opening(inward, lateral, floor, roof, edge, back, middle)
 
 
 def _extent(s: Scene, name: str, axis: np.ndarray) -> tuple[float, float]:
     """The object's reach (behind, ahead) along ``axis`` (xy) relative to its origin."""
-    frames = s.ex["geom_frames"][name]
-    c, r, h = (np.asarray(a, dtype=float) for a in frames)
+    boxes = Boxes(*(np.asarray(a, dtype=float) for a in s.ex["geom_frames"][name]))
     a3 = np.array([axis[0], axis[1], 0.0])
-    proj = c @ a3
-    ext = np.einsum("bj,bj->b", np.abs(np.einsum("bij,i->bj", r, a3)), h)
+    proj, ext = boxes.centers @ a3, boxes.reach(a3)
     origin = s.pos(name) @ a3
     return float((proj - ext).min() - origin), float((proj + ext).max() - origin)
 
 
-def can_insert(s: Scene, name: str, region: str) -> bool:
-    height = float(s.box(name)[1, 2] - s.box(name)[0, 2])
-    return opening(s, region, height) is not None and plan_grasp(s, name, kind="handle") is not None
+def way_in(s: Scene, name: str, region: str) -> Opening | None:
+    """The opening to put ``name`` into ``region`` through, when it needs one and has a handle to be
+    carried by (None: put it in from above as usual)."""
+    o = opening(s, region, float(s.box(name)[1, 2] - s.box(name)[0, 2]))
+    return o if o is not None and plan_grasp(s, name, kind="handle") is not None else None
 
 
-def insert(ctx: Context, name: str, region: str) -> Skill:
-    """Carry ``name`` by its handle into the roofed ``region`` through its open side, push it home,
-    and turn the wrist back to where it started."""
-    return (yield from _unwound(ctx, _insert(ctx, name, region)))
+def insert(ctx: Context, name: str, o: Opening) -> Skill:
+    """Carry ``name`` by its handle through the opening ``o``, push it home, and turn the wrist
+    back to where it started."""
+    return (yield from _unwound(ctx, _insert(ctx, name, o)))
 
 
 def _unwound(ctx: Context, skill: Skill) -> Skill:
@@ -141,12 +143,10 @@ def _unwound(ctx: Context, skill: Skill) -> Skill:
     return result
 
 
-def _insert(ctx: Context, name: str, region: str) -> Skill:
+def _insert(ctx: Context, name: str, o: Opening) -> Skill:
     from .pick_place import pick
 
     s = ctx.scene
-    height = float(s.box(name)[1, 2] - s.box(name)[0, 2])
-    o = opening(s, region, height)
     behind, ahead = _extent(s, name, o.inward)
     # where the origin ends: clear of the door, short of the back wall
     final = min(o.edge + DOOR_CLEARANCE - behind, o.back - 0.008 - ahead)
@@ -179,7 +179,7 @@ def _insert(ctx: Context, name: str, region: str) -> Skill:
 def _push_in(ctx: Context, name: str, o: Opening, final: float) -> Skill:
     """Slide ``name`` along ``o.inward`` until its origin is at depth ``final``."""
     inward3 = np.append(o.inward, 0.0)
-    lean = np.array([0.0, 0.0, -math.cos(PUSH_TILT)]) + inward3 * math.sin(PUSH_TILT)
+    lean = -UP * math.cos(PUSH_TILT) + inward3 * math.sin(PUSH_TILT)
     ctx.aim(side_frame(lean, np.append(o.lateral, 0.0)))
     ctx.grip = CLOSE
     behind, _ = _extent(ctx.scene, name, o.inward)

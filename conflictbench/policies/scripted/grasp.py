@@ -119,14 +119,19 @@ def _band_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str, 
     return []
 
 
+def _rim(lg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and half extents (xy) of the footprint of an object's top band, its rim."""
+    rim = lg[lg[:, 1, 2] >= lg[:, 1, 2].max() - 0.008]
+    lo, hi = rim[:, 0, :2].min(axis=0), rim[:, 1, :2].max(axis=0)
+    return (lo + hi) / 2, (hi - lo) / 2
+
+
 def _rim_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str, None]]:
     """Points on the rim of a wide, open-topped object (bowl, mug), fingers straddling the wall."""
     top, bottom = lg[:, 1, 2].max(), lg[:, 0, 2].min()
     # low objects (a plate): keep the fingertips off the table and off the plate's floor
     grip_z = max(top - PAD_ABOVE + 0.002, bottom + TIP_BELOW + 0.009)
-    rim = lg[lg[:, 1, 2] >= top - 0.008]
-    lo, hi = rim[:, 0, :2].min(axis=0), rim[:, 1, :2].max(axis=0)
-    center, half = (lo + hi) / 2, (hi - lo) / 2
+    center, half = _rim(lg)
     offsets = (lg[:, 0, :2] + lg[:, 1, :2]) / 2 - center
     out = []
     for k in range(16):
@@ -148,11 +153,9 @@ HAND_BOTTOM = 0.035
 
 def handle_parts(lg: np.ndarray) -> np.ndarray:
     """Indices of the geoms standing out past the rim of a wide open-topped object (a mug's handle)."""
-    top = lg[:, 1, 2].max()
-    rim = lg[lg[:, 1, 2] >= top - 0.008]
-    lo, hi = rim[:, 0, :2].min(axis=0), rim[:, 1, :2].max(axis=0)
-    mids = (lg[:, 0, :2] + lg[:, 1, :2]) / 2 - (lo + hi) / 2
-    return np.flatnonzero(np.linalg.norm(mids / np.maximum((hi - lo) / 2, 1e-6), axis=1) > 1.05)
+    center, half = _rim(lg)
+    mids = (lg[:, 0, :2] + lg[:, 1, :2]) / 2 - center
+    return np.flatnonzero(np.linalg.norm(mids / np.maximum(half, 1e-6), axis=1) > 1.05)
 
 
 def _handle_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str, np.ndarray]]:

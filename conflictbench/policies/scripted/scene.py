@@ -89,9 +89,13 @@ class Boxes:
         local = flat.reshape(-1, n, 3) - np.einsum("bi,bij->bj", self.centers, self.rots)[None]
         return np.all(np.abs(local) < self.halves[None] + margin, axis=-1)
 
+    def reach(self, axis: np.ndarray) -> np.ndarray:
+        """How far each box extends from its centre along the world direction ``axis`` (unit)."""
+        return np.einsum("bj,bj->b", np.abs(np.einsum("bij,i->bj", self.rots, axis)), self.halves)
+
     @property
     def tops(self) -> np.ndarray:
-        return self.centers[:, 2] + np.einsum("bk,bk->b", np.abs(self.rots[:, 2, :]), self.halves)
+        return self.centers[:, 2] + self.reach(np.array([0.0, 0.0, 1.0]))
 
 
 class Scene:

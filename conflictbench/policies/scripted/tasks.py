@@ -126,8 +126,9 @@ def _put(ctx: Context, goal: tuple[tuple[str, ...], ...], index: int) -> Skill:
         container_open = yield from articulated.ensure_open(ctx, target)
         if not container_open:
             return False
-    if ctx.held is None and s.is_site(target) and enclosed.can_insert(s, obj, target):
-        return (yield from enclosed.insert(ctx, obj, target))
+    way_in = enclosed.way_in(s, obj, target) if ctx.held is None and s.is_site(target) else None
+    if way_in is not None:
+        return (yield from enclosed.insert(ctx, obj, way_in))
     if ctx.held is None and is_flat(s, obj) and s.is_site(target) and not s.site(target)["parent"] and PUSH_FLAT:
         return (yield from push(ctx, obj, lambda sc: _slot(sc, goal, index)))
     if ctx.held != obj:
