@@ -1,16 +1,24 @@
-"""The plugin manager and the registries its ``register`` hooks fill.
+"""The plugin manager: loads plugins, calls every hook through pluggy, fills the registries.
 
 Modelled on pluggy's eggsample and simonw's ``llm``: the specs live in :mod:`.hookspecs`, the
-callers here; each ``register`` callback knows which plugin (and distribution) is calling, so a
-registered policy or metric can always say where it came from.
+callers here. Every hook is called through pluggy (so its tracing and ``wrapper=True``
+implementations work); each ``register`` callback knows which plugin (and distribution) is
+calling, so a registered policy or metric can always say where it came from.
+
+What runs for one episode, in order:
+
+- prompt text: the global ``conflictbench_format_prompt`` implementations (first string wins),
+  else the policy's own ``format_prompt``, else the core's default P0/P1 text;
+- each action: the policy's own ``postprocess``, then the global ``conflictbench_postprocess_action``
+  chain in pluggy's call order (``tryfirst`` ones, then the most recently registered first,
+  ``trylast`` ones last), each link receiving the previous one's output; wrappers wrap each link.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import difflib
 import importlib
-import re
-from dataclasses import dataclass
+import sys
 from importlib import metadata
 from typing import Any, Callable, Iterable, Sequence
 
@@ -19,69 +27,30 @@ import pluggy
 
 from . import hookspecs, prompts
 from .errors import PluginError, PolicyError, UserError
-from .records import ACTION_DIM, FAMILIES, LEVELS, ActionContext
+from .records import ACTION_DIM, FAMILIES, PROMPT_CONDITIONS, ActionContext
+from .registry import (
+    ConflictOperatorSpec,
+    MetricSpec,
+    PluginSource,
+    PolicySpec,
+    check_name,
+    metric_spec,
+    operator_spec,
+    policy_spec,
+)
 
 ENTRY_POINT_GROUP = hookspecs.PROJECT_NAME
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    name: str
-    load: Callable[[Any], Any]
-    config: type | None
-    plugin: str
-    """Distribution that registered the policy (``conflictbench`` for built-ins)."""
-    plugin_version: str
-
-    def make_config(self, values: dict[str, Any] | None = None) -> Any:
-        if self.config is None:
-            if values:
-                raise UserError(f"policy {self.name!r} takes no settings, got: {', '.join(sorted(values))}")
-            return None
-        known = {f.name for f in dataclasses.fields(self.config)}
-        unknown = sorted(set(values or {}) - known)
-        if unknown:
-            raise UserError(
-                f"unknown setting(s) for model={self.name}: {', '.join(unknown)}; "
-                f"valid: {', '.join(sorted(known)) or '(none)'}"
-            )
-        return self.config(**(values or {}))
-
-
-@dataclass(frozen=True)
-class MetricSpec:
-    name: str
-    compute: Callable[[Any], float | None]
-    description: str
-    plugin: str
-    plugin_version: str
-
-
-@dataclass(frozen=True)
-class ConflictOperatorSpec:
-    name: str
-    family: str
-    generate: Callable[..., Any]
-    levels: tuple[str, ...]
-    witness_type: str | None
-    check: Callable[..., Any] | None
-    description: str
-    plugin: str
-    plugin_version: str
-
-
-@dataclass(frozen=True)
-class PluginSource:
-    distribution: str
-    version: str
+#: The hooks called once per episode or action for every policy (the deliberate cross-cutting ones).
+GLOBAL_EPISODE_HOOKS = ("conflictbench_format_prompt", "conflictbench_postprocess_action")
+_CORE_PROMPTS = "conflictbench.core.prompts"
 
 
 class Plugins:
     """A configured plugin manager: built-ins registered by module name, then entry points.
 
     ``builtins`` are dotted module names (the core imports nothing of ours statically); plugins
-    that fail to import are kept in :attr:`load_failures` instead of stopping every command.
+    that fail to import are kept in :attr:`load_failures` instead of stopping every command. A
+    plugin that implements a hook that does not exist (a misspelling) is an error naming both.
     """
 
     def __init__(self, builtins: Sequence[str] = (), *, entry_points: bool = True,
@@ -91,19 +60,25 @@ class Plugins:
         self._sources: dict[str, PluginSource] = {}
         self.load_failures: dict[str, str] = {}
         own = PluginSource("conflictbench", _version("conflictbench"))
-        self._register(prompts, "conflictbench.core.prompts", own)
+        self._register(prompts, _CORE_PROMPTS, own)
         for module_name in builtins:
             self._register(importlib.import_module(module_name), module_name, own)
         for plugin in extra:
             self._register(plugin, getattr(plugin, "__name__", repr(plugin)), PluginSource("(in-process)", ""))
         if entry_points:
             self._load_entry_points()
+        self._check_hooks()
         self._registries: dict[str, dict[str, Any]] = {}
-        self._postprocessors: list[Any] | None = None
+        self._chain: list[tuple[str, Any]] | None = None
+        self._global_prompt = self.pm.subset_hook_caller("conflictbench_format_prompt",
+                                                         remove_plugins=[self.pm.get_plugin(_CORE_PROMPTS)])
 
     # -- discovery -------------------------------------------------------------------------
     def _register(self, plugin: object, name: str, source: PluginSource) -> None:
-        self.pm.register(plugin, name=name)
+        try:
+            self.pm.register(plugin, name=name)
+        except pluggy.PluginValidationError as exc:  # e.g. an argument the hook spec does not have
+            raise PluginError(f"plugin {name} ({source.distribution}): {exc}") from None
         self._sources[name] = source
 
     def _load_entry_points(self) -> None:
@@ -119,51 +94,70 @@ class Plugins:
                 continue
             self._register(plugin, ep.name, source)
 
+    def _check_hooks(self) -> None:
+        """Refuse hook implementations without a spec: a misspelled hook would otherwise never run."""
+        known = sorted(n for n in dir(hookspecs) if n.startswith(hookspecs.PROJECT_NAME + "_"))
+        for name, caller in sorted(vars(self.pm.hook).items()):
+            if not isinstance(caller, pluggy.HookCaller) or caller.has_spec():
+                continue
+            for impl in caller.get_hookimpls():
+                close = difflib.get_close_matches(name, known, n=1)
+                hint = f" (did you mean {close[0]}?)" if close else ""
+                raise PluginError(f"plugin {impl.plugin_name} ({self.source(impl.plugin_name).distribution}) "
+                                  f"implements an unknown hook {name!r}{hint}; the hooks are: {', '.join(known)}")
+        self.pm.check_pending()
+
     def source(self, plugin_name: str) -> PluginSource:
         return self._sources.get(plugin_name, PluginSource(plugin_name, ""))
 
-    def _call_each(self, hook: Any, **kwargs: Any) -> None:
-        """Call every implementation of a register hook, telling it apart from the others."""
-        for impl in reversed(hook.get_hookimpls()):
-            if getattr(impl, "hookwrapper", False) or getattr(impl, "wrapper", False):
-                continue
-            impl.function(**{k: v(impl.plugin_name) for k, v in kwargs.items() if k in impl.argnames})
-
     # -- registries ------------------------------------------------------------------------
     def _collect(self, hook_name: str, kind: str, build: Callable[..., Any]) -> dict[str, Any]:
-        """Fill one registry, once. Each implementation of the register hook gets its own
-        ``register`` that knows which plugin calls it; ``build(where, source, name, ...)`` checks
-        the call's arguments and makes the spec."""
-        if hook_name not in self._registries:
-            found: dict[str, Any] = {}
+        """Fill one registry, once, with one call of the register hook through pluggy.
 
-            def make_register(plugin_name: str) -> Callable[..., None]:
-                source = self.source(plugin_name)
+        ``register`` finds which plugin calls it from the call stack: the innermost frame running
+        one of the hook's implementations. ``build(where, source, name, ...)`` checks the call's
+        arguments and makes the spec."""
+        if hook_name in self._registries:
+            return self._registries[hook_name]
+        hook = getattr(self.pm.hook, hook_name)
+        owners: dict[Any, list[str]] = {}
+        for impl in hook.get_hookimpls():
+            function = getattr(impl.function, "__func__", impl.function)
+            owners.setdefault(getattr(function, "__code__", None), []).append(impl.plugin_name)
+        found: dict[str, Any] = {}
 
-                def register(name: str, *args: Any, **kwargs: Any) -> None:
-                    _check_name(kind, name, plugin_name)
-                    if name in found:
-                        raise PluginError(f"{kind} {name!r} registered twice ({found[name].plugin} and {source.distribution})")
-                    where = f"{kind} {name!r} from {plugin_name}"
-                    try:
-                        found[name] = build(where, source, name, *args, **kwargs)
-                    except TypeError as exc:  # wrong arguments to register()
-                        raise PluginError(f"{where}: {exc}") from None
+        def calling_plugin() -> str:
+            frame = sys._getframe(2)
+            while frame is not None:
+                if frame.f_code in owners:
+                    return " or ".join(owners[frame.f_code])
+                frame = frame.f_back
+            raise PluginError(f"register() of {hook_name} was called outside an implementation of that hook")
 
-                return register
+        def register(name: str, *args: Any, **kwargs: Any) -> None:
+            plugin_name = calling_plugin()
+            source = self.source(plugin_name)
+            check_name(kind, name, plugin_name)
+            if name in found:
+                raise PluginError(f"{kind} {name!r} registered twice ({found[name].plugin} and {source.distribution})")
+            where = f"{kind} {name!r} from {plugin_name}"
+            try:
+                found[name] = build(where, source, name, *args, **kwargs)
+            except TypeError as exc:  # wrong arguments to register()
+                raise PluginError(f"{where}: {exc}") from None
 
-            self._call_each(getattr(self.pm.hook, hook_name), register=make_register)
-            self._registries[hook_name] = found
-        return self._registries[hook_name]
+        hook(register=register)
+        self._registries[hook_name] = found
+        return found
 
     def policies(self) -> dict[str, PolicySpec]:
-        return self._collect("conflictbench_register_policies", "policy", _policy_spec)
+        return self._collect("conflictbench_register_policies", "policy", policy_spec)
 
     def metrics(self) -> dict[str, MetricSpec]:
-        return self._collect("conflictbench_register_metrics", "metric", _metric_spec)
+        return self._collect("conflictbench_register_metrics", "metric", metric_spec)
 
     def conflict_operators(self) -> dict[str, ConflictOperatorSpec]:
-        return self._collect("conflictbench_register_conflict_operators", "conflict operator", _operator_spec)
+        return self._collect("conflictbench_register_conflict_operators", "conflict operator", operator_spec)
 
     def families(self) -> tuple[str, ...]:
         """The built-in families, then any a plugin's operators add."""
@@ -176,59 +170,64 @@ class Plugins:
             raise UserError(unknown_choice("model", name, specs, self.load_failures))
         return specs[name]
 
+    def provenance(self, policy: str) -> tuple[str, ...]:
+        """``distribution==version`` of all code that can change this policy's episodes: the plugin
+        that registered it (with its own prompt format and post-processing) and every plugin that
+        implements a global per-episode hook. Part of every episode's identity."""
+        pins = {self.policy(policy).plugin + "==" + self.policy(policy).plugin_version}
+        for hook_name in GLOBAL_EPISODE_HOOKS:
+            for impl in getattr(self.pm.hook, hook_name).get_hookimpls():
+                if impl.plugin_name != _CORE_PROMPTS:
+                    pins.add(self.source(impl.plugin_name).pin)
+        return tuple(sorted(pins))
+
     # -- per-episode hooks -----------------------------------------------------------------
     def format_prompt(self, instruction: str, condition: str, policy: str) -> str:
-        text = self.pm.hook.conflictbench_format_prompt(instruction=instruction, condition=condition, policy=policy)
+        """The text ``policy`` receives: a global hook's (first string wins), else the policy's own
+        ``format_prompt``, else the core's default (P0 the text; P1 the preamble, then the text)."""
+        if condition not in PROMPT_CONDITIONS:
+            raise UserError(f"unknown prompt condition {condition!r}; choose one of {', '.join(PROMPT_CONDITIONS)}")
+        text = self._global_prompt(instruction=instruction, condition=condition, policy=policy)
+        where = "conflictbench_format_prompt"
+        if text is None:
+            spec = self.policies().get(policy)
+            if spec is not None and spec.format_prompt is not None:
+                text, where = spec.format_prompt(instruction, condition), f"format_prompt of policy {policy!r}"
+        if text is None:
+            text = prompts.default_format_prompt(instruction, condition)
         if not isinstance(text, str):
-            raise PluginError(f"conflictbench_format_prompt returned {type(text).__name__}, expected str")
+            raise PluginError(f"{where} returned {type(text).__name__}, expected str")
         return text
 
+    def _global_chain(self) -> list[tuple[str, Any]]:
+        """One pluggy caller per global post-processor, in call order: each holds that implementation
+        and every wrapper, so links are called through pluggy one at a time."""
+        if self._chain is None:
+            name = "conflictbench_postprocess_action"
+            impls = [i for i in reversed(getattr(self.pm.hook, name).get_hookimpls())
+                     if not (i.hookwrapper or i.wrapper)]
+            self._chain = [(impl.plugin_name, self.pm.subset_hook_caller(
+                name, remove_plugins=[o.plugin for o in impls if o is not impl])) for impl in impls]
+        return self._chain
+
     def postprocess_action(self, action: np.ndarray, context: ActionContext) -> np.ndarray:
-        """Run the post-processing chain on one action (see the hook spec for the order)."""
-        if self._postprocessors is None:
-            impls = self.pm.hook.conflictbench_postprocess_action.get_hookimpls()
-            self._postprocessors = [i for i in reversed(impls)
-                                    if not (getattr(i, "hookwrapper", False) or getattr(i, "wrapper", False))]
-        for impl in self._postprocessors:
-            args = {"action": action, "context": context}
-            out = impl.function(**{k: v for k, v in args.items() if k in impl.argnames})
-            if out is not None:
-                out = np.asarray(out, dtype=np.float64)
-                if out.shape != (ACTION_DIM,):
-                    raise PolicyError(f"post-processor {impl.plugin_name} returned shape {out.shape}, expected ({ACTION_DIM},)")
-                action = out
+        """The action the environment executes: the policy's own post-processing, then the global chain."""
+        spec = self.policies().get(context.policy)
+        if spec is not None and spec.postprocess is not None:
+            action = _checked_action(spec.postprocess(action, context), action, f"postprocess of policy {context.policy!r}")
+        for plugin_name, call in self._global_chain():
+            results = call(action=action, context=context)
+            action = _checked_action(results[0] if results else None, action, f"post-processor {plugin_name}")
         return action
 
 
-def _policy_spec(where: str, src: PluginSource, name: str, load: Callable[[Any], Any],
-                 config: type | None = None) -> PolicySpec:
-    if not callable(load):
-        raise PluginError(f"{where}: load must be callable")
-    if config is not None and not (isinstance(config, type) and dataclasses.is_dataclass(config)):
-        raise PluginError(f"{where}: config must be a dataclass type")
-    return PolicySpec(name, load, config, src.distribution, src.version)
-
-
-def _metric_spec(where: str, src: PluginSource, name: str, compute: Callable[[Any], float | None],
-                 description: str = "") -> MetricSpec:
-    if not callable(compute):
-        raise PluginError(f"{where}: compute must be callable")
-    return MetricSpec(name, compute, description, src.distribution, src.version)
-
-
-def _operator_spec(where: str, src: PluginSource, name: str, family: str, generate: Callable[..., Any],
-                   levels: Sequence[str] = LEVELS, witness_type: str | None = None,
-                   check: Callable[..., Any] | None = None, description: str = "") -> ConflictOperatorSpec:
-    if not callable(generate) or (check is not None and not callable(check)):
-        raise PluginError(f"{where}: generate and check must be callable")
-    if not isinstance(family, str) or not _NAME.match(family):
-        raise PluginError(f"{where}: family {family!r} is not a valid name")
-    if family not in FAMILIES and (check is None or not witness_type):
-        raise PluginError(f"{where}: the new family {family!r} needs a witness_type and a check")
-    if not levels or any(level not in LEVELS for level in levels):
-        raise PluginError(f"{where}: levels must be among {', '.join(LEVELS)}, got {list(levels)}")
-    return ConflictOperatorSpec(name, family, generate, tuple(levels), witness_type, check, description,
-                                src.distribution, src.version)
+def _checked_action(out: Any, previous: np.ndarray, where: str) -> np.ndarray:
+    if out is None:
+        return previous
+    out = np.asarray(out, dtype=np.float64)
+    if out.shape != (ACTION_DIM,):
+        raise PolicyError(f"{where} returned shape {out.shape}, expected ({ACTION_DIM},)")
+    return out
 
 
 def unknown_choice(what: str, value: str, choices: Iterable[str], failures: dict[str, str] | None = None) -> str:
@@ -237,11 +236,6 @@ def unknown_choice(what: str, value: str, choices: Iterable[str], failures: dict
     if failures:
         msg += "; plugins that failed to load: " + "; ".join(f"{k}: {v}" for k, v in failures.items())
     return msg
-
-
-def _check_name(kind: str, name: Any, plugin_name: str) -> None:
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise PluginError(f"{kind} name {name!r} from {plugin_name} is not valid (letters, digits, '_', '.', '-')")
 
 
 def _version(distribution: str) -> str:

@@ -1,0 +1,160 @@
+"""What the ``register`` callbacks record: one frozen spec per policy, metric and conflict operator.
+
+Each spec carries the distribution (and version) of the plugin that registered it, so a policy or
+metric can always say where it came from, and the episode identity can name the code behind it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+from .errors import PluginError, UserError
+from .records import FAMILIES, LEVELS
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+#: ``format_prompt(instruction, condition) -> str | None`` of one policy (None: the core's default).
+PromptFormatter = Callable[[str, str], "str | None"]
+#: ``postprocess(action, context) -> ndarray | None`` of one policy (None: the action unchanged).
+ActionPostprocessor = Callable[[Any, Any], Any]
+
+
+@dataclass(frozen=True)
+class PluginSource:
+    """The distribution a plugin came from (``conflictbench`` for built-ins)."""
+
+    distribution: str
+    version: str
+
+    @property
+    def pin(self) -> str:
+        return f"{self.distribution}=={self.version}"
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    name: str
+    load: Callable[[Any], Any]
+    config: type | None
+    plugin: str
+    """Distribution that registered the policy (``conflictbench`` for built-ins)."""
+    plugin_version: str
+    format_prompt: PromptFormatter | None = None
+    """The model's own P0/P1 text (its native template); applies to this policy only."""
+    postprocess: ActionPostprocessor | None = None
+    """The model's own action post-processing; applies to this policy only, before any global one."""
+
+    def make_config(self, values: dict[str, Any] | None = None) -> Any:
+        if self.config is None:
+            if values:
+                raise UserError(f"policy {self.name!r} takes no settings, got: {', '.join(sorted(values))}")
+            return None
+        known = {f.name for f in dataclasses.fields(self.config)}
+        unknown = sorted(set(values or {}) - known)
+        if unknown:
+            raise UserError(
+                f"unknown setting(s) for model={self.name}: {', '.join(unknown)}; "
+                f"valid: {', '.join(sorted(known)) or '(none)'}"
+            )
+        return self.config(**(values or {}))
+
+
+@dataclass(frozen=True)
+class MetricSpec:
+    """A per-pair metric and everything a report needs to show it (built-ins and plugins alike)."""
+
+    name: str
+    compute: Callable[[Any], float | None] | None
+    """``compute(pair) -> float | None`` (None where undefined for that pair)."""
+    description: str
+    plugin: str
+    plugin_version: str
+    label: str = ""
+    """Column title in tables and figures (default: the name)."""
+    unit: str = ""
+    """``"%"``: the value is a fraction in [0, 1], shown as a percentage; any other text is shown after
+    the value as it is (``"m"``, ``"s"``); ``""`` unitless."""
+    higher_is_better: bool | None = None
+    """Which way is more favourable (reports mark the best value); None: neither, left unmarked."""
+    compute_many: Callable[[Sequence[Any], Sequence[Any]], Sequence[float | None]] | None = None
+    """Optional batched form: ``compute_many(references, conflicts)`` -> one value per pair, aligned."""
+
+    @property
+    def percent(self) -> bool:
+        return self.unit == "%"
+
+    @property
+    def direction(self) -> str | None:
+        """``"higher"``, ``"lower"`` or None, as the report's tables mark values."""
+        return None if self.higher_is_better is None else ("higher" if self.higher_is_better else "lower")
+
+    def compute_pair(self, pair: Any) -> float | None:
+        if self.compute is not None:
+            return self.compute(pair)
+        return list(self.compute_many([pair.reference], [pair.conflict]))[0]
+
+
+@dataclass(frozen=True)
+class ConflictOperatorSpec:
+    name: str
+    family: str
+    generate: Callable[..., Any]
+    levels: tuple[str, ...]
+    witness_type: str | None
+    check: Callable[..., Any] | None
+    description: str
+    plugin: str
+    plugin_version: str
+
+
+# -- building specs from register(...) calls: each checks its arguments -------------------------
+def policy_spec(where: str, src: PluginSource, name: str, load: Callable[[Any], Any],
+                config: type | None = None, *, format_prompt: PromptFormatter | None = None,
+                postprocess: ActionPostprocessor | None = None) -> PolicySpec:
+    if not callable(load):
+        raise PluginError(f"{where}: load must be callable")
+    if config is not None and not (isinstance(config, type) and dataclasses.is_dataclass(config)):
+        raise PluginError(f"{where}: config must be a dataclass type")
+    for label, fn in (("format_prompt", format_prompt), ("postprocess", postprocess)):
+        if fn is not None and not callable(fn):
+            raise PluginError(f"{where}: {label} must be callable")
+    return PolicySpec(name, load, config, src.distribution, src.version, format_prompt, postprocess)
+
+
+def metric_spec(where: str, src: PluginSource, name: str, compute: Callable[[Any], float | None] | None = None,
+                description: str = "", *, label: str | None = None, unit: str = "",
+                higher_is_better: bool | None = None,
+                compute_many: Callable[..., Sequence[float | None]] | None = None) -> MetricSpec:
+    if compute is None and compute_many is None:
+        raise PluginError(f"{where}: give compute(pair) or compute_many(references, conflicts)")
+    if (compute is not None and not callable(compute)) or (compute_many is not None and not callable(compute_many)):
+        raise PluginError(f"{where}: compute and compute_many must be callable")
+    if higher_is_better is not None and not isinstance(higher_is_better, bool):
+        raise PluginError(f"{where}: higher_is_better must be True, False or None")
+    if not isinstance(unit, str) or (label is not None and not isinstance(label, str)):
+        raise PluginError(f"{where}: label and unit must be strings")
+    return MetricSpec(name, compute, description, src.distribution, src.version, label or name, unit,
+                      higher_is_better, compute_many)
+
+
+def operator_spec(where: str, src: PluginSource, name: str, family: str, generate: Callable[..., Any],
+                  levels: Sequence[str] = LEVELS, witness_type: str | None = None,
+                  check: Callable[..., Any] | None = None, description: str = "") -> ConflictOperatorSpec:
+    if not callable(generate) or (check is not None and not callable(check)):
+        raise PluginError(f"{where}: generate and check must be callable")
+    if not isinstance(family, str) or not _NAME.match(family):
+        raise PluginError(f"{where}: family {family!r} is not a valid name")
+    if family not in FAMILIES and (check is None or not witness_type):
+        raise PluginError(f"{where}: the new family {family!r} needs a witness_type and a check")
+    if not levels or any(level not in LEVELS for level in levels):
+        raise PluginError(f"{where}: levels must be among {', '.join(LEVELS)}, got {list(levels)}")
+    return ConflictOperatorSpec(name, family, generate, tuple(levels), witness_type, check, description,
+                                src.distribution, src.version)
+
+
+def check_name(kind: str, name: Any, plugin_name: str) -> None:
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise PluginError(f"{kind} name {name!r} from {plugin_name} is not valid (letters, digits, '_', '.', '-')")
