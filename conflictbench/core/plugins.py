@@ -78,7 +78,8 @@ class Plugins:
         try:
             self.pm.register(plugin, name=name)
         except pluggy.PluginValidationError as exc:  # e.g. an argument the hook spec does not have
-            raise PluginError(f"plugin {name} ({source.distribution}): {exc}") from None
+            why = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+            raise PluginError(f"plugin {name} ({source.distribution}): {why}") from None
         self._sources[name] = source
 
     def _load_entry_points(self) -> None:

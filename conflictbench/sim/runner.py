@@ -96,7 +96,7 @@ class Runner:
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
         policy = self._load_policy()
         traits = PolicyTraits(policy)
-        self.config_hash = config_hash(self.spec.name, self.config, traits)
+        self.config_hash = config_hash(self.spec.name, self.config, traits, self.plugins.provenance(self.spec.name))
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:
             raise UserError(f"policy {self.spec.name!r} declares no max_steps for {', '.join(missing)}")
@@ -280,11 +280,13 @@ class Runner:
             self.on_episode(record)
 
 
-def config_hash(policy: str, config: Any, traits: PolicyTraits) -> str:
+def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str, ...] = ()) -> str:
     """Identifies everything besides the episode itself that can change a rollout: the policy, its
-    settings and declared traits, and the simulator stack (a store never mixes MuJoCo versions)."""
+    settings and declared traits, the code behind it (``code``: ``distribution==version`` of the
+    policy's plugin and of every plugin implementing a global per-episode hook, see
+    ``Plugins.provenance``) and the simulator stack (a store never mixes MuJoCo versions)."""
     settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
-    blob = json.dumps({"policy": policy, "config": settings, "traits": traits.as_dict(),
+    blob = json.dumps({"policy": policy, "config": settings, "traits": traits.as_dict(), "code": list(code),
                        "simulator": simulator_versions()}, sort_keys=True, default=repr)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 

@@ -1,0 +1,67 @@
+"""An episode's identity covers the code that can change it: upgrading a plugin, or installing one
+that post-processes actions, plays the episodes again instead of reusing the old ones."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conflictbench import BUILTIN_PLUGINS, hookimpl
+from conflictbench.core import Plugins
+from conflictbench.sim.runner import Runner
+from conflictbench.store import EpisodeStore
+
+from conftest import DEMO_PLUGIN, reference_spec
+
+pytestmark = pytest.mark.sim
+SPECS = [reference_spec("libero_spatial", 0, 0)]
+
+
+def install_demo(version: str, target: Path) -> Path:
+    """The demo plugin as a real installed distribution of the given version."""
+    source = target.parent / f"src-{version}"
+    shutil.copytree(DEMO_PLUGIN, source)
+    project = source / "pyproject.toml"
+    project.write_text(project.read_text().replace('version = "0.3.1"', f'version = "{version}"'))
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--no-compile", "--target", str(target), str(source)], check=True)
+    return target
+
+
+class Halve:
+    """A cross-cutting post-processor installed later (a lab that scales every action)."""
+
+    __name__ = "halve"
+
+    @hookimpl
+    def conflictbench_postprocess_action(self, action, context):
+        out = action.copy()
+        out[:6] *= 0.5
+        return out
+
+
+def play(site: Path, store: EpisodeStore, monkeypatch, *extra) -> int:
+    with monkeypatch.context() as m:
+        m.syspath_prepend(str(site))
+        plugins = Plugins(BUILTIN_PLUGINS, extra=extra)
+        spec = plugins.policy("demo-wave")
+        runner = Runner(plugins, spec, spec.make_config({}), store=store, workers=1, progress=False)
+        return runner.run(SPECS).played
+
+
+def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_path, monkeypatch):
+    old = install_demo("0.3.1", tmp_path / "site-old")
+    new = install_demo("0.3.2", tmp_path / "site-new")
+    store = EpisodeStore(tmp_path / "store")
+    assert play(old, store, monkeypatch) == 1
+    assert play(old, store, monkeypatch) == 0  # same code: reused
+    assert play(new, store, monkeypatch) == 1  # the policy's plugin upgraded
+    assert play(new, store, monkeypatch, Halve()) == 1  # a post-processor installed
+    assert play(new, store, monkeypatch, Halve()) == 0
+    records = store.records()
+    assert len(records) == 3 and len({r.config_hash for r in records}) == 3
+    assert {r.plugin_version for r in records} == {"0.3.1", "0.3.2"}
