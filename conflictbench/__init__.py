@@ -35,3 +35,17 @@ __all__ = [
     "ActionContext", "ConflictCase", "EpisodeRecord", "Observation", "Pair", "PrivilegedState",
     "BUILTIN_PLUGINS", "hookimpl", "plugins", "__version__",
 ]
+
+# The shared client for served policies: what a model plugin needs to talk to its server.
+from .core import (  # noqa: E402
+    HttpJsonTransport,
+    InfrastructureError,
+    PolicyClient,
+    ServedPolicy,
+    ServerUnavailable,
+    ServingConfig,
+    Transport,
+)
+
+__all__ += ["HttpJsonTransport", "InfrastructureError", "PolicyClient", "ServedPolicy", "ServerUnavailable",
+            "ServingConfig", "Transport"]

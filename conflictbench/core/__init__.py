@@ -1,6 +1,7 @@
 """The contract every plugin sees. Imports nothing else of conflictbench, no simulator, no torch."""
 
 from .errors import ConflictbenchError, PluginError, PolicyError, SimulatorUnavailable, UserError
+from .errors import InfrastructureError, ServerUnavailable
 from .hookspecs import hookimpl, hookspec
 from .plugins import MetricSpec, Plugins, PolicySpec
 from .policy import DEFAULT_MAX_STEPS, Policy, PolicyTraits, as_action_chunk
@@ -27,3 +28,10 @@ __all__ = [
     "PolicySpec", "PolicyTraits", "PrivilegedState", "SIMULATOR_ERROR_PREFIX", "SimulatorUnavailable", "UserError",
     "as_action_chunk", "default_format_prompt", "hookimpl", "hookspec",
 ]
+
+# The shared client for served policies (model plugins), and the errors it raises.
+from .records import INFRASTRUCTURE_ERROR_PREFIX  # noqa: E402
+from .serving import HttpJsonTransport, PolicyClient, ServedPolicy, ServingConfig, Transport  # noqa: E402
+
+__all__ += ["HttpJsonTransport", "INFRASTRUCTURE_ERROR_PREFIX", "InfrastructureError", "PolicyClient",
+            "ServedPolicy", "ServerUnavailable", "ServingConfig", "Transport"]

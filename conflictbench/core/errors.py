@@ -1,8 +1,8 @@
 """Errors the framework raises on purpose.
 
 The command line turns a :class:`UserError` into one line on stderr and exit code 2, and a
-:class:`SimulatorUnavailable` into its install hint and exit code 3; anything else is a bug and
-keeps its traceback.
+:class:`SimulatorUnavailable` or :class:`ServerUnavailable` into one line and exit code 3; anything
+else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -33,3 +33,31 @@ class PolicyError(ConflictbenchError):
 
 class PluginError(ConflictbenchError):
     """A plugin registered something invalid (a duplicate name, a non-dataclass config)."""
+
+
+class InfrastructureError(ConflictbenchError):
+    """An episode failed for a reason that is not the model's behaviour: the policy server answered
+    with an error (out of memory, an exception), or the connection kept failing on one request.
+
+    The episode is stored with this message, left out of the measures like a simulator failure,
+    and played again by the next run of the same command. Raise it from a served policy's
+    transport or ``decode`` for a server's error reply.
+    """
+
+
+class ServerUnavailable(ConflictbenchError):
+    """The policy server cannot be reached at all, even after retrying: the run stops.
+
+    Every finished episode is already stored; the same command resumes once the server is back.
+    """
+
+    exit_code = 3
+
+    def __init__(self, url: str, reason: str = ""):
+        super().__init__(url, reason)  # both in args, so the error pickles and compares whole
+        self.url, self.reason = url, reason
+
+    def __str__(self) -> str:
+        why = f" ({self.reason})" if self.reason else ""
+        return (f"the policy server at {self.url} cannot be reached{why}; check that it is running and "
+                f"that the URL is right, then run the same command again to resume")

@@ -14,6 +14,9 @@ import numpy as np
 ACTION_DIM = 7
 #: How the ``error`` of an episode ended by the simulator (not the policy) begins.
 SIMULATOR_ERROR_PREFIX = "simulator error"
+#: How the ``error`` of an episode ended by the serving infrastructure (a policy server's error
+#: reply, a connection that kept failing) begins; such episodes are played again by the next run.
+INFRASTRUCTURE_ERROR_PREFIX = "infrastructure error"
 LIBERO_SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
 PROMPT_CONDITIONS = ("p0", "p1")
 FAMILIES = ("instruction", "grounding", "spatial", "physical")
@@ -171,6 +174,12 @@ class EpisodeRecord:
         A policy error (raised, NaN, wrong shape) is different: that episode counts as failed.
         """
         return self.error is not None and self.error.startswith(SIMULATOR_ERROR_PREFIX)
+
+    @property
+    def infrastructure_failed(self) -> bool:
+        """The simulator or the serving infrastructure (not the policy) ended this episode: it is left
+        out of the measures with its pairs. A serving failure is also played again by the next run."""
+        return self.error is not None and self.error.startswith((SIMULATOR_ERROR_PREFIX, INFRASTRUCTURE_ERROR_PREFIX))
 
 
 @dataclass(frozen=True)

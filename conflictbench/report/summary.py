@@ -70,16 +70,19 @@ class EpisodeCounts:
     orphans: int = 0
     policy_errors: list[EpisodeRecord] = field(default_factory=list)
     crashed: list[EpisodeRecord] = field(default_factory=list)
+    unserved: list[EpisodeRecord] = field(default_factory=list)
+    """Episodes the serving infrastructure ended (a policy server's error reply, a broken connection)."""
 
 
 def pair_up(records: Iterable[EpisodeRecord]) -> tuple[list[Pair], EpisodeCounts]:
-    """Pairs for the report. A policy error ends an episode as a failure (it stays in); a simulator
-    failure says nothing about the policy, so such episodes are left out with their pairs."""
+    """Pairs for the report. A policy error ends an episode as a failure (it stays in); a simulator or
+    serving-infrastructure failure says nothing about the policy, so such episodes are left out with their pairs."""
     records = list(records)
     counts = EpisodeCounts(episodes=len(records), references=sum(r.is_reference for r in records),
-                           policy_errors=[r for r in records if r.error is not None and not r.simulator_failed],
-                           crashed=[r for r in records if r.simulator_failed])
-    pairs, orphans = make_pairs(r for r in records if not r.simulator_failed)
+                           policy_errors=[r for r in records if r.error is not None and not r.infrastructure_failed],
+                           crashed=[r for r in records if r.simulator_failed],
+                           unserved=[r for r in records if r.infrastructure_failed and not r.simulator_failed])
+    pairs, orphans = make_pairs(r for r in records if not r.infrastructure_failed)
     counts.pairs, counts.orphans = len(pairs), len(orphans)
     return pairs, counts
 
@@ -125,6 +128,10 @@ def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, names: Sequence[str
         first = counts.crashed[0]
         print(f"{len(counts.crashed)} episode(s) ended with a simulator failure and are left out, with their pairs "
               f"(e.g. {first.episode_id}: {first.error})", file=stream)
+    if counts.unserved:
+        first = counts.unserved[0]
+        print(f"{len(counts.unserved)} episode(s) ended with an infrastructure failure and are left out, with their "
+              f"pairs; the next run plays them again (e.g. {first.episode_id}: {first.error})", file=stream)
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
 

@@ -3,6 +3,13 @@
 Each file is written to a temporary name and renamed into place, so a run killed at any moment
 leaves only whole episodes behind. A claim file marks an episode being played, so two jobs
 sharing a store (a sweep split over processes) never play the same episode twice.
+
+An episode the serving infrastructure ended (its ``error`` starts with
+``INFRASTRUCTURE_ERROR_PREFIX``: a policy server's error reply, a connection that kept breaking) is
+stored under ``<root>/replay/<policy>/`` instead. It is kept for the record and seen by
+:meth:`EpisodeStore.files`, ``records()`` and reports (which leave it out of the measures and say
+how many), but not by :meth:`EpisodeStore.stored_ids`, so the next run plays it again; the replay,
+once stored, removes it. Planning reads only file names, never file contents.
 """
 
 from __future__ import annotations
@@ -17,7 +24,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from conflictbench.core import EpisodeRecord
+from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, EpisodeRecord
 
 from .schema import SCHEMA, records_to_table, table_to_records
 
@@ -40,6 +47,7 @@ class EpisodeStore:
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
         self.episodes_dir = self.root / "episodes"
+        self.replay_dir = self.root / "replay"
         self.claims_dir = self.root / "claims"
         self._host = socket.gethostname()
 
@@ -47,25 +55,47 @@ class EpisodeStore:
     def path_for(self, policy: str, episode_id: str) -> Path:
         return self.episodes_dir / policy / f"{episode_id}{SUFFIX}"
 
+    def replay_path_for(self, policy: str, episode_id: str) -> Path:
+        """Where an episode the serving infrastructure ended waits to be played again."""
+        return self.replay_dir / policy / f"{episode_id}{SUFFIX}"
+
     def write(self, record: EpisodeRecord) -> Path:
         """Write one episode atomically (temporary file in the same directory, then rename)."""
-        final = self.path_for(record.policy, record.episode_id)
+        replay = record.error is not None and record.error.startswith(INFRASTRUCTURE_ERROR_PREFIX)
+        final = (self.replay_path_for if replay else self.path_for)(record.policy, record.episode_id)
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp = final.with_name(f".{final.name}.{os.getpid()}.tmp")
         pq.write_table(records_to_table([record]), tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, final)
+        if not replay:  # the replay of an episode the infrastructure ended: drop the failed attempt
+            self.replay_path_for(record.policy, record.episode_id).unlink(missing_ok=True)
         return final
 
     # -- what is there ---------------------------------------------------------------------
-    def files(self) -> list[Path]:
-        if not self.episodes_dir.is_dir():
+    @staticmethod
+    def _parquet_files(folder: Path) -> list[Path]:
+        if not folder.is_dir():
             return []
-        return sorted(p for p in self.episodes_dir.glob(f"*/*{SUFFIX}") if not p.name.startswith("."))
+        return sorted(p for p in folder.glob(f"*/*{SUFFIX}") if not p.name.startswith("."))
+
+    def files(self) -> list[Path]:
+        """Every stored episode: those kept, then those waiting to be played again."""
+        kept = self._parquet_files(self.episodes_dir)
+        names = {(p.parent.name, p.name) for p in kept}
+        # A replay stored just before its failed attempt was removed leaves both: the kept one counts.
+        waiting = [p for p in self._parquet_files(self.replay_dir) if (p.parent.name, p.name) not in names]
+        return kept + waiting
 
     def stored_ids(self) -> set[str]:
-        return {p.name[: -len(SUFFIX)] for p in self.files()}
+        """The episodes a run need not play (those waiting for a replay are not among them)."""
+        return {p.name[: -len(SUFFIX)] for p in self._parquet_files(self.episodes_dir)}
+
+    def replay_ids(self) -> set[str]:
+        """The episodes the serving infrastructure ended, which the next run plays again."""
+        kept = self.stored_ids()
+        return {p.name[: -len(SUFFIX)] for p in self._parquet_files(self.replay_dir)} - kept
 
     def __len__(self) -> int:
         return len(self.files())
@@ -132,8 +162,8 @@ class EpisodeStore:
     def clean_stale_temporaries(self) -> int:
         """Remove half-written files left by processes that died mid-write."""
         removed = 0
-        if self.episodes_dir.is_dir():
-            for tmp in self.episodes_dir.glob("*/.*.tmp"):
+        for folder in (self.episodes_dir, self.replay_dir):
+            for tmp in folder.glob("*/.*.tmp") if folder.is_dir() else ():
                 pid = tmp.name.rsplit(".", 2)[-2]
                 if pid.isdigit() and not _pid_alive(int(pid)):
                     tmp.unlink(missing_ok=True)

@@ -1,0 +1,376 @@
+"""The shared client for policies whose model runs behind a server (every model plugin uses it).
+
+A model plugin supplies what is particular to its model: a :class:`Transport` (its wire protocol:
+connect, exchange one request for one reply, close) and ``encode``/``decode`` (observation to
+request, reply to actions). The core owns the rest, the same for every model:
+
+- a connection per stream (``observation.stream``, one per simulator worker), so N workers keep N
+  requests in flight, and ``act_batch`` sends a batch's requests concurrently;
+- connecting with a timeout, retried with exponential backoff; a connection lost mid-request is
+  reopened and the request sent again (a few times at most);
+- classification of failures. A server that cannot be reached after the retries raises
+  :class:`ServerUnavailable`: the run stops, with one line naming the URL (exit code 3). A server
+  error reply, a reply that cannot be read, no reply in time, or a connection that keeps dying on
+  one request raise :class:`InfrastructureError`: that episode is stored with the error, left out
+  of the measures, and played again by the next run.
+
+Transports signal a broken or refused connection with :class:`OSError` (``ConnectionError``,
+``TimeoutError``, socket errors) and a server's error reply with :class:`InfrastructureError`.
+:class:`HttpJsonTransport` (HTTP POST with a JSON body, stdlib only) is the one built in; the
+OpenVLA family's REST ``POST /act`` servers speak exactly it.
+
+Example, a complete plugin module (``conflictbench model=mymodel model.server=http://gpu:8000/act``)::
+
+    from dataclasses import dataclass
+
+    import numpy as np
+
+    from conflictbench import PolicyClient, ServedPolicy, ServingConfig, hookimpl
+
+
+    @dataclass
+    class MyModelConfig(ServingConfig):
+        server: str = "http://127.0.0.1:8000/act"
+
+
+    class MyModel(ServedPolicy):
+        needs_images = True
+
+        def encode(self, observation):
+            return {"image": observation.agentview_image[::-1, ::-1],  # arrays are sent as lists
+                    "instruction": observation.instruction}
+
+        def decode(self, reply, observation):
+            return np.asarray(reply, dtype=np.float64)  # (7,) or a chunk (k, 7)
+
+
+    @hookimpl
+    def conflictbench_register_policies(register):
+        register("mymodel", load=lambda cfg: MyModel(PolicyClient.from_config(cfg)), config=MyModelConfig)
+
+Another protocol passes its own transport: ``PolicyClient.from_config(cfg, transport=MyWebsocket)``.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+import threading
+import time
+import urllib.parse
+from abc import ABC, abstractmethod
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .errors import InfrastructureError, PolicyError, ServerUnavailable, UserError
+from .records import Observation
+
+#: Threads that carry concurrent requests (created on demand; one per stream in flight).
+MAX_CONCURRENT_REQUESTS = 256
+
+
+class Transport(ABC):
+    """One connection to a policy server in one wire protocol. The client makes one per stream.
+
+    Raise :class:`OSError` when the connection cannot be made or breaks (the client retries and
+    reconnects), :class:`InfrastructureError` when the server answers with an error.
+    """
+
+    def __init__(self, url: str):
+        self.url = url
+
+    @abstractmethod
+    def connect(self, timeout: float) -> None:
+        """Open the connection (and do the protocol's handshake), within ``timeout`` seconds."""
+
+    @abstractmethod
+    def exchange(self, request: Any, timeout: float) -> Any:
+        """Send one request on the open connection and return the server's reply."""
+
+    def close(self) -> None:
+        """Close the connection; must not raise, also when it was never opened."""
+
+
+class HttpJsonTransport(Transport):
+    """HTTP POST of a JSON body, JSON reply, on one keep-alive connection (``http.client``).
+
+    numpy arrays and scalars in the request are sent as (nested) lists and numbers. A reply with a
+    status of 400 or more, or a JSON object whose only key is ``error``, raises
+    :class:`InfrastructureError`.
+    """
+
+    def __init__(self, url: str):
+        super().__init__(url)
+        parts = urllib.parse.urlsplit(url)
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise UserError(f"not an http:// or https:// URL: {url!r}")
+        self._connection_class = http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
+        self._host, self._port = parts.hostname, parts.port
+        self._path = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
+        self._conn: http.client.HTTPConnection | None = None
+
+    def connect(self, timeout: float) -> None:
+        self.close()
+        self._conn = self._connection_class(self._host, self._port, timeout=timeout)
+        self._conn.connect()
+        self._conn.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # small requests: no Nagle wait
+
+    def exchange(self, request: Any, timeout: float) -> Any:
+        body = json.dumps(request, default=_json_default).encode()
+        conn = self._conn
+        if conn is None:
+            raise ConnectionError("not connected")
+        if conn.sock is None:  # the server closed it after the last reply ("Connection: close")
+            conn.connect()
+        conn.sock.settimeout(timeout)
+        try:
+            conn.request("POST", self._path, body, {"Content-Type": "application/json"})
+            response = conn.getresponse()
+            data = response.read()
+        except http.client.HTTPException as exc:  # a cut or garbled reply: this connection is done
+            raise ConnectionError(f"{type(exc).__name__}: {exc}") from exc
+        if response.status >= 400:
+            raise InfrastructureError(f"{self.url} answered HTTP {response.status} {response.reason}: "
+                                      f"{_one_line(data.decode(errors='replace'))}")
+        try:
+            reply = json.loads(data)
+        except ValueError:
+            raise InfrastructureError(f"{self.url} answered something that is not JSON: "
+                                      f"{_one_line(data.decode(errors='replace'))}") from None
+        if isinstance(reply, dict) and list(reply) == ["error"]:
+            raise InfrastructureError(f"{self.url} answered an error: {_one_line(str(reply['error']))}")
+        return reply
+
+    def close(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+
+@dataclass
+class ServingConfig:
+    """Settings of a served policy; a plugin's config dataclass inherits them (``model.server=URL``)."""
+
+    server: str = "http://127.0.0.1:8000/act"
+    """Where the policy server listens."""
+    connect_timeout_s: float = 10.0
+    """Limit for opening one connection."""
+    request_timeout_s: float = 120.0
+    """Limit for the reply to one request (a large model on a slow device can take many seconds)."""
+    connect_retries: int = 5
+    """Further connection attempts before the run stops (after 0.5, 1, 2, 4, 8 s by default)."""
+    backoff_s: float = 0.5
+    """Wait before the first retry; doubled for each next one, up to ``max_backoff_s``."""
+    max_backoff_s: float = 8.0
+    resends: int = 2
+    """How often one request is sent again after its connection broke, before the episode fails."""
+
+
+class PolicyClient:
+    """Requests to one policy server: a connection per stream, retries, reconnects, failure classes."""
+
+    def __init__(self, url: str, transport: Callable[[str], Transport] = HttpJsonTransport, *,
+                 connect_timeout_s: float = 10.0, request_timeout_s: float = 120.0, connect_retries: int = 5,
+                 backoff_s: float = 0.5, max_backoff_s: float = 8.0, resends: int = 2):
+        if connect_retries < 0 or resends < 0:
+            raise UserError("connect_retries and resends must be >= 0")
+        self.url, self._make_transport = url, transport
+        self.connect_timeout_s, self.request_timeout_s = connect_timeout_s, request_timeout_s
+        self.connect_retries, self.backoff_s, self.max_backoff_s = connect_retries, backoff_s, max_backoff_s
+        self.resends = resends
+        transport(url).close()  # a malformed URL fails here, before anything is started
+        self._streams: dict[int, _Stream] = {}
+        self._lock = threading.Lock()
+        self._pool: ThreadPoolExecutor | None = None
+
+    @classmethod
+    def from_config(cls, cfg: ServingConfig, transport: Callable[[str], Transport] = HttpJsonTransport) -> PolicyClient:
+        return cls(cfg.server, transport, connect_timeout_s=cfg.connect_timeout_s,
+                   request_timeout_s=cfg.request_timeout_s, connect_retries=cfg.connect_retries,
+                   backoff_s=cfg.backoff_s, max_backoff_s=cfg.max_backoff_s, resends=cfg.resends)
+
+    def backoff_delays(self) -> list[float]:
+        """The waits between connection attempts."""
+        return [min(self.backoff_s * 2 ** i, self.max_backoff_s) for i in range(self.connect_retries)]
+
+    def _stream(self, stream: int) -> _Stream:
+        with self._lock:
+            if stream not in self._streams:
+                self._streams[stream] = _Stream(self, self._make_transport(self.url))
+            return self._streams[stream]
+
+    def open(self, stream: int = 0) -> None:
+        """Connect ``stream`` now (so a missing server stops a run before any simulator starts)."""
+        self._stream(stream).ensure_connected()
+
+    def request(self, request: Any, stream: int = 0) -> Any:
+        """One request on ``stream``'s connection; its reply, or InfrastructureError / ServerUnavailable."""
+        return self._stream(stream).request(request)
+
+    def request_many(self, requests: Sequence[tuple[int, Any]]) -> list[Any]:
+        """``(stream, request)`` pairs sent concurrently, each on its stream's connection.
+
+        Returns the replies in order, with an :class:`Exception` in place of each request that
+        failed; raises :class:`ServerUnavailable` (after every request has ended) if any did.
+        """
+        if len(requests) == 1:
+            calls = [_outcome(self.request, requests[0][1], requests[0][0])]
+        else:
+            with self._lock:
+                if self._pool is None:
+                    self._pool = ThreadPoolExecutor(MAX_CONCURRENT_REQUESTS, thread_name_prefix="conflictbench-serving")
+                pool = self._pool
+            calls = list(pool.map(lambda item: _outcome(self.request, item[1], item[0]), requests))
+        unavailable = next((r for r in calls if isinstance(r, ServerUnavailable)), None)
+        if unavailable is not None:
+            raise unavailable
+        return calls
+
+    def close(self) -> None:
+        with self._lock:
+            streams, self._streams = list(self._streams.values()), {}
+            pool, self._pool = self._pool, None
+        for stream in streams:
+            stream.transport.close()
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+class _Stream:
+    """One stream's connection; its lock keeps one request at a time on it."""
+
+    def __init__(self, client: PolicyClient, transport: Transport):
+        self.client, self.transport = client, transport
+        self.connected = False
+        self.lock = threading.Lock()
+
+    def ensure_connected(self) -> None:
+        with self.lock:
+            self._connect()
+
+    def _connect(self) -> None:
+        if self.connected:
+            return
+        client, started = self.client, time.monotonic()
+        delays = client.backoff_delays()
+        for attempt in range(len(delays) + 1):
+            try:
+                self.transport.connect(client.connect_timeout_s)
+                self.connected = True
+                return
+            except OSError as exc:
+                self.transport.close()
+                reason = _describe(exc, client.connect_timeout_s)
+                if attempt < len(delays):
+                    time.sleep(delays[attempt])
+        raise ServerUnavailable(client.url, f"{reason}; {len(delays) + 1} attempt(s) over "
+                                            f"{time.monotonic() - started:.1f} s")
+
+    def _drop(self) -> None:
+        self.transport.close()
+        self.connected = False
+
+    def request(self, request: Any) -> Any:
+        client = self.client
+        with self.lock:
+            for _ in range(client.resends + 1):
+                self._connect()
+                try:
+                    return self.transport.exchange(request, client.request_timeout_s)
+                except TimeoutError:
+                    self._drop()  # the server may still be working on it: never resend a slow request
+                    raise InfrastructureError(f"no reply from {client.url} within {client.request_timeout_s:g} s") from None
+                except OSError as exc:
+                    self._drop()  # lost mid-request: reconnect (or stop the run) and send it again
+                    reason = _describe(exc, client.request_timeout_s)
+        raise InfrastructureError(f"the connection to {client.url} broke {client.resends + 1} times on one request "
+                                  f"(last: {reason}); did the server run out of memory or crash on it?")
+
+
+class ServedPolicy:
+    """A policy whose model runs behind a server. Subclasses define ``encode`` and ``decode``.
+
+    One instance serves every simulator worker (it has ``act_batch``): each observation's
+    ``stream`` picks its connection, and a batch's requests are in flight together. Per-episode
+    state, if a protocol needs some, is kept by ``observation.stream`` (``observation.step == 0``
+    starts an episode); the instruction arrives in every observation.
+    """
+
+    needs_images = True
+
+    def __init__(self, client: PolicyClient):
+        self.client = client
+        client.open()
+
+    def encode(self, observation: Observation) -> Any:
+        """The request for one observation, as the transport sends it."""
+        raise NotImplementedError
+
+    def decode(self, reply: Any, observation: Observation) -> np.ndarray:
+        """The action (7,) or chunk (k, 7) in the server's reply to ``observation``'s request."""
+        raise NotImplementedError
+
+    def reset(self, instruction: str) -> None:
+        pass
+
+    def act(self, observation: Observation) -> np.ndarray:
+        result = self.act_batch([observation])[0]
+        if isinstance(result, Exception):
+            raise result
+        return result
+
+    def act_batch(self, observations: Sequence[Observation]) -> list[Any]:
+        """Actions in order; an :class:`Exception` in place of each observation whose request failed
+        (that episode alone ends with it). Raises :class:`ServerUnavailable`."""
+        encoded = [_outcome(self.encode, obs) for obs in observations]
+        sendable = [i for i, e in enumerate(encoded) if not isinstance(e, Exception)]
+        replies = self.client.request_many([(observations[i].stream, encoded[i]) for i in sendable])
+        results: list[Any] = list(encoded)
+        for i, reply in zip(sendable, replies):
+            results[i] = reply if isinstance(reply, Exception) else _outcome(self._decode, reply, observations[i])
+        return results
+
+    def _decode(self, reply: Any, observation: Observation) -> np.ndarray:
+        try:
+            return self.decode(reply, observation)
+        except (InfrastructureError, PolicyError):
+            raise
+        except Exception as exc:  # the reply is not what this client expects: not the model's behaviour
+            raise InfrastructureError(f"could not read the reply of {self.client.url}: "
+                                      f"{type(exc).__name__}: {_one_line(str(exc))}") from exc
+
+    def close(self) -> None:
+        self.client.close()
+
+
+def _outcome(function: Callable[..., Any], *args: Any) -> Any:
+    """``function(*args)``, or the exception it raised (a failure that belongs to one episode)."""
+    try:
+        return function(*args)
+    except Exception as exc:
+        return exc
+
+
+def _describe(exc: OSError, timeout: float) -> str:
+    if isinstance(exc, TimeoutError):
+        return f"no answer within {timeout:g} s"
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused"
+    return _one_line(f"{type(exc).__name__}: {exc}")
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    flat = " ".join(text.split())
+    return flat if len(flat) <= limit else flat[: limit - 3] + "..."
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} cannot be sent as JSON")
