@@ -295,8 +295,8 @@ def test_builtins_are_registered_through_the_hook_and_plugins_join_pair_metrics(
     assert {"tar", "ts", "early20_ts", "ams"} <= set(values)
     assert values["step_ratio"] == 0.25
     assert values["ts"] == 1.0
-    # the registered compute functions give the same values one Pair at a time
-    assert specs["ts"].compute(Pair(ref, con)) == 1.0
+    # the registered functions give the same values one Pair at a time
+    assert specs["ts"].compute_pair(Pair(ref, con)) == 1.0
     assert pair_metrics(ref, record(eef=line([0, 0.1]), steps=10))["ts"] == 1.0  # default plugins
 
 

@@ -10,17 +10,17 @@ from __future__ import annotations
 from conflictbench.core import hookimpl
 
 from .aggregate import GROUPINGS, aggregate, prompt_couples, prompt_differences, qualified_failure_mask, with_model
+from .builtins import DESCRIPTIONS, register_builtins
 from .outcome import Rate, delta_sr, failure_rate, pcsr, qualified, qualified_failures, rgsr
 from .pairs import make_pairs, reference_key
 from .plain import EARLY_STEPS, EPS, SIGMA
-from .process import BUILTIN_METRICS, COMPUTE, DESCRIPTIONS, dtw, evaluate_pairs, metric_specs, pair_metrics
+from .process import BUILTIN_METRICS, dtw, evaluate_pairs, metric_specs, pair_metrics
 
 
 @hookimpl
 def conflictbench_register_metrics(register):
-    """TAR, TS, Early20 TS and AMS, through the same hook third-party metrics use."""
-    for name in BUILTIN_METRICS:
-        register(name, compute=COMPUTE[name], description=DESCRIPTIONS[name])
+    """TAR, TS, Early20 TS and AMS, through the same hook and arguments third-party metrics use."""
+    register_builtins(register)
 
 
 __all__ = ["BUILTIN_METRICS", "EARLY_STEPS", "EPS", "GROUPINGS", "Rate", "SIGMA", "aggregate", "delta_sr", "dtw",

@@ -1,19 +1,23 @@
-"""The process measures (TAR, TS, Early20 TS, AMS) per pair, and the fast batch path.
+"""Registered metrics over aligned pairs, and the built-ins' compiled batch (TAR, TS, Early20 TS, AMS).
 
-:func:`evaluate_pairs` packs a chunk of pairs into flat arrays (each reference once, however many
-conflicts reuse it) and runs the compiled kernels over the chunk in parallel; only per-pair
-scalars are kept between chunks, so memory stays bounded whatever the number of pairs.
-:func:`pair_metrics` is the same computation for one pair. Other registered metrics (plugins)
-are called pair by pair through their ``compute(pair)``.
+:func:`evaluate_pairs` consumes the pairs in chunks and asks every registered metric for its
+column: through its ``compute_many(references, conflicts)`` when it has one, else through
+``compute(pair)`` pair by pair. Only per-pair scalars are kept between chunks, so memory stays
+bounded whatever the number of pairs. The built-ins are registered with ``compute_many``
+functions that share one pass of the compiled kernels per chunk (:class:`PerChunk`): the chunk is
+packed into flat arrays (each reference once, however many conflicts reuse it) and the kernels
+run over it in parallel.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import threading
 import warnings
+import weakref
 from itertools import islice
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 import pandas as pd
@@ -26,40 +30,10 @@ from . import kernels, plain
 from .plain import EARLY_STEPS, EPS, SIGMA
 
 BUILTIN_METRICS = ("tar", "early20_ts", "ts", "ams")  # the paper's column order
-DESCRIPTIONS = {
-    "tar": "Target Approach Ratio: how far the conflict rollout still closed in on the original targets, "
-           "relative to the reference (A-/A+, clipped to [0,1]); lower = stopped pursuing the invalid goal",
-    "ts": f"Trajectory Similarity: exp(-DTW/(sigma*L)) of the end-effector paths, sigma={SIGMA} m; "
-          "lower = the conflict rollout left the reference path",
-    "early20_ts": f"TS over the initial position and the first min({EARLY_STEPS}, H) steps of each rollout",
-    "ams": "Action Magnitude Suppression: 1 - I(tau-)/I(tau+) over the first six action dims, scaled by the "
-           "reference's RMS per dim; higher = moved less than in the reference",
-}
 #: Identifies each pair in :func:`evaluate_pairs`'s frame (taken from the conflict episode).
 KEY_COLUMNS = ("policy", "config_hash", "suite", "task_id", "init_state", "prompt", "seed", "case_id",
                "family", "level")
 CHUNK_PAIRS = 2048
-
-
-# -- the registered compute functions (also the slow path for a caller holding a Pair) ----------
-def compute_tar(pair: Pair) -> float | None:
-    return _one_pair(pair.reference, pair.conflict)["tar"]
-
-
-def compute_ts(pair: Pair) -> float | None:
-    return _one_pair(pair.reference, pair.conflict)["ts"]
-
-
-def compute_early20_ts(pair: Pair) -> float | None:
-    return _one_pair(pair.reference, pair.conflict)["early20_ts"]
-
-
-def compute_ams(pair: Pair) -> float | None:
-    return _one_pair(pair.reference, pair.conflict)["ams"]
-
-
-COMPUTE = {"tar": compute_tar, "ts": compute_ts, "early20_ts": compute_early20_ts, "ams": compute_ams}
-_BATCHED = {fn: name for name, fn in COMPUTE.items()}  # recognised by identity in evaluate_pairs
 
 
 def dtw(p: np.ndarray, q: np.ndarray, *, kernel: str = "matrix") -> tuple[float, int]:
@@ -158,9 +132,43 @@ def _builtin_batch(references: Sequence[EpisodeRecord], conflicts: Sequence[Epis
     return {"tar": tar, "ts": ts, "early20_ts": early, "ams": ams}
 
 
-def _one_pair(reference: EpisodeRecord, conflict: EpisodeRecord) -> dict[str, float | None]:
-    values = _builtin_batch([reference], [conflict])
-    return {name: _value(values[name][0]) for name in BUILTIN_METRICS}
+class PerChunk:
+    """``compute(references, conflicts)``, run once per chunk: a later call with the very same records
+    (by identity, in the same order) gets the kept result, so several metrics can share one pass.
+
+    The records are held weakly, so a finished chunk is freed; one result is kept per thread.
+    """
+
+    def __init__(self, compute: Callable[[Sequence[EpisodeRecord], Sequence[EpisodeRecord]], Any]):
+        self._compute = compute
+        self._last = threading.local()
+        self.runs = 0  # passes actually computed (not served from the kept result)
+
+    def __call__(self, references: Sequence[EpisodeRecord], conflicts: Sequence[EpisodeRecord]) -> Any:
+        last = getattr(self._last, "value", None)
+        if last is not None and _same(last[0], references) and _same(last[1], conflicts):
+            return last[2]
+        result = self._compute(references, conflicts)
+        self.runs += 1
+        self._last.value = ([weakref.ref(r) for r in references], [weakref.ref(c) for c in conflicts], result)
+        return result
+
+
+def _same(kept: list[weakref.ref], records: Sequence[EpisodeRecord]) -> bool:
+    return len(kept) == len(records) and all(ref() is record for ref, record in zip(kept, records))
+
+
+builtin_batch = PerChunk(_builtin_batch)
+
+
+def builtin_compute_many(name: str) -> Callable[[Sequence[EpisodeRecord], Sequence[EpisodeRecord]], np.ndarray]:
+    """The registered ``compute_many`` of one built-in: its column of the chunk's shared kernel pass."""
+
+    def compute_many(references: Sequence[EpisodeRecord], conflicts: Sequence[EpisodeRecord]) -> np.ndarray:
+        return builtin_batch(references, conflicts)[name].copy()  # the kept result stays intact
+
+    compute_many.__name__ = compute_many.__qualname__ = f"compute_many_{name}"
+    return compute_many
 
 
 def _value(v: Any) -> float | None:
@@ -180,18 +188,14 @@ def default_plugins():
 
 
 def metric_specs(plugins=None, names: Sequence[str] | None = None) -> list[MetricSpec]:
-    """The built-in process measures plus every registered metric, in registration order."""
+    """The registered metrics in the registry's order, or those named (UserError if one is not registered)."""
     registered = (plugins or default_plugins()).metrics()
-    specs = [registered.get(n) or MetricSpec(n, COMPUTE[n], DESCRIPTIONS[n], "conflictbench", "")
-             for n in BUILTIN_METRICS]
-    specs += [s for n, s in registered.items() if n not in BUILTIN_METRICS]
-    if names is not None:
-        by_name = {s.name: s for s in specs}
-        for name in names:
-            if name not in by_name:
-                raise UserError(unknown_choice("metric", name, by_name))
-        specs = [by_name[n] for n in names]
-    return specs
+    if names is None:
+        return list(registered.values())
+    for name in names:
+        if name not in registered:
+            raise UserError(unknown_choice("metric", name, registered))
+    return [registered[n] for n in names]
 
 
 def _chunks(references: Iterable[EpisodeRecord], conflicts: Iterable[EpisodeRecord],
@@ -201,18 +205,36 @@ def _chunks(references: Iterable[EpisodeRecord], conflicts: Iterable[EpisodeReco
         yield [r for r, _ in chunk], [c for _, c in chunk]
 
 
-def _plugin_values(spec: MetricSpec, references: Sequence[EpisodeRecord], conflicts: Sequence[EpisodeRecord],
-                   failed: set[str]) -> np.ndarray:
-    out = np.full(len(references), math.nan)
+def _warn_once(spec: MetricSpec, failed: set[str], problem: str) -> None:
+    if spec.name not in failed:  # a broken third-party metric must not sink the report
+        failed.add(spec.name)
+        warnings.warn(f"metric {spec.name!r} ({spec.plugin}) {problem}; counted as undefined", stacklevel=4)
+
+
+def _column(spec: MetricSpec, references: list[EpisodeRecord], conflicts: list[EpisodeRecord],
+            failed: set[str]) -> np.ndarray:
+    """One metric over a chunk, float64 with NaN where undefined (None, NaN, infinite or raised)."""
+    n = len(references)
+    if spec.compute_many is not None:
+        try:
+            values = spec.compute_many(references, conflicts)
+            out = np.array([math.nan if v is None else v for v in values] if not isinstance(values, np.ndarray)
+                           else values, dtype=np.float64)
+        except Exception as exc:
+            _warn_once(spec, failed, f"raised {type(exc).__name__}: {exc}")
+            return np.full(n, math.nan)
+        if out.shape != (n,):
+            _warn_once(spec, failed, f"gave {out.size} values for {n} pairs")
+            return np.full(n, math.nan)
+        out[~np.isfinite(out)] = math.nan
+        return out
+    out = np.full(n, math.nan)
     for i, (ref, con) in enumerate(zip(references, conflicts)):
         try:
             value = _value(spec.compute(Pair(reference=ref, conflict=con)))
-        except Exception as exc:  # a broken third-party metric must not sink the report
+        except Exception as exc:
+            _warn_once(spec, failed, f"raised {type(exc).__name__}: {exc}")
             value = None
-            if spec.name not in failed:
-                failed.add(spec.name)
-                warnings.warn(f"metric {spec.name!r} ({spec.plugin}) raised {type(exc).__name__}: {exc}; "
-                              "counted as undefined", stacklevel=3)
         out[i] = math.nan if value is None else value
     return out
 
@@ -223,9 +245,9 @@ def evaluate_pairs(references: Iterable[EpisodeRecord], conflicts: Iterable[Epis
     """One row per aligned (reference, conflict) pair: the pair's keys, both outcomes, every metric.
 
     Columns: :data:`KEY_COLUMNS` (from the conflict episode), ``reference_success``,
-    ``conflict_success``, ``reference_episode``, ``conflict_episode``, then ``tar``, ``ts``,
-    ``early20_ts``, ``ams`` and every other registered metric (or only ``metrics``), as float64
-    with NaN where a measure is undefined. The inputs may be generators: they are consumed in
+    ``conflict_success``, ``reference_episode``, ``conflict_episode``, then every registered
+    metric (or only ``metrics``) in :func:`metric_specs`' order, as float64 with NaN where a
+    measure is undefined. The inputs may be generators: they are consumed in
     chunks of ``chunk_size`` pairs, so only per-pair scalars are held.
     """
     specs = metric_specs(plugins, metrics)
@@ -236,13 +258,8 @@ def evaluate_pairs(references: Iterable[EpisodeRecord], conflicts: Iterable[Epis
         columns["conflict_success"] = np.fromiter((bool(c.success) for c in cons), dtype=bool, count=len(cons))
         columns["reference_episode"] = [r.episode_id for r in refs]
         columns["conflict_episode"] = [c.episode_id for c in cons]
-        builtin = None
         for spec in specs:
-            if _BATCHED.get(spec.compute) == spec.name:
-                builtin = builtin if builtin is not None else _builtin_batch(refs, cons)
-                columns[spec.name] = builtin[spec.name]
-            else:
-                columns[spec.name] = _plugin_values(spec, refs, cons, failed)
+            columns[spec.name] = _column(spec, refs, cons, failed)
         frames.append(pd.DataFrame(columns))
     if not frames:
         empty = {key: pd.Series([], dtype=object) for key in KEY_COLUMNS}
@@ -255,6 +272,6 @@ def evaluate_pairs(references: Iterable[EpisodeRecord], conflicts: Iterable[Epis
 
 
 def pair_metrics(reference: EpisodeRecord, conflict: EpisodeRecord, *, plugins=None) -> dict[str, float | None]:
-    """``tar``, ``ts``, ``early20_ts``, ``ams`` and every registered metric of one pair (None: undefined)."""
+    """Every registered metric of one pair (None: undefined)."""
     row = evaluate_pairs([reference], [conflict], plugins=plugins).iloc[0]
     return {spec.name: _value(row[spec.name]) for spec in metric_specs(plugins)}
