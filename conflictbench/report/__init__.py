@@ -2,6 +2,6 @@
 
 from .from_store import report_store
 from .summary import report_records, select_metrics
-from .tables import DIRECTIONS, paper_tables
+from .tables import OUTCOME_DIRECTIONS, paper_tables
 
-__all__ = ["DIRECTIONS", "paper_tables", "report_records", "report_store", "select_metrics"]
+__all__ = ["OUTCOME_DIRECTIONS", "paper_tables", "report_records", "report_store", "select_metrics"]

@@ -2,7 +2,8 @@
 
 Figures are drawn on ``matplotlib.figure.Figure`` objects with the Agg canvas, never through
 pyplot, so reporting does not change the backend or state of the caller's matplotlib. An empty
-subset draws an "n/a (n=0)" note in its place.
+subset draws an "n/a (n=0)" note in its place. Metrics are titled and scaled as registered: their
+label, and percentages where the unit is "%" (else the values as measured, unit in the title).
 """
 
 from __future__ import annotations
@@ -15,12 +16,9 @@ import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from conflictbench.core import FAMILIES, LEVELS, PROMPT_CONDITIONS
+from conflictbench.core import FAMILIES, LEVELS, PROMPT_CONDITIONS, MetricSpec
 from conflictbench.metrics import qualified_failure_mask, with_model
 
-from .tables import LABELS
-
-TITLES = {"tar": "TAR", "early20_ts": "Early20 TS", "ts": "TS", "ams": "AMS", "PCSR": "PCSR", "RGSR": "RGSR"}
 PROMPT_COLOURS = {"p0": "#4C72B0", "p1": "#DD8452"}
 DPI = 150
 
@@ -37,9 +35,17 @@ def _empty(ax, text: str) -> None:
     ax.set_yticks([])
 
 
-def qualified_failure_distributions(frame: pd.DataFrame, path: Path,
-                                    metrics: Sequence[str] = ("tar", "early20_ts", "ts", "ams")) -> Path:
-    """Box plots of each measure over D_QF, one box per model (and prompt condition, side by side)."""
+def _scale(metric: MetricSpec) -> tuple[float, str]:
+    """(factor, unit text) the values are drawn in: percent for a "%" metric, else as measured."""
+    return (100.0, "%") if metric.percent else (1.0, metric.unit)
+
+
+def _titled(text: str, unit: str) -> str:
+    return f"{text} ({unit})" if unit else text
+
+
+def qualified_failure_distributions(frame: pd.DataFrame, path: Path, metrics: Sequence[MetricSpec]) -> Path:
+    """Box plots of each metric over D_QF, one box per model (and prompt condition, side by side)."""
     frame = with_model(frame)
     qf = frame[qualified_failure_mask(frame)] if len(frame) else frame
     models = sorted(frame["model"].unique()) if len(frame) else []
@@ -48,32 +54,40 @@ def qualified_failure_distributions(frame: pd.DataFrame, path: Path,
     fig = Figure(figsize=(3.2 * len(metrics), 2.6 + 0.25 * max(len(models), 1)), layout="constrained")
     axes = fig.subplots(1, len(metrics), squeeze=False)[0]
     for ax, metric in zip(axes, metrics):
-        ax.set_title(f"{TITLES.get(metric, LABELS.get(metric, metric))} over D_QF (%)", fontsize=10)
+        factor, unit = _scale(metric)
+        ax.set_title(_titled(f"{metric.label} over D_QF", unit), fontsize=10)
         if not models:
             _empty(ax, "n/a (n=0)")
             continue
         drawn = False
+        label_at = ax.get_yaxis_transform()  # x in axes fractions, y in data: notes stay inside the panel
         for pi, prompt in enumerate(prompts):
             for mi, model in enumerate(models):
-                values = qf.loc[(qf["model"] == model) & (qf["prompt"] == prompt), metric].astype(float)
-                values = 100 * values[values.notna()].to_numpy()
+                values = qf.loc[(qf["model"] == model) & (qf["prompt"] == prompt), metric.name].astype(float)
+                values = factor * values[values.notna()].to_numpy()
                 pos = mi + (pi - (len(prompts) - 1) / 2) * width
                 if len(values) == 0:
-                    ax.text(0, pos, " n/a (n=0)", va="center", fontsize=7, color="0.4")
+                    ax.text(0.02, pos, "n/a (n=0)", va="center", fontsize=7, color="0.4", transform=label_at)
                     continue
                 box = ax.boxplot([values], positions=[pos], widths=width * 0.85, orientation="horizontal", patch_artist=True,
                                  showfliers=True, flierprops={"markersize": 2, "alpha": 0.5},
                                  medianprops={"color": "black"})
                 box["boxes"][0].set_facecolor(PROMPT_COLOURS.get(prompt, "0.7"))
                 box["boxes"][0].set_alpha(0.8)
-                ax.text(104, pos, f"n={len(values)}", va="center", fontsize=6, color="0.3")
+                ax.text(0.99, pos, f"n={len(values)}", va="center", ha="right", fontsize=6, color="0.3",
+                        transform=label_at)
                 drawn = True
         ax.set_yticks(range(len(models)), models, fontsize=8)
-        ax.set_xlim(-2, 120)
+        if metric.percent:
+            ax.set_xlim(-2, 120)  # room on the right for the counts
+        else:
+            low, high = ax.get_xlim()
+            ax.set_xlim(low, high + 0.2 * (high - low))
         ax.set_ylim(len(models) - 0.5, -0.5)
         ax.grid(axis="x", alpha=0.3)
         if not drawn:
-            ax.text(50, -0.45, "no qualified failures", ha="center", va="top", fontsize=8, color="0.4")
+            ax.text(0.5, -0.45, "no qualified failures", ha="center", va="top", fontsize=8, color="0.4",
+                    transform=label_at)
     if len(prompts) > 1:
         handles = [_patch(PROMPT_COLOURS[p], p.upper()) for p in prompts]
         fig.legend(handles=handles, loc="outside lower center", ncol=len(prompts), fontsize=8, frameon=False)
@@ -86,30 +100,34 @@ def _patch(colour: str, label: str):
     return Patch(facecolor=colour, label=label, alpha=0.8)
 
 
-def prompt_difference_figure(summary: pd.DataFrame, path: Path,
-                             measures: Sequence[str] = ("RGSR", "tar", "early20_ts", "ts", "ams")) -> Path:
-    """Mean paired P0 - P1 difference per model (percentage points) with 95% intervals."""
+def prompt_difference_figure(summary: pd.DataFrame, path: Path, metrics: Sequence[MetricSpec],
+                             outcomes: Sequence[str] = ("RGSR",)) -> Path:
+    """Mean paired P0 - P1 difference per model with 95% intervals: the outcome rates, then each
+    metric (percentage points for rates and "%" metrics, else in the metric's unit)."""
+    measures = [(name, name, 100.0, "pp") for name in outcomes]
+    measures += [(m.name, m.label, *((100.0, "pp") if m.percent else (1.0, m.unit))) for m in metrics]
     fig = Figure(figsize=(2.8 * len(measures), 1.6 + 0.35 * max(len(summary), 1)), layout="constrained")
     axes = fig.subplots(1, len(measures), squeeze=False, sharey=True)[0]
     models = list(summary["model"]) if len(summary) else []
-    for ax, measure in zip(axes, measures):
-        ax.set_title(f"{TITLES.get(measure, LABELS.get(measure, measure))}: P0 − P1 (pp)", fontsize=10)
+    for ax, (measure, label, factor, unit) in zip(axes, measures):
+        ax.set_title(_titled(f"{label}: P0 − P1", unit), fontsize=10)
         if not models:
             _empty(ax, "n/a: no matched P0/P1\nconflict pairs (n=0)")
             continue
-        diff = 100 * summary[f"{measure}_diff"].astype(float).to_numpy()
-        ci = 100 * summary[f"{measure}_ci95"].astype(float).to_numpy()
+        diff = factor * summary[f"{measure}_diff"].astype(float).to_numpy()
+        ci = factor * summary[f"{measure}_ci95"].astype(float).to_numpy()
         n = summary[f"{measure}_n"].astype(int).to_numpy()
         y = np.arange(len(models))
         shown = np.nan_to_num(diff)
         ax.barh(y, shown, color="#4C72B0", alpha=0.85, xerr=np.where(np.isnan(ci), 0, ci),
                 error_kw={"elinewidth": 1, "capsize": 2})
         ax.axvline(0, color="black", linewidth=0.8)
-        span = max(5.0, float(np.nanmax(np.abs(diff) + np.nan_to_num(ci))) if np.isfinite(diff).any() else 5.0)
+        span = float(np.nanmax(np.abs(diff) + np.nan_to_num(ci))) if np.isfinite(diff).any() else 0.0
+        span = max(5.0, span) if unit == "pp" else (span or 1.0)  # at least +-5 pp around zero
         ax.set_xlim(-1.35 * span, 1.35 * span)
         for yi, d, k in zip(y, diff, n):
-            label = f"n={k}" if np.isfinite(d) else "n/a (n=0)"
-            ax.text(1.33 * span, yi, label, va="center", ha="right", fontsize=6, color="0.3")
+            note = f"n={k}" if np.isfinite(d) else "n/a (n=0)"
+            ax.text(1.33 * span, yi, note, va="center", ha="right", fontsize=6, color="0.3")
         ax.set_yticks(y, models, fontsize=8)
         ax.set_ylim(len(models) - 0.5, -0.5)
         ax.grid(axis="x", alpha=0.3)

@@ -51,9 +51,9 @@ def loaded_pairs(store: EpisodeStore, pairs: Sequence[Pair], chunk: int = CHUNK_
 def report_store(store: EpisodeStore, plugins: Plugins, *, episode_ids: Iterable[str] | None = None,
                  metrics: Sequence[str] | None = None, chunk: int = CHUNK_PAIRS, **options) -> dict[str, pd.DataFrame]:
     """:func:`~conflictbench.report.summary.report_records` for the episodes of a store (or some of them)."""
-    names = [m.name for m in select_metrics(plugins, metrics)]
+    chosen = select_metrics(plugins, metrics)
     pairs, counts = pair_up(light_records(store, episode_ids))
     first, second = tee(loaded_pairs(store, pairs, chunk))
-    frame = evaluate_pairs((r for r, _ in first), (c for _, c in second), plugins=plugins, metrics=names,
-                           chunk_size=chunk)
-    return report_frame(frame, counts, names, **options)
+    frame = evaluate_pairs((r for r, _ in first), (c for _, c in second), plugins=plugins,
+                           metrics=[m.name for m in chosen], chunk_size=chunk)
+    return report_frame(frame, counts, chosen, **options)

@@ -23,12 +23,16 @@ import pandas as pd
 
 from conflictbench.core import EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
-from conflictbench.metrics import (BUILTIN_METRICS, GROUPINGS, aggregate, evaluate_pairs, make_pairs, metric_specs, prompt_couples,
+from tabulate import tabulate
+
+from conflictbench.metrics import (GROUPINGS, aggregate, evaluate_pairs, make_pairs, metric_specs, prompt_couples,
                                    prompt_differences, with_model)
 
-from .tables import LABELS, TableSpec, csv_frame, paper_tables, render_latex, render_markdown, render_text
+from .tables import (PAPER_METRICS, TableSpec, csv_frame, paper_order, paper_tables, render_latex, render_markdown,
+                     render_text)
 
-PERCENT = {"PCSR", "RGSR", *BUILTIN_METRICS}
+#: The outcome rates compared between P0 and P1 (this report's own columns, fractions shown in %).
+OUTCOME_DIFFERENCES = ("PCSR", "RGSR")
 TABLE_KEYS = {"table1_overall": "overall", "table2_by_family": "family", "table3_qualified_failures": "qualified_failures"}
 
 
@@ -37,27 +41,24 @@ def select_metrics(plugins: Plugins, names: Sequence[str] | None) -> list[Metric
     return metric_specs(plugins, names)
 
 
-def _signed(value: float, ci: float, n: int, percent: bool = True) -> str:
+def _signed(value: float, ci: float, n: int, unit: str = "%") -> str:
     if n == 0 or pd.isna(value):
         return f"n/a (n={n})"
-    if not percent:  # a plugin metric, in its own units
-        return f"{value:+.4g}{'' if pd.isna(ci) else f' ±{ci:.2g}'} (n={n})"
+    if unit != "%":  # a metric in its own units
+        return f"{value:+.4g}{f' {unit}' if unit else ''}{'' if pd.isna(ci) else f' ±{ci:.2g}'} (n={n})"
     half = "" if pd.isna(ci) else f" ±{100 * ci:.1f}"
     return f"{100 * value:+.1f}{half} (n={n})"
 
 
-def render_differences(summary: pd.DataFrame, metrics: Sequence[str]) -> str:
-    """Mean paired P0 - P1 differences per model (percentage points for the built-ins), ±95% half-widths."""
-    measures = ["PCSR", "RGSR", *metrics]
-    header = ["model", "couples", *(LABELS.get(m, m) for m in measures)]
+def render_differences(summary: pd.DataFrame, metrics: Sequence[MetricSpec]) -> str:
+    """Mean paired P0 - P1 differences per model (percentage points where the unit is "%"), ±95% half-widths."""
+    measures = [(m, m, "%") for m in OUTCOME_DIFFERENCES] + [(m.name, m.label, m.unit) for m in metrics]
+    header = ["model", "couples", *(label for _, label, _ in measures)]
     rows = [[str(r["model"]), str(int(r["couples"]))]
-            + [_signed(r[f"{m}_diff"], r[f"{m}_ci95"], int(r[f"{m}_n"]), m in PERCENT) for m in measures]
+            + [_signed(r[f"{name}_diff"], r[f"{name}_ci95"], int(r[f"{name}_n"]), unit) for name, _, unit in measures]
             for _, r in summary.iterrows()]
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    lines = ["== Paired P0 - P1 differences (same case, init state and settings; percentage points, ±95%) ==",
-             "  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-    return "\n".join(lines)
+    return "\n".join(["== Paired P0 - P1 differences (same case, init state and settings; percentage points, ±95%) ==",
+                      tabulate(rows, header, tablefmt="simple", disable_numparse=True)])
 
 
 @dataclass
@@ -93,31 +94,36 @@ def report_records(records: Iterable[EpisodeRecord], plugins: Plugins, *, out_di
     """Print the tables for these episodes and, with ``out_dir``, write them and the figures.
 
     ``metrics`` restricts the columns (default: every registered metric); ``directions`` maps a
-    metric name to "higher"/"lower" to mark its most favourable value (plugin metrics are unmarked
-    otherwise). Returns the frames by name: ``pairs``, ``overall``, ``family``,
-    ``qualified_failures``, ``aggregates_<grouping>``, ``prompt_couples``, ``prompt_differences``.
+    metric or outcome name to "higher"/"lower", overriding the direction its registration gives
+    (a metric registered without one is unmarked otherwise). Returns the frames by name: ``pairs``,
+    ``overall``, ``family``, ``qualified_failures``, ``aggregates_<grouping>``, ``prompt_couples``,
+    ``prompt_differences``.
     """
-    names = [m.name for m in select_metrics(plugins, metrics)]
+    chosen = select_metrics(plugins, metrics)
     pairs, counts = pair_up(records)
-    frame = evaluate_pairs([p.reference for p in pairs], [p.conflict for p in pairs], plugins=plugins, metrics=names)
-    return report_frame(frame, counts, names, out_dir=out_dir, stream=stream, figures=figures, directions=directions)
+    frame = evaluate_pairs([p.reference for p in pairs], [p.conflict for p in pairs], plugins=plugins,
+                           metrics=[m.name for m in chosen])
+    return report_frame(frame, counts, chosen, out_dir=out_dir, stream=stream, figures=figures, directions=directions)
 
 
-def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, names: Sequence[str], *,
+def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, metrics: Sequence[MetricSpec], *,
                  out_dir: str | Path | None = None, stream: TextIO | None = None, figures: bool = True,
                  directions: Mapping[str, str] | None = None) -> dict[str, pd.DataFrame]:
-    """Everything after the per-pair frame: aggregates, tables, differences, files and figures."""
+    """Everything after the per-pair frame: aggregates, tables, differences, files and figures.
+    Each metric is shown as its registration says (label, unit, direction)."""
     stream = stream or sys.stdout
+    metrics = paper_order(metrics)  # the differences table follows table 1's column order
+    names = [m.name for m in metrics]
     frame = with_model(frame)
     aggregates = {grouping: aggregate(frame, by, names) for grouping, by in GROUPINGS.items()}
-    specs = paper_tables(names, directions)
+    specs = paper_tables(metrics, directions)
     couples = prompt_couples(frame, names)
     differences = prompt_differences(couples, names)
 
     for spec in specs:
         print("\n" + render_text(aggregates[spec.grouping], spec), file=stream)
     if len(differences):
-        print("\n" + render_differences(differences, names), file=stream)
+        print("\n" + render_differences(differences, metrics), file=stream)
     print(f"\n{counts.episodes} episodes ({counts.references} reference, {counts.episodes - counts.references} "
           f"conflict), {counts.pairs} pairs", file=stream)
     if counts.policy_errors:
@@ -141,13 +147,13 @@ def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, names: Sequence[str
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        write_files(out, frame, aggregates, specs, couples, differences, names, figures=figures)
+        write_files(out, frame, aggregates, specs, couples, differences, metrics, figures=figures)
         print(f"tables{' and figures' if figures else ''} written to {out}/", file=stream)
     return result
 
 
 def write_files(out: Path, frame: pd.DataFrame, aggregates: dict[str, pd.DataFrame], specs: Sequence[TableSpec],
-                couples: pd.DataFrame, differences: pd.DataFrame, metrics: Sequence[str], *,
+                couples: pd.DataFrame, differences: pd.DataFrame, metrics: Sequence[MetricSpec], *,
                 figures: bool = True) -> list[Path]:
     written = []
     report = ["# conflictbench report", ""]
@@ -180,11 +186,10 @@ def write_files(out: Path, frame: pd.DataFrame, aggregates: dict[str, pd.DataFra
     if figures:
         from . import figures as figs  # matplotlib is imported only when figures are drawn
 
-        shown = [m for m in BUILTIN_METRICS if m in metrics]
+        shown = [m for m in paper_order(metrics) if m.name in PAPER_METRICS]  # the paper's figures
         if shown:
             written.append(figs.qualified_failure_distributions(frame, out / "fig_qf_distributions.png", shown))
-        written.append(figs.prompt_difference_figure(differences, out / "fig_prompt_differences.png",
-                                                     ["RGSR", *shown]))
+        written.append(figs.prompt_difference_figure(differences, out / "fig_prompt_differences.png", shown))
         written.append(figs.dsr_heatmap(aggregates["family_level"], out / "fig_dsr_heatmap.png"))
         report += ["## Figures", ""] + [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"] + [""]
     path = out / "report.md"

@@ -1,16 +1,19 @@
-"""The paper's three tables, built from aggregates, rendered for the terminal, Markdown, LaTeX and CSV.
+"""The paper's three tables, built from aggregates, written with ``tabulate`` for the terminal,
+Markdown and LaTeX, and as CSV.
 
-Built-in measures are percentages with one decimal (plugin metrics as they come), each with its
-counts: "78.7 (315/400)" for a rate, "76.5 (n=310)" for a mean over the pairs where the measure is
+Every metric column is shown as its registration says (:class:`~conflictbench.core.MetricSpec`),
+built-ins and plugins alike: its label, its unit (``"%"``: a fraction shown as a percentage with
+one decimal; any other unit after the value) and its direction. The outcome measures (PCSR,
+RGSR, dSR, FR) are this report's own columns, rates in %. Each value carries its counts:
+"78.7 (315/400)" for a rate, "76.5 (n=310)" for a mean over the pairs where the measure is
 defined; an empty subset reads "n/a (0/0)" or "n/a (n=0)".
 
 In each column the most favourable value is marked (terminal "*", Markdown bold, LaTeX \\textbf)
 among the rows of the same prompt condition (and family in the family table), when at least two
-rows have a value and they are not all equal. Directions (:data:`DIRECTIONS`): a more capable
-policy has a higher PCSR; a better conflict response has a lower RGSR, TAR, Early20 TS and TS (it
-did not keep pursuing the invalid goal along the reference path) and a higher dSR, AMS and FR (its
-success dropped under the conflict, it held back its motion, it left the original goal undone
-when it was able to do it). Plugin metrics are unmarked unless ``directions`` names theirs.
+rows have a value and they are not all equal. A metric's direction is its ``higher_is_better``;
+for the outcome measures (:data:`OUTCOME_DIRECTIONS`), a more capable policy has a higher PCSR,
+and a better conflict response has a lower RGSR and a higher dSR and FR (its success dropped
+under the conflict, it left the original goal undone when it was able to do it).
 """
 
 from __future__ import annotations
@@ -20,12 +23,15 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import pandas as pd
+from tabulate import LATEX_ESCAPE_RULES, tabulate
 
-from conflictbench.metrics import BUILTIN_METRICS
+from conflictbench.core import MetricSpec
 
-LABELS = {"tar": "TAR", "ts": "TS", "early20_ts": "Early20_TS", "ams": "AMS"}
-DIRECTIONS = {"PCSR": "higher", "RGSR": "lower", "dSR": "higher", "FR": "higher",
-              "tar": "lower", "ts": "lower", "early20_ts": "lower", "ams": "higher"}
+OUTCOME_DIRECTIONS = {"PCSR": "higher", "RGSR": "lower", "dSR": "higher", "FR": "higher"}
+#: The paper's layout: which metrics (by name, in order) tables 1 and 3 and table 2 show first;
+#: every other selected metric follows them.
+PAPER_METRICS = ("tar", "early20_ts", "ts", "ams")
+FAMILY_TABLE_METRICS = ("tar", "ts", "ams")
 KEY_LABELS = {"model": "model", "prompt": "prompt", "family": "family"}
 BLOCK_WORDS = {"prompt": "prompt condition", "family": "family"}
 
@@ -34,11 +40,15 @@ BLOCK_WORDS = {"prompt": "prompt condition", "family": "family"}
 class Column:
     label: str
     kind: str  # "rate" (value with k/n), "diff" (dSR, with n), "mean" (with n)
-    value: str  # aggregate column holding the fraction
+    value: str  # aggregate column holding the value (a fraction when the unit is "%")
     k: str | None = None
     n: str = "pairs"
     direction: str | None = None
-    percent: bool = True  # built-in measures are fractions, shown in %; a plugin metric as it comes
+    unit: str = "%"
+
+    @property
+    def percent(self) -> bool:
+        return self.unit == "%"
 
 
 @dataclass(frozen=True)
@@ -51,35 +61,42 @@ class TableSpec:
     columns: tuple[Column, ...]
 
 
-def _metric_column(name: str, qualified_failures: bool, directions: Mapping[str, str]) -> Column:
+def _metric_column(spec: MetricSpec, qualified_failures: bool, directions: Mapping[str, str]) -> Column:
     suffix = "_qf" if qualified_failures else ""
-    return Column(LABELS.get(name, name), "mean", f"{name}{suffix}", n=f"{name}{suffix}_n",
-                  direction=directions.get(name), percent=name in BUILTIN_METRICS)
+    return Column(spec.label, "mean", f"{spec.name}{suffix}", n=f"{spec.name}{suffix}_n",
+                  direction=directions.get(spec.name, spec.direction), unit=spec.unit)
 
 
-def paper_tables(metrics: Sequence[str], directions: Mapping[str, str] | None = None) -> list[TableSpec]:
+def paper_order(metrics: Sequence[MetricSpec]) -> list[MetricSpec]:
+    """The paper's metrics in its column order, then every other one in the order given."""
+    by_name = {m.name: m for m in metrics}
+    return [by_name[n] for n in PAPER_METRICS if n in by_name] + [m for m in metrics if m.name not in PAPER_METRICS]
+
+
+def paper_tables(metrics: Sequence[MetricSpec], directions: Mapping[str, str] | None = None) -> list[TableSpec]:
     """Table 1 (overall), 2 (by family) and 3 (FR and means over qualified failures), as in the paper,
-    with every other selected metric appended after the built-ins."""
-    d = {**DIRECTIONS, **(directions or {})}
+    with every other selected metric appended. ``directions`` (name -> "higher"/"lower") overrides."""
+    directions = directions or {}
+    d = {**OUTCOME_DIRECTIONS, **directions}
     outcome = (Column("PCSR", "rate", "PCSR", k="PCSR_k", direction=d["PCSR"]),
                Column("RGSR", "rate", "RGSR", k="RGSR_k", direction=d["RGSR"]),
                Column("dSR", "diff", "dSR", direction=d["dSR"]))
-    extra = [m for m in metrics if m not in BUILTIN_METRICS]
+    by_name = {m.name: m for m in metrics}
+    extra = [m for m in metrics if m.name not in PAPER_METRICS]
 
-    def chosen(names: Sequence[str]) -> list[str]:
-        return [m for m in names if m in metrics] + extra
+    def columns(layout: Sequence[str], qualified_failures: bool = False) -> tuple[Column, ...]:
+        chosen = [by_name[n] for n in layout if n in by_name] + extra
+        return tuple(_metric_column(m, qualified_failures, directions) for m in chosen)
 
-    overall = outcome + tuple(_metric_column(m, False, d) for m in chosen(("tar", "early20_ts", "ts", "ams")))
-    family = outcome + tuple(_metric_column(m, False, d) for m in chosen(("tar", "ts", "ams")))
-    failures = (Column("FR", "rate", "FR", k="FR_k", n="FR_n", direction=d["FR"]),) + tuple(
-        _metric_column(m, True, d) for m in chosen(("tar", "early20_ts", "ts", "ams")))
+    failures = (Column("FR", "rate", "FR", k="FR_k", n="FR_n", direction=d["FR"]),)
     return [
         TableSpec("table1_overall", "Table 1: overall outcome and process measures", "model",
-                  ("model", "prompt"), ("prompt",), overall),
+                  ("model", "prompt"), ("prompt",), outcome + columns(PAPER_METRICS)),
         TableSpec("table2_by_family", "Table 2: by conflict family", "family",
-                  ("model", "prompt", "family"), ("prompt", "family"), family),
+                  ("model", "prompt", "family"), ("prompt", "family"), outcome + columns(FAMILY_TABLE_METRICS)),
         TableSpec("table3_qualified_failures", "Table 3: failure rate among qualified pairs (FR) and process "
-                  "measures over the qualified failures D_QF", "model", ("model", "prompt"), ("prompt",), failures),
+                  "measures over the qualified failures D_QF", "model", ("model", "prompt"), ("prompt",),
+                  failures + columns(PAPER_METRICS, qualified_failures=True)),
     ]
 
 
@@ -92,13 +109,14 @@ def _count(row: pd.Series, column: str | None) -> int:
 
 
 def marks(aggregates: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
-    """Boolean frame (same index, one column per label): is this the most favourable value of its block?"""
-    out = pd.DataFrame(False, index=aggregates.index, columns=[c.label for c in spec.columns])
+    """Boolean frame (same index, one column per table column, by position): is this the most favourable
+    value of its block?"""
+    out = pd.DataFrame(False, index=aggregates.index, columns=range(len(spec.columns)))
     if aggregates.empty:
         return out
     blocks = ([sub.index for _, sub in aggregates.groupby(list(spec.block), dropna=False, sort=False)]
               if spec.block else [aggregates.index])
-    for column in spec.columns:
+    for j, column in enumerate(spec.columns):
         if column.direction not in ("higher", "lower"):
             continue
         for index in blocks:
@@ -108,105 +126,107 @@ def marks(aggregates: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
             if len(values) < 2 or values.nunique() == 1:  # nothing to tell apart
                 continue
             best = values.max() if column.direction == "higher" else values.min()
-            out.loc[values.index[values == best], column.label] = True
+            out.loc[values.index[values == best], j] = True
     return out
 
 
-def cell(row: pd.Series, column: Column) -> str:
+def cell_parts(row: pd.Series, column: Column) -> tuple[str, str]:
+    """(value, counts) of one cell: ("78.7", "(315/400)"), ("0.42 m", "(n=12)"), ("n/a", "(n=0)")."""
     value = row[column.value]
     n = _count(row, column.n)
     if column.kind == "rate":
         k = _count(row, column.k)
-        return f"{100 * value:.1f} ({k}/{n})" if _defined(value) and n else f"n/a ({k}/{n})"
+        return (f"{100 * value:.1f}" if _defined(value) and n else "n/a"), f"({k}/{n})"
     if not (_defined(value) and n):
-        return f"n/a (n={n})"
-    return f"{100 * value:.1f} (n={n})" if column.percent else f"{value:.4g} (n={n})"
+        return "n/a", f"(n={n})"
+    if column.percent:
+        return f"{100 * value:.1f}", f"(n={n})"
+    return f"{value:.4g}{f' {column.unit}' if column.unit else ''}", f"(n={n})"
+
+
+def cell(row: pd.Series, column: Column) -> str:
+    return " ".join(cell_parts(row, column))
 
 
 def _key_text(value) -> str:
     return str(value) if _defined(value) else "-"
 
 
-def text_rows(aggregates: pd.DataFrame, spec: TableSpec) -> tuple[list[str], list[list[str]], pd.DataFrame]:
-    header = [KEY_LABELS.get(k, k) for k in spec.keys] + [c.label for c in spec.columns]
+def _body(aggregates: pd.DataFrame, spec: TableSpec) -> list[tuple[list[str], list[tuple[str, str, bool]]]]:
+    """Per row: the key texts, and per column (value, counts, is it the most favourable)."""
     best = marks(aggregates, spec)
-    rows = [[_key_text(row[k]) for k in spec.keys] + [cell(row, c) for c in spec.columns]
-            for _, row in aggregates.iterrows()]
-    return header, rows, best
+    return [([_key_text(row[k]) for k in spec.keys],
+             [(*cell_parts(row, c), bool(flag)) for c, flag in zip(spec.columns, flags)])
+            for (_, row), flags in zip(aggregates.iterrows(), best.itertuples(index=False))]
 
 
-def legend(spec: TableSpec) -> str:
+def _header(spec: TableSpec) -> list[str]:
+    return [KEY_LABELS.get(k, k) for k in spec.keys] + [c.label for c in spec.columns]
+
+
+def _alignment(spec: TableSpec) -> tuple[str, ...]:
+    return ("left",) * len(spec.keys) + ("right",) * len(spec.columns)
+
+
+def _placeholder(spec: TableSpec) -> list[str]:
+    return ["n/a (0 pairs)"] + [""] * (len(spec.keys) + len(spec.columns) - 1)
+
+
+def legend(spec: TableSpec, mark: str = "*") -> str:
     higher = [c.label for c in spec.columns if c.direction == "higher"]
     lower = [c.label for c in spec.columns if c.direction == "lower"]
+    own_units = [c.label for c in spec.columns if not c.percent]
     within = " and ".join(BLOCK_WORDS.get(b, b) for b in spec.block) or "the table"
     parts = ([f"higher {', '.join(higher)}"] if higher else []) + ([f"lower {', '.join(lower)}"] if lower else [])
-    return (f"rates and means in %, counts in brackets; * most favourable per column within each {within} "
-            f"({'; '.join(parts)})")
+    units = "rates and means in %" + (f" except {', '.join(own_units)} (own units)" if own_units else "")
+    return f"{units}, counts in brackets; {mark} most favourable per column within each {within} ({'; '.join(parts)})"
 
 
 def render_text(aggregates: pd.DataFrame, spec: TableSpec) -> str:
     if aggregates.empty:
         return f"== {spec.title} ==\nn/a: no pairs (0 pairs with both a conflict episode and its reference)"
-    header, rows, best = text_rows(aggregates, spec)
-    nkeys = len(spec.keys)
-    for r, flags in zip(rows, best.itertuples(index=False)):
-        for j, flag in enumerate(flags):
-            r[nkeys + j] = r[nkeys + j] + ("*" if flag else " ")
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    lines = [f"== {spec.title} ==", "  ".join(h.ljust(w) for h, w in zip(header, widths)),
-             "  ".join("-" * w for w in widths)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-    lines.append(legend(spec))
-    return "\n".join(lines)
+    rows = [keys + [f"{value} {counts}{'*' if best else ''}" for value, counts, best in cells]
+            for keys, cells in _body(aggregates, spec)]
+    table = tabulate(rows, _header(spec), tablefmt="simple", disable_numparse=True)
+    return "\n".join([f"== {spec.title} ==", table, legend(spec)])
 
 
 def render_markdown(aggregates: pd.DataFrame, spec: TableSpec) -> str:
-    header, rows, best = text_rows(aggregates, spec)
-    nkeys = len(spec.keys)
-    lines = [f"### {spec.title}", "", "| " + " | ".join(header) + " |",
-             "|" + "|".join(["---"] * nkeys + ["---:"] * len(spec.columns)) + "|"]
-    for r, flags in zip(rows, best.itertuples(index=False)):
-        cells = r[:nkeys] + [f"**{c}**" if flag else c for c, flag in zip(r[nkeys:], flags)]
-        lines.append("| " + " | ".join(cells) + " |")
-    if not rows:
-        lines.append("| " + " | ".join(["n/a (0 pairs)"] + [""] * (len(header) - 1)) + " |")
-    lines += ["", legend(spec).replace("* most", "bold: most"), ""]
-    return "\n".join(lines)
+    rows = [keys + [f"**{value} {counts}**" if best else f"{value} {counts}" for value, counts, best in cells]
+            for keys, cells in _body(aggregates, spec)] or [_placeholder(spec)]
+    rows = [[text.replace("|", r"\|") for text in row] for row in rows]  # a "|" would end the cell
+    table = tabulate(rows, _header(spec), tablefmt="pipe", colalign=_alignment(spec), disable_numparse=True)
+    return "\n".join([f"### {spec.title}", "", table, "", legend(spec, "bold:"), ""])
 
 
-_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
-        "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+# LaTeX markup travels through tabulate's escaping as private-use characters, replaced afterwards,
+# so that tabulate escapes every text (keys, labels, values) and only our markup stays raw.
+_BOLD, _END_BOLD, _SMALL, _END_SMALL = "\ue000", "\ue001", "\ue002", "\ue003"
+_MARKUP = str.maketrans({_BOLD: r"\textbf{", _END_BOLD: "}", _SMALL: r"\,{\scriptsize ", _END_SMALL: "}"})
 
 
 def tex_escape(text: str) -> str:
-    return "".join(_TEX.get(ch, ch) for ch in text)
+    """LaTeX's special characters escaped with tabulate's own rules (as in its ``latex`` formats)."""
+    return "".join(LATEX_ESCAPE_RULES.get(ch, ch) for ch in text)
 
 
-def _tex_cell(text: str, bold: bool) -> str:
-    value, _, count = text.partition(" ")
-    value = tex_escape(value)
-    value = rf"\textbf{{{value}}}" if bold else value
-    return rf"{value}\,{{\scriptsize {tex_escape(count)}}}" if count else value
+def _tex_cell(value: str, counts: str, best: bool) -> str:
+    shown = f"{_BOLD}{value}{_END_BOLD}" if best else value
+    return f"{shown}{_SMALL}{counts}{_END_SMALL}"
 
 
 def render_latex(aggregates: pd.DataFrame, spec: TableSpec) -> str:
-    header, rows, best = text_rows(aggregates, spec)
-    nkeys = len(spec.keys)
-    lines = [r"\begin{table}[t]", r"\centering", r"\small",
-             rf"\caption{{{tex_escape(spec.title)}. {tex_escape(legend(spec).replace('* most', 'Bold: most'))}.}}",
-             r"\begin{tabular}{" + "l" * nkeys + "r" * len(spec.columns) + "}", r"\toprule",
-             " & ".join(tex_escape(h) for h in header) + r" \\", r"\midrule"]
-    for r, flags in zip(rows, best.itertuples(index=False)):
-        cells = [tex_escape(c) for c in r[:nkeys]] + [_tex_cell(c, flag) for c, flag in zip(r[nkeys:], flags)]
-        lines.append(" & ".join(cells) + r" \\")
-    if not rows:
-        lines.append(rf"\multicolumn{{{len(header)}}}{{c}}{{n/a (0 pairs)}} \\")
-    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
-    return "\n".join(lines)
+    rows = [keys + [_tex_cell(*parts) for parts in cells]
+            for keys, cells in _body(aggregates, spec)] or [_placeholder(spec)]
+    tabular = tabulate(rows, _header(spec), tablefmt="latex_booktabs", colalign=_alignment(spec),
+                       disable_numparse=True).translate(_MARKUP)
+    caption = tex_escape(f"{spec.title}. {legend(spec, 'Bold:')}.")
+    return "\n".join([r"\begin{table}[t]", r"\centering", r"\small", rf"\caption{{{caption}}}", tabular,
+                      r"\end{table}", ""])
 
 
 def csv_frame(aggregates: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
-    """Keys, then each column (built-ins in %, plugin metrics as they come) with its counts
+    """Keys, then each column (in % where its unit is "%", else as measured) with its counts
     (``X_k``/``X_n`` for rates, ``X_n`` otherwise)."""
     out = pd.DataFrame({k: aggregates[k] for k in spec.keys}) if len(aggregates) else pd.DataFrame(columns=list(spec.keys))
     for column in spec.columns:
