@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conflictbench.core import Observation
+from conflictbench.core import Observation, SiteInfo
 from conflictbench.policies.scripted.control import nearest_theta, servo
 from conflictbench.policies.scripted.grasp import collisions, gripper_points
 from conflictbench.policies.scripted.policy import order
@@ -160,9 +160,9 @@ class _BoxScene:
     def __init__(self, boxes, region_pos, region_size=(0.12, 0.08, 0.08)):
         boxes = np.asarray(boxes, dtype=float)
         centers, halves = boxes.mean(axis=1), (boxes[:, 1] - boxes[:, 0]) / 2
-        self.ex = {"geom_frames": {"oven": (centers, np.repeat(np.eye(3)[None], len(boxes), axis=0), halves)}}
-        self._site = {"pos": np.asarray(region_pos, dtype=float), "xmat": np.eye(3), "size": np.asarray(region_size),
-                      "joints": (), "parent": "oven"}
+        self._oven = Boxes(centers, np.repeat(np.eye(3)[None], len(boxes), axis=0), halves)
+        self._site = SiteInfo(pos=np.asarray(region_pos, dtype=float), xmat=np.eye(3), size=np.asarray(region_size),
+                              joints=(), parent="oven")
 
     def site(self, name):
         return self._site
@@ -170,9 +170,11 @@ class _BoxScene:
     def objects(self):
         return ["oven"]
 
+    def frames(self, name):
+        return self._oven
+
     def solids(self, exclude=()):
-        frames = self.ex["geom_frames"]["oven"]
-        return Boxes(*frames) if "oven" not in exclude else Boxes(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+        return self._oven if "oven" not in exclude else Boxes(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
 
 
 # A microwave-like box open toward -y: floor top 0.944, roof underside 1.088, walls at x -0.135 / 0.072,

@@ -16,16 +16,21 @@ from .records import (
     ActionContext,
     ConflictCase,
     EpisodeRecord,
+    JointInfo,
     Observation,
+    OrientedBoxes,
     Pair,
     PrivilegedState,
+    SceneGeometry,
+    SiteInfo,
 )
 
 __all__ = [
     "ACTION_DIM", "ActionContext", "ConflictCase", "ConflictbenchError", "DEFAULT_MAX_STEPS",
-    "EpisodeRecord", "FAMILIES", "LEVELS", "LIBERO_SUITES", "MetricSpec", "Observation",
-    "P1_PREAMBLE", "PROMPT_CONDITIONS", "Pair", "PluginError", "Plugins", "Policy", "PolicyError",
-    "PolicySpec", "PolicyTraits", "PrivilegedState", "SIMULATOR_ERROR_PREFIX", "SimulatorUnavailable", "UserError",
+    "EpisodeRecord", "FAMILIES", "JointInfo", "LEVELS", "LIBERO_SUITES", "MetricSpec", "Observation",
+    "OrientedBoxes", "P1_PREAMBLE", "PROMPT_CONDITIONS", "Pair", "PluginError", "Plugins", "Policy", "PolicyError",
+    "PolicySpec", "PolicyTraits", "PrivilegedState", "SIMULATOR_ERROR_PREFIX", "SceneGeometry", "SimulatorUnavailable",
+    "SiteInfo", "UserError",
     "as_action_chunk", "default_format_prompt", "hookimpl", "hookspec",
 ]
 

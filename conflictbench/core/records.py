@@ -53,6 +53,77 @@ class ConflictCase:
 
 
 @dataclass(frozen=True)
+class OrientedBoxes:
+    """Boxes in the world: centres (n, 3), rotations (n, 3, 3) whose columns are the box axes, half sizes (n, 3)."""
+
+    centers: np.ndarray
+    rotations: np.ndarray
+    half_sizes: np.ndarray
+
+
+@dataclass(frozen=True)
+class JointInfo:
+    """One hinge or slide joint of the scene (a drawer, a door, a knob) at this instant."""
+
+    qpos: float
+    axis: np.ndarray
+    """World direction of the joint axis (3,)."""
+    anchor: np.ndarray
+    """World position of the joint anchor (3,)."""
+    range: np.ndarray
+    """Joint limits (2,): metres for a slide, radians for a hinge."""
+    body: str
+    """The body the joint moves (a key of :attr:`SceneGeometry.aabb`)."""
+    kind: str
+    """``"slide"`` or ``"hinge"``."""
+
+
+@dataclass(frozen=True)
+class SiteInfo:
+    """One region site of the scene (``wooden_cabinet_1_top_region``, ``plate_1_contain_region``)."""
+
+    pos: np.ndarray
+    """World position (3,)."""
+    xmat: np.ndarray
+    """World orientation (3, 3)."""
+    size: np.ndarray
+    """Half sizes (3,) in the site frame."""
+    joints: tuple[str, ...]
+    """The joints that articulate the region (a drawer's slide), if any."""
+    parent: str | None
+    """The object or fixture the region belongs to; ``None`` for a region of the table."""
+
+
+@dataclass(frozen=True)
+class SceneGeometry:
+    """Per-step scene geometry for built-in experts. Every axis-aligned box is a (2, 3) lower/upper pair.
+
+    Objects and fixtures are keyed by name, and so is every body moved by a scene joint
+    (``wooden_cabinet_1_cabinet_top``), with the boxes of its collision geoms.
+    """
+
+    objects: tuple[str, ...]
+    """The movable objects."""
+    fixtures: tuple[str, ...]
+    aabb: Mapping[str, np.ndarray]
+    """World box around all collision geoms of an object, fixture or moving body."""
+    geom_boxes: Mapping[str, np.ndarray]
+    """World boxes (n, 2, 3) of each collision geom."""
+    geom_frames: Mapping[str, OrientedBoxes]
+    """The same geoms as oriented boxes."""
+    local_aabb: Mapping[str, np.ndarray]
+    """Like ``aabb``, in the frame of the object's root body (objects and fixtures only)."""
+    local_geoms: Mapping[str, np.ndarray]
+    """Like ``geom_boxes``, in the frame of the object's root body (objects and fixtures only)."""
+    joints: Mapping[str, JointInfo]
+    sites: Mapping[str, SiteInfo]
+    gripper_contacts: tuple[str, ...]
+    """Objects and fixtures the gripper's fingers touch."""
+    goal_holds: tuple[bool, ...]
+    """Whether each goal predicate holds now, by LIBERO's own predicate functions."""
+
+
+@dataclass(frozen=True)
 class PrivilegedState:
     """Simulator ground truth, given only to policies that declare ``needs_privileged = True``.
 
@@ -69,8 +140,8 @@ class PrivilegedState:
     """The base task's BDDL goal predicates, e.g. ``(("on", "akita_black_bowl_1", "plate_1"),)``."""
     case: ConflictCase | None
     """The conflict case of this episode; ``None`` on a reference episode."""
-    extras: Mapping[str, Any] = field(default_factory=dict)
-    """Further facts a built-in policy asked the simulator for (kept open for experts)."""
+    geometry: SceneGeometry | None = None
+    """Collision boxes, joints, region sites, contacts and goal predicates (what the scripted expert reads)."""
 
 
 @dataclass(frozen=True)

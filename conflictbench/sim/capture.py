@@ -4,13 +4,26 @@ from __future__ import annotations
 
 from typing import Callable
 
+import mujoco
 import numpy as np
 
-from conflictbench.core import ConflictCase, Observation, PrivilegedState
+from conflictbench.core import (
+    ConflictCase,
+    JointInfo,
+    Observation,
+    OrientedBoxes,
+    PrivilegedState,
+    SceneGeometry,
+    SiteInfo,
+)
 
 from .libero_env import CAMERAS
 
 Resolver = Callable[[], np.ndarray]
+
+_FREE, _SLIDE, _HINGE = (int(k) for k in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_SLIDE,
+                                          mujoco.mjtJoint.mjJNT_HINGE))
+_Geom = mujoco.mjtGeom
 
 
 def _joint_bodies(model, prefix: str) -> list[int]:
@@ -18,7 +31,7 @@ def _joint_bodies(model, prefix: str) -> list[int]:
     out = []
     for j in range(model.njnt):
         name = model.joint_id2name(j) or ""
-        if name.startswith(prefix + "_") and model.jnt_type[j] != 0:  # 0 = free joint
+        if name.startswith(prefix + "_") and model.jnt_type[j] != _FREE:
             out.append(int(model.jnt_bodyid[j]))
     return out
 
@@ -77,7 +90,7 @@ class _SceneStatic:
         moving = set()
         for j in range(model.njnt):
             name = model.joint_id2name(j) or ""
-            if model.jnt_type[j] in (2, 3) and not name.startswith(("robot0_", "gripper0_")):
+            if model.jnt_type[j] in (_SLIDE, _HINGE) and not name.startswith(("robot0_", "gripper0_")):
                 body = int(model.jnt_bodyid[j])
                 self.joints.append((name, j, body, int(model.jnt_qposadr[j]), np.array(model.jnt_range[j], dtype=float)))
                 self.joint_kind[name] = int(model.jnt_type[j])
@@ -98,15 +111,17 @@ class _SceneStatic:
                 continue
             size = np.asarray(model.geom_size[g], dtype=float)
             kind = int(model.geom_type[g])
-            if kind == 6:  # box
+            if kind == _Geom.mjGEOM_BOX:
                 half = size[:3]
-            elif kind == 2:  # sphere
+            elif kind == _Geom.mjGEOM_SPHERE:
                 half = np.full(3, size[0])
-            elif kind == 3:  # capsule
+            elif kind == _Geom.mjGEOM_CAPSULE:
                 half = np.array([size[0], size[0], size[1] + size[0]])
-            elif kind in (4, 5):  # ellipsoid, cylinder
-                half = size[:3] if kind == 4 else np.array([size[0], size[0], size[1]])
-            elif kind == 7:  # mesh: its vertices' extent in the geom frame
+            elif kind == _Geom.mjGEOM_ELLIPSOID:
+                half = size[:3]
+            elif kind == _Geom.mjGEOM_CYLINDER:
+                half = np.array([size[0], size[0], size[1]])
+            elif kind == _Geom.mjGEOM_MESH:  # its vertices' extent in the geom frame
                 adr, num = model.mesh_vertadr[model.geom_dataid[g]], model.mesh_vertnum[model.geom_dataid[g]]
                 half = np.abs(np.asarray(model.mesh_vert[adr:adr + num])).max(axis=0)
             else:
@@ -143,33 +158,25 @@ def _static_for(env) -> _SceneStatic:
     return _STATIC[0]
 
 
-def _geometry(env, st: _SceneStatic, goal) -> dict:
-    """Per-step geometry for experts (every box is an axis-aligned (2, 3) lower/upper corner pair).
-
-    ``aabb``: world box of the collision geoms of every object and fixture (union over its bodies)
-    and of every body moved by a scene joint (``wooden_cabinet_1_cabinet_top``).
-    ``geom_boxes``: object/fixture or moving body -> (n, 2, 3) world boxes of its collision geoms.
-    ``geom_frames``: the same geoms as oriented boxes: (centres (n, 3), rotations (n, 3, 3), half sizes (n, 3)).
-    ``local_aabb`` / ``local_geoms``: the same in the frame of the object's root body.
-    ``joints``: scene hinge/slide joint -> qpos, world axis and anchor, range, moving body.
-    ``sites``: region site -> world position, orientation matrix, half-size, joints, parent.
-    ``gripper_contacts``: objects and fixtures the gripper's fingers touch.
-    ``goal_holds``: whether each goal predicate holds now, by LIBERO's own predicate functions.
-    ``objects`` / ``fixtures``: names of the movable objects and of the fixtures.
-    """
+def _geometry(env, st: _SceneStatic, goal) -> SceneGeometry:
+    """The scene's geometry now (see :class:`SceneGeometry` for what each part holds)."""
     data = env.sim.data
     xpos = np.asarray(data.geom_xpos)[st.geom_ids]
     xmat = np.asarray(data.geom_xmat)[st.geom_ids].reshape(-1, 3, 3)
     points = xpos[:, None, :] + np.einsum("gij,gkj->gki", xmat, st.corners)
     boxes = np.stack([points.min(axis=1), points.max(axis=1)], axis=1)
     aabb, geom_boxes, geom_frames, local, local_geoms = {}, {}, {}, {}, {}
+
+    def add(name: str, sel: np.ndarray) -> None:
+        geom_boxes[name] = boxes[sel]
+        geom_frames[name] = OrientedBoxes(xpos[sel].copy(), xmat[sel].copy(), st.corners[sel, -1].copy())
+        aabb[name] = np.stack([boxes[sel, 0].min(axis=0), boxes[sel, 1].max(axis=0)])
+
     for name, body in st.obj_body_id.items():
         sel = st.owner_mask[name]
         if not sel.any():
             continue
-        geom_boxes[name] = boxes[sel]
-        geom_frames[name] = (xpos[sel].copy(), xmat[sel].copy(), st.corners[sel, -1].copy())
-        aabb[name] = np.stack([boxes[sel, 0].min(axis=0), boxes[sel, 1].max(axis=0)])
+        add(name, sel)
         rot = np.asarray(data.body_xmat[body]).reshape(3, 3)
         pts = (points[sel] - data.body_xpos[body]) @ rot
         local_geoms[name] = np.stack([pts.min(axis=1), pts.max(axis=1)], axis=1)
@@ -177,16 +184,13 @@ def _geometry(env, st: _SceneStatic, goal) -> dict:
     for body in st.mover_bodies:
         sel = st.geom_body == body
         if sel.any():
-            name = st.body_names[body]
-            geom_boxes[name] = boxes[sel]
-            geom_frames[name] = (xpos[sel].copy(), xmat[sel].copy(), st.corners[sel, -1].copy())
-            aabb[name] = np.stack([boxes[sel, 0].min(axis=0), boxes[sel, 1].max(axis=0)])
-    joints = {}
-    for name, j, body, adr, rng in st.joints:
-        joints[name] = {"qpos": float(data.qpos[adr]), "axis": np.array(data.xaxis[j]), "anchor": np.array(data.xanchor[j]),
-                        "range": rng.copy(), "body": st.body_names[body], "type": "slide" if st.joint_kind[name] == 2 else "hinge"}
-    sites = {name: {"pos": np.array(data.site_xpos[sid]), "xmat": np.array(data.site_xmat[sid]).reshape(3, 3),
-                    "size": size.copy(), "joints": sjoints, "parent": parent}
+            add(st.body_names[body], sel)
+    joints = {name: JointInfo(qpos=float(data.qpos[adr]), axis=np.array(data.xaxis[j]), anchor=np.array(data.xanchor[j]),
+                              range=rng.copy(), body=st.body_names[body],
+                              kind="slide" if st.joint_kind[name] == _SLIDE else "hinge")
+              for name, j, body, adr, rng in st.joints}
+    sites = {name: SiteInfo(pos=np.array(data.site_xpos[sid]), xmat=np.array(data.site_xmat[sid]).reshape(3, 3),
+                            size=size.copy(), joints=sjoints, parent=parent)
              for name, sid, size, sjoints, parent in st.sites}
     touching = set()
     for i in range(data.ncon):
@@ -197,9 +201,9 @@ def _geometry(env, st: _SceneStatic, goal) -> dict:
         elif st.finger_geom[g2] and st.geom_root[g1]:
             touching.add(st.geom_root[g1])
     holds = tuple(bool(env.env._eval_predicate(tuple(p))) for p in goal)
-    return {"objects": st.movable, "fixtures": st.fixtures, "aabb": aabb, "geom_boxes": geom_boxes,
-            "geom_frames": geom_frames, "local_aabb": local, "local_geoms": local_geoms,
-            "joints": joints, "sites": sites, "gripper_contacts": tuple(sorted(touching)), "goal_holds": holds}
+    return SceneGeometry(objects=st.movable, fixtures=st.fixtures, aabb=aabb, geom_boxes=geom_boxes,
+                         geom_frames=geom_frames, local_aabb=local, local_geoms=local_geoms, joints=joints,
+                         sites=sites, gripper_contacts=tuple(sorted(touching)), goal_holds=holds)
 
 
 def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase | None) -> PrivilegedState:
@@ -208,11 +212,11 @@ def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase 
     poses = {}
     for name, body in inner.obj_body_id.items():
         poses[name] = np.concatenate([data.body_xpos[body], data.body_xquat[body]]).copy()
-    extras = _geometry(env, st, goal)
-    sites = {name: info["pos"].copy() for name, info in extras["sites"].items()}
-    joints = {name: info["qpos"] for name, info in extras["joints"].items()}
+    geometry = _geometry(env, st, goal)
+    sites = {name: info.pos.copy() for name, info in geometry.sites.items()}
+    joints = {name: info.qpos for name, info in geometry.joints.items()}
     return PrivilegedState(body_poses=poses, site_positions=sites, joint_positions=joints, goal=goal, case=case,
-                           extras=extras)
+                           geometry=geometry)
 
 
 def make_observation(raw_obs: dict, *, step: int, instruction: str, stream: int, images: bool,

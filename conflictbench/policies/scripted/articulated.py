@@ -10,34 +10,36 @@ import math
 
 import numpy as np
 
+from conflictbench.core import JointInfo
+
 from .control import CLOSE, OPEN, side_frame
 from .primitives import Context, Skill, hold, move, set_gripper, transit
-from .scene import Boxes, Scene
+from .scene import Scene
 
 UP = np.array([0.0, 0.0, 1.0])
 CLOSE_TILT = 0.5
 """Radians from straight down that the gripper leans toward a drawer it pushes shut."""
 
 
-def _far_end(j: dict) -> float:
-    lo, hi = j["range"]
+def _far_end(j: JointInfo) -> float:
+    lo, hi = j.range
     return float(lo if abs(lo) > abs(hi) else hi)
 
 
-def _near_end(j: dict) -> float:
-    lo, hi = j["range"]
+def _near_end(j: JointInfo) -> float:
+    lo, hi = j.range
     return float(hi if abs(lo) > abs(hi) else lo)
 
 
-def _opened(j: dict) -> float:
+def _opened(j: JointInfo) -> float:
     """How far open a joint is, as a fraction of its range."""
     far, near = _far_end(j), _near_end(j)
-    return (j["qpos"] - near) / (far - near)
+    return (j.qpos - near) / (far - near)
 
 
 def _handle(s: Scene, body: str, pull: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(centre, half-extent along ``pull``, front point) of the part of ``body`` sticking out most along ``pull``."""
-    boxes = Boxes(*(np.asarray(a, dtype=float) for a in s.ex["geom_frames"][body]))
+    boxes = s.frames(body)
     centers, ext = boxes.centers, boxes.reach(pull)
     front = centers @ pull + ext
     k = int(np.argmax(front))
@@ -48,11 +50,11 @@ def opening_sweep(s: Scene, region: str) -> np.ndarray | None:
     """World box (2, 3) a region's drawer will occupy once open (None: not a closed drawer)."""
     for name in s.joints_of(region):
         j = s.joint(name)
-        if j["type"] != "slide" or _opened(j) >= 0.8:
+        if j.kind != "slide" or _opened(j) >= 0.8:
             continue
-        axis = np.asarray(j["axis"], dtype=float)
-        shift = axis * (_far_end(j) * 0.95 - j["qpos"])
-        box = s.box(j["body"])
+        axis = np.asarray(j.axis, dtype=float)
+        shift = axis * (_far_end(j) * 0.95 - j.qpos)
+        box = s.box(j.body)
         moved = box + shift
         return np.stack([np.minimum(box[0], moved[0]), np.maximum(box[1], moved[1])])
     return None
@@ -62,7 +64,7 @@ def ensure_open(ctx: Context, region: str) -> Skill:
     """Open the drawer or door that a region belongs to, if it is not open enough to put things in."""
     for name in ctx.scene.joints_of(region):
         if _opened(ctx.scene.joint(name)) < 0.8:
-            ok = yield from _slide(ctx, name, opened=True) if ctx.scene.joint(name)["type"] == "slide" else _noop()
+            ok = yield from _slide(ctx, name, opened=True) if ctx.scene.joint(name).kind == "slide" else _noop()
             if not ok:
                 return False
     return True
@@ -80,7 +82,7 @@ def set_open(ctx: Context, name: str, opened: bool) -> Skill:
         return False
     ok = True
     for jn in joints:
-        if ctx.scene.joint(jn)["type"] == "slide":
+        if ctx.scene.joint(jn).kind == "slide":
             ok = (yield from _slide(ctx, jn, opened)) and ok
         else:
             ok = (yield from _door(ctx, jn, opened)) and ok
@@ -104,24 +106,24 @@ def _slide(ctx: Context, joint: str, opened: bool) -> Skill:
     """
     s = ctx.scene
     j = s.joint(joint)
-    axis = np.asarray(j["axis"], dtype=float)
+    axis = np.asarray(j.axis, dtype=float)
     pull = axis * math.copysign(1.0, _far_end(j))  # world direction the drawer moves when opening
     pull[2] = 0.0
     pull /= np.linalg.norm(pull)
     side = np.cross(UP, pull)
-    center, half, front = _handle(s, j["body"], pull)
+    center, half, front = _handle(s, j.body, pull)
     target_q = _far_end(j) * 0.95 if opened else _near_end(j)
-    travel = abs(target_q - j["qpos"])  # metres the front still has to move
+    travel = abs(target_q - j.qpos)  # metres the front still has to move
 
     if opened:
         frame = side_frame(-pull, UP)  # fingers close vertically on the handle bar
-        grip_at = lambda sc: _handle(sc, j["body"], pull)[0]  # noqa: E731
+        grip_at = lambda sc: _handle(sc, j.body, pull)[0]  # noqa: E731
     else:
         # closed fingers side by side, tips leading: the hand trails up and back, clear of the
         # table and of the drawer above (held horizontal, the arm cannot reach a bottom drawer)
         lean = np.array([0.0, 0.0, -math.cos(CLOSE_TILT)]) - pull * math.sin(CLOSE_TILT)
         frame = side_frame(lean, side)
-        grip_at = lambda sc: _handle(sc, j["body"], pull)[2] + pull * 0.012  # noqa: E731
+        grip_at = lambda sc: _handle(sc, j.body, pull)[2] + pull * 0.012  # noqa: E731
     ctx.grip = OPEN if opened else CLOSE
     stage = grip_at(s) + pull * 0.14
     ctx.aim(None)
@@ -140,7 +142,7 @@ def _slide(ctx: Context, joint: str, opened: bool) -> Skill:
     end = start + pull * (travel + 0.01) * (1 if opened else -1)
     for _ in range(3):
         yield from move(ctx, end, tol=0.006, max_steps=60, speed=0.5)
-        q = ctx.scene.joint(joint)["qpos"]
+        q = ctx.scene.joint(joint).qpos
         if (opened and _opened(ctx.scene.joint(joint)) > 0.93) or (not opened and abs(q - _near_end(j)) < 0.004):
             break
         end = end + pull * 0.01 * (1 if opened else -1)
@@ -152,13 +154,14 @@ def _door(ctx: Context, joint: str, opened: bool) -> Skill:
     """Swing a hinged door (the microwave's) by pushing its upper edge along its arc."""
     s = ctx.scene
     j = s.joint(joint)
-    anchor = np.asarray(j["anchor"], dtype=float)
-    axis = np.asarray(j["axis"], dtype=float)
+    anchor = np.asarray(j.anchor, dtype=float)
+    axis = np.asarray(j.axis, dtype=float)
     target_q = _far_end(j) * 0.9 if opened else _near_end(j)
-    sign = math.copysign(1.0, target_q - j["qpos"])
+    sign = math.copysign(1.0, target_q - j.qpos)
 
     def panel(sc: Scene) -> tuple[np.ndarray, np.ndarray, float, float]:
-        centers, rots, halves = (np.asarray(a, dtype=float) for a in sc.ex["geom_frames"][j["body"]])
+        part = sc.frames(j.body)
+        centers, rots, halves = part.centers, part.rots, part.halves
         k = int(np.argmax(np.prod(halves, axis=1)))
         c = centers[k]
         u = c - anchor
@@ -183,7 +186,7 @@ def _door(ctx: Context, joint: str, opened: bool) -> Skill:
     ctx.grip = CLOSE
     yield from transit(ctx, lambda sc: contact(sc, -0.05), tol=0.008)
     for _ in range(200):
-        q = ctx.scene.joint(joint)["qpos"]
+        q = ctx.scene.joint(joint).qpos
         if (sign > 0 and q >= target_q - 0.002) or (sign < 0 and q <= target_q + 0.002):
             break
         u, _, _, _, _ = panel(ctx.scene)
@@ -202,19 +205,19 @@ def _nearest(theta: float, current: float) -> float:
 
 def turn(ctx: Context, name: str, on: bool) -> Skill:
     """Turn a knob (the stove's): grasp its lever over the hinge axis and twist the wrist."""
-    joints = [jn for jn in ctx.scene.joints_of(name) if ctx.scene.joint(jn)["type"] == "hinge"]
+    joints = [jn for jn in ctx.scene.joints_of(name) if ctx.scene.joint(jn).kind == "hinge"]
     if not joints:
         ctx.notes.append(f"{name} has no knob")
         return False
     joint = joints[0]
     s = ctx.scene
     j = s.joint(joint)
-    anchor = np.asarray(j["anchor"], dtype=float)
-    axis_sign = math.copysign(1.0, j["axis"][2])
+    anchor = np.asarray(j.anchor, dtype=float)
+    axis_sign = math.copysign(1.0, j.axis[2])
     target_q = 0.9 if on else _near_end(j)
 
     def lever(sc: Scene) -> tuple[np.ndarray, float]:
-        boxes = Boxes(*(np.asarray(a, dtype=float) for a in sc.ex["geom_frames"][sc.joint(joint)["body"]]))
+        boxes = sc.frames(sc.joint(joint).body)
         centers, rots, halves, tops = boxes.centers, boxes.rots, boxes.halves, boxes.tops
         k = int(np.argmax(tops))
         horiz = [i for i in range(3) if abs(rots[k][2, i]) < 0.5]
@@ -233,9 +236,9 @@ def turn(ctx: Context, name: str, on: bool) -> Skill:
     yield from transit(ctx, lambda sc: lever(sc)[0] + np.array([0.0, 0.0, 0.05]), tol=0.01)
     yield from move(ctx, lambda sc: lever(sc)[0], tol=0.005, max_steps=40, speed=0.4)
     yield from set_gripper(ctx, CLOSE, max_steps=12)
-    start_theta, start_q = ctx.theta, ctx.scene.joint(joint)["qpos"]
+    start_theta, start_q = ctx.theta, ctx.scene.joint(joint).qpos
     for _ in range(60):
-        q = ctx.scene.joint(joint)["qpos"]
+        q = ctx.scene.joint(joint).qpos
         if (on and q >= target_q - 0.05) or (not on and q <= target_q + 0.02):
             break
         ctx.theta = start_theta + axis_sign * (target_q - start_q) * 1.15

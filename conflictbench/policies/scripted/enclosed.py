@@ -60,12 +60,11 @@ def opening(s: Scene, region: str, height: float) -> Opening | None:
     """The open side of a region whose container has a roof too low for a hand above an object
     ``height`` tall (None: no such roof, or no single open side)."""
     site = s.site(region)
-    parent = site["parent"]
-    if site["joints"] or not parent:
+    parent = site.parent
+    if site.joints or not parent:
         return None  # drawers open out from under what is above them
-    frames = s.ex["geom_frames"][parent]
-    boxes = Boxes(*(np.asarray(a, dtype=float) for a in frames))
-    centre = np.asarray(site["pos"], dtype=float)
+    boxes = s.frames(parent)
+    centre = np.asarray(site.pos, dtype=float)
     floor = support_height(s, centre[:2], below=centre[2], exclude=tuple(n for n in s.objects() if n != parent))
     if floor is None:
         return None
@@ -95,7 +94,7 @@ def opening(s: Scene, region: str, height: float) -> Opening | None:
 
 def _extent(s: Scene, name: str, axis: np.ndarray) -> tuple[float, float]:
     """The object's reach (behind, ahead) along ``axis`` (xy) relative to its origin."""
-    boxes = Boxes(*(np.asarray(a, dtype=float) for a in s.ex["geom_frames"][name]))
+    boxes = s.frames(name)
     a3 = np.array([axis[0], axis[1], 0.0])
     proj, ext = boxes.centers @ a3, boxes.reach(a3)
     origin = s.pos(name) @ a3

@@ -207,15 +207,15 @@ def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np
         world = [(p, np.array([1.0, 0.0]) if ext[0] <= ext[1] else np.array([0.0, 1.0]), "band", None)]
     boxes = scene.solids(exclude=(name,) + tuple(avoid))
     best = None
-    own = [np.asarray(a, dtype=float) for a in scene.ex["geom_frames"][name]]
+    own = scene.frames(name)
     for point, ax, grip_kind, idx in world:
         theta = nearest_theta(math.atan2(ax[1], ax[0]), scene.finger_theta)
         pts = np.concatenate([gripper_points(point + np.array([0, 0, dz]), theta) for dz in (0.0, 0.04, 0.08)])
         hits = collisions(pts, boxes)
-        if idx is not None and len(idx) < len(own[0]):
+        if idx is not None and len(idx) < len(own):
             # the fingers closing on one part must also clear the object's other parts
-            rest = np.setdiff1d(np.arange(len(own[0])), idx)
-            hits += collisions(gripper_points(point, theta), Boxes(own[0][rest], own[1][rest], own[2][rest]))
+            rest = np.setdiff1d(np.arange(len(own)), idx)
+            hits += collisions(gripper_points(point, theta), Boxes(own.centers[rest], own.rots[rest], own.halves[rest]))
         score = 10.0 * hits + 0.3 * abs(wrap(theta - scene.finger_theta))
         score += reach_cost(point[:2])
         if then_xy is not None:

@@ -46,7 +46,7 @@ class ScriptedPolicy:
     def act(self, observation: Observation) -> np.ndarray:
         scene = Scene(observation)
         if self._ctx is None:
-            table = min(scene.box(n)[0, 2] for n in scene.ex["objects"] if scene.has(n))
+            table = min(scene.box(n)[0, 2] for n in scene.geo.objects if scene.has(n))
             self._ctx = Context(scene=scene, theta=scene.finger_theta, table=float(table))
             self._plan = _run(self._ctx, tuple(observation.privileged.goal))
         self._ctx.scene = scene

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from conflictbench.core import Observation
+from conflictbench.core import JointInfo, Observation, SiteInfo
 
 
 def quat_wxyz_to_mat(q) -> np.ndarray:
@@ -102,11 +102,11 @@ class Scene:
     """Geometry of the scene at one decision point."""
 
     def __init__(self, obs: Observation):
-        if obs.privileged is None:
+        if obs.privileged is None or obs.privileged.geometry is None:
             raise ValueError("the scripted expert needs privileged state (needs_privileged = True)")
         self.obs = obs
         self.priv = obs.privileged
-        self.ex = obs.privileged.extras
+        self.geo = obs.privileged.geometry
         self.eef = np.asarray(obs.eef_pos, dtype=float)
         self.rot = quat_xyzw_to_mat(obs.eef_quat)
         self.width = float(obs.gripper_qpos[0] - obs.gripper_qpos[1])
@@ -119,7 +119,7 @@ class Scene:
         return math.atan2(self.rot[1, 1], self.rot[0, 1])
 
     def touching(self, name: str) -> bool:
-        return name in self.ex.get("gripper_contacts", ())
+        return name in self.geo.gripper_contacts
 
     # -- objects and fixtures -----------------------------------------------------------------
     def pos(self, name: str) -> np.ndarray:
@@ -129,51 +129,56 @@ class Scene:
         return quat_wxyz_to_mat(self.priv.body_poses[name][3:])
 
     def has(self, name: str) -> bool:
-        return name in self.ex["aabb"]
+        return name in self.geo.aabb
 
     def box(self, name: str) -> np.ndarray:
-        return np.asarray(self.ex["aabb"][name], dtype=float)
+        return np.asarray(self.geo.aabb[name], dtype=float)
 
     def geoms(self, name: str) -> np.ndarray:
-        return np.asarray(self.ex["geom_boxes"][name], dtype=float)
+        return np.asarray(self.geo.geom_boxes[name], dtype=float)
 
     def local_geoms(self, name: str) -> np.ndarray:
-        return np.asarray(self.ex["local_geoms"][name], dtype=float)
+        return np.asarray(self.geo.local_geoms[name], dtype=float)
 
     def objects(self) -> list[str]:
         """Every object and fixture that has collision geometry."""
-        return [n for n in self.priv.body_poses if n in self.ex["aabb"]]
+        return [n for n in self.priv.body_poses if n in self.geo.aabb]
 
     def obstacles(self, exclude: tuple[str, ...] = ()) -> np.ndarray:
         """World axis-aligned boxes (n, 2, 3) of every collision geom except ``exclude``'s."""
         parts = [self.geoms(n) for n in self.objects() if n not in exclude]
         return np.concatenate(parts) if parts else np.zeros((0, 2, 3))
 
-    def solids(self, exclude: tuple[str, ...] = ()) -> "Boxes":
+    def frames(self, name: str) -> Boxes:
+        """Oriented boxes of the collision geoms of one object, fixture or moving body."""
+        part = self.geo.geom_frames[name]
+        return Boxes(part.centers, part.rotations, part.half_sizes)
+
+    def solids(self, exclude: tuple[str, ...] = ()) -> Boxes:
         """Oriented boxes of every collision geom except ``exclude``'s (exact for rotated fixtures)."""
-        parts = [self.ex["geom_frames"][n] for n in self.objects() if n not in exclude]
+        parts = [self.geo.geom_frames[n] for n in self.objects() if n not in exclude]
         if not parts:
             return Boxes(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
-        return Boxes(*(np.concatenate([np.asarray(p[k], dtype=float) for p in parts]) for k in range(3)))
+        return Boxes(*(np.concatenate([getattr(p, k) for p in parts]) for k in ("centers", "rotations", "half_sizes")))
 
     def upright(self, name: str) -> bool:
         return self.mat(name)[2, 2] > 0.9
 
     # -- sites and joints ---------------------------------------------------------------------
-    def site(self, name: str) -> dict:
-        return self.ex["sites"][name]
+    def site(self, name: str) -> SiteInfo:
+        return self.geo.sites[name]
 
     def is_site(self, name: str) -> bool:
-        return name in self.ex["sites"]
+        return name in self.geo.sites
 
-    def joint(self, name: str) -> dict:
-        return self.ex["joints"][name]
+    def joint(self, name: str) -> JointInfo:
+        return self.geo.joints[name]
 
     def joints_of(self, name: str) -> list[str]:
         """The joints that articulate a region site or a fixture."""
-        if self.is_site(name) and self.site(name)["joints"]:
-            return list(self.site(name)["joints"])
-        return [j for j in self.ex["joints"] if j.startswith(name + "_")]
+        if self.is_site(name) and self.site(name).joints:
+            return list(self.site(name).joints)
+        return [j for j in self.geo.joints if j.startswith(name + "_")]
 
     def holds(self, index: int) -> bool:
-        return bool(self.ex["goal_holds"][index])
+        return bool(self.geo.goal_holds[index])

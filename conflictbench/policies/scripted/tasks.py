@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from conflictbench.core import SiteInfo
+
 from . import articulated, enclosed
 from .grasp import reach_cost
 from .pick_place import is_flat, pick, place, push
@@ -39,11 +41,11 @@ def _slot(scene: Scene, goal: tuple[tuple[str, ...], ...], index: int) -> np.nda
     if not scene.is_site(target):
         return scene.pos(target)[:2].copy()
     site = scene.site(target)
-    center = site["pos"][:2].copy()
+    center = site.pos[:2].copy()
     sharing = [i for i, p in enumerate(goal) if p[0] in ("on", "in") and len(p) == 3 and p[2] == target]
     if len(sharing) < 2:
-        return center if site["parent"] else _free_spot(scene, obj, site)
-    half = np.abs(site["xmat"] @ site["size"])[:2]
+        return center if site.parent else _free_spot(scene, obj, site)
+    half = np.abs(site.xmat @ site.size)[:2]
     k = sharing.index(index)
     n = len(sharing)
     # objects' widths along x and y: put the slots along the axis where they are narrower relative to the region
@@ -55,18 +57,18 @@ def _slot(scene: Scene, goal: tuple[tuple[str, ...], ...], index: int) -> np.nda
     return center
 
 
-def _free_spot(scene: Scene, obj: str, site: dict) -> np.ndarray:
+def _free_spot(scene: Scene, obj: str, site: SiteInfo) -> np.ndarray:
     """The point of a table region, nearest its centre, where ``obj`` would touch no other object."""
-    half = np.abs(site["xmat"] @ site["size"])[:2] * 0.7
+    half = np.abs(site.xmat @ site.size)[:2] * 0.7
     lg = scene.local_geoms(obj)
     radius = float(np.max(lg[:, 1, :2].max(axis=0) - lg[:, 0, :2].min(axis=0)) / 2)
-    others = tuple(n for n in scene.objects() if n not in scene.ex["objects"] or n == obj)
-    best, best_cost = site["pos"][:2].copy(), np.inf
+    others = tuple(n for n in scene.objects() if n not in scene.geo.objects or n == obj)
+    best, best_cost = site.pos[:2].copy(), np.inf
     for fx in np.linspace(-1.0, 1.0, 5):
         for fy in np.linspace(-1.0, 1.0, 5):
-            c = site["pos"][:2] + half * np.array([fx, fy])
+            c = site.pos[:2] + half * np.array([fx, fy])
             hits = _overlaps(scene, obj, c, radius + FREE_MARGIN, others)
-            cost = hits + float(np.linalg.norm(c - site["pos"][:2]))
+            cost = hits + float(np.linalg.norm(c - site.pos[:2]))
             if cost < best_cost:
                 best, best_cost = c, cost
     return best
@@ -116,7 +118,7 @@ def _in_way_at(xy: np.ndarray, radius: float, sweep: np.ndarray, margin: float =
 def _put(ctx: Context, goal: tuple[tuple[str, ...], ...], index: int) -> Skill:
     _, obj, target = goal[index]
     s = ctx.scene
-    if s.is_site(target) and s.site(target)["joints"]:
+    if s.is_site(target) and s.site(target).joints:
         sweep = articulated.opening_sweep(s, target)
         if sweep is not None and ctx.held is None and _in_way(s, obj, sweep):
             # the drawer would open over the object: set it aside first
@@ -129,7 +131,7 @@ def _put(ctx: Context, goal: tuple[tuple[str, ...], ...], index: int) -> Skill:
     way_in = enclosed.way_in(s, obj, target) if ctx.held is None and s.is_site(target) else None
     if way_in is not None:
         return (yield from enclosed.insert(ctx, obj, way_in))
-    if ctx.held is None and is_flat(s, obj) and s.is_site(target) and not s.site(target)["parent"] and PUSH_FLAT:
+    if ctx.held is None and is_flat(s, obj) and s.is_site(target) and not s.site(target).parent and PUSH_FLAT:
         return (yield from push(ctx, obj, lambda sc: _slot(sc, goal, index)))
     if ctx.held != obj:
         ok = yield from pick(ctx, obj, then_xy=lambda sc: _slot(sc, goal, index))
