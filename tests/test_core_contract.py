@@ -221,3 +221,14 @@ def test_provenance_names_the_policys_plugin_and_every_global_episode_hook():
     plugins = make(Clip("clip"))
     plugins._sources["clip"] = plugins.source("clip").__class__("lab-clip", "0.2")
     assert plugins.provenance("noop") == tuple(sorted({base[0], "lab-clip==0.2"}))
+
+
+def test_registries_list_names_in_registration_order():
+    class Late(Named):
+        @hookimpl
+        def conflictbench_register_metrics(self, register):
+            register("z_first", compute=lambda pair: 0.0)
+            register("a_second", compute=lambda pair: 0.0)
+
+    names = list(make(Late("late")).metrics())
+    assert names[:4] == ["tar", "early20_ts", "ts", "ams"] and names[4:] == ["z_first", "a_second"]

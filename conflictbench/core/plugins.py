@@ -126,6 +126,7 @@ class Plugins:
             function = getattr(impl.function, "__func__", impl.function)
             owners.setdefault(getattr(function, "__code__", None), []).append(impl.plugin_name)
         found: dict[str, Any] = {}
+        registered_by: dict[str, str] = {}
 
         def calling_plugin() -> str:
             frame = sys._getframe(2)
@@ -146,10 +147,15 @@ class Plugins:
                 found[name] = build(where, source, name, *args, **kwargs)
             except TypeError as exc:  # wrong arguments to register()
                 raise PluginError(f"{where}: {exc}") from None
+            registered_by[name] = plugin_name
 
         hook(register=register)
-        self._registries[hook_name] = found
-        return found
+        # pluggy calls the most recently registered plugin first; list in registration order instead
+        # (built-ins, in-process extras, entry points), each plugin's names in the order it gave them.
+        rank = {plugin: i for i, plugin in enumerate(self._sources)}
+        ordered = sorted(found, key=lambda n: rank.get(registered_by[n].split(" or ")[0], len(rank)))
+        self._registries[hook_name] = {name: found[name] for name in ordered}
+        return self._registries[hook_name]
 
     def policies(self) -> dict[str, PolicySpec]:
         return self._collect("conflictbench_register_policies", "policy", policy_spec)
