@@ -11,8 +11,11 @@ from .core import (
     EpisodeRecord,
     Observation,
     Pair,
+    PerEpisode,
     PrivilegedState,
     hookimpl,
+    rng_for,
+    sampling_seed,
 )
 
 try:
@@ -32,8 +35,8 @@ def plugins(**kwargs):
 
 
 __all__ = [
-    "ActionContext", "ConflictCase", "EpisodeRecord", "Observation", "Pair", "PrivilegedState",
-    "BUILTIN_PLUGINS", "hookimpl", "plugins", "__version__",
+    "ActionContext", "ConflictCase", "EpisodeRecord", "Observation", "Pair", "PerEpisode", "PrivilegedState",
+    "BUILTIN_PLUGINS", "hookimpl", "plugins", "rng_for", "sampling_seed", "__version__",
 ]
 
 # The shared client for served policies: what a model plugin needs to talk to its server.

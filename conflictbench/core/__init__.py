@@ -4,7 +4,7 @@ from .errors import ConflictbenchError, PluginError, PolicyError, SimulatorUnava
 from .errors import InfrastructureError, ServerUnavailable
 from .hookspecs import hookimpl, hookspec
 from .plugins import MetricSpec, Plugins, PolicySpec
-from .policy import DEFAULT_MAX_STEPS, Policy, PolicyTraits, as_action_chunk
+from .policy import DEFAULT_MAX_STEPS, PerEpisode, Policy, PolicyTraits, as_action_chunk
 from .prompts import P1_PREAMBLE, default_format_prompt
 from .records import (
     ACTION_DIM,
@@ -24,14 +24,15 @@ from .records import (
     SceneGeometry,
     SiteInfo,
 )
+from .sampling import rng_for, sampling_seed
 
 __all__ = [
     "ACTION_DIM", "ActionContext", "ConflictCase", "ConflictbenchError", "DEFAULT_MAX_STEPS",
     "EpisodeRecord", "FAMILIES", "JointInfo", "LEVELS", "LIBERO_SUITES", "MetricSpec", "Observation",
-    "OrientedBoxes", "P1_PREAMBLE", "PROMPT_CONDITIONS", "Pair", "PluginError", "Plugins", "Policy", "PolicyError",
-    "PolicySpec", "PolicyTraits", "PrivilegedState", "SIMULATOR_ERROR_PREFIX", "SceneGeometry", "SimulatorUnavailable",
-    "SiteInfo", "UserError",
-    "as_action_chunk", "default_format_prompt", "hookimpl", "hookspec",
+    "OrientedBoxes", "P1_PREAMBLE", "PROMPT_CONDITIONS", "Pair", "PerEpisode", "PluginError", "Plugins", "Policy",
+    "PolicyError", "PolicySpec", "PolicyTraits", "PrivilegedState", "SIMULATOR_ERROR_PREFIX", "SceneGeometry",
+    "SimulatorUnavailable", "SiteInfo", "UserError", "as_action_chunk", "default_format_prompt", "hookimpl",
+    "hookspec", "rng_for", "sampling_seed",
 ]
 
 # The shared client for served policies (model plugins), and the errors it raises.

@@ -28,10 +28,25 @@ def conflictbench_register_policies(register):
 
     The policy returned by ``load`` has ``reset(instruction: str) -> None`` and
     ``act(observation) -> ndarray`` of shape ``(7,)`` or a chunk ``(k, 7)`` executed open-loop.
-    It may also define ``act_batch(observations) -> list[ndarray]`` (one instance then serves all
-    workers), ``close()``, and these attributes (defaults in brackets):
-    ``needs_images`` [True], ``needs_privileged`` [False], ``image_size`` [256],
-    ``warmup_steps`` [10], ``max_steps`` [a mapping LIBERO suite -> steps; 220/280/300/520].
+    It may also define ``act_batch(observations) -> list[ndarray]``, ``close()``, and these
+    attributes (defaults in brackets): ``needs_images`` [True], ``needs_privileged`` [False],
+    ``image_size`` [256], ``warmup_steps`` [10], ``max_steps`` [a mapping LIBERO suite -> steps;
+    220/280/300/520].
+
+    A run loads the policy once, whatever ``run.workers`` is, and how it is called depends on
+    ``act_batch``:
+
+    - without it, the policy serves one episode at a time: ``reset`` right before that episode's
+      first ``act``, then ``act`` for its observations until it ends (other workers meanwhile
+      prepare their next episodes). Per-episode state may live in the instance.
+    - with it, the policy serves every worker's episodes at once, so observations of different
+      episodes interleave. ``reset`` still announces each episode, but cannot say which one:
+      keep per-episode state per ``observation.stream``, started afresh when that stream's
+      ``observation.episode_id`` changes (:class:`conflictbench.PerEpisode` does exactly this).
+
+    A policy that samples (flow-matching noise, token sampling) draws from
+    ``conflictbench.rng_for(observation, own_seed)``, which depends only on the episode's identity
+    and step: batched or not, one worker or several, the same episode gets the same actions.
     """
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Generic, Mapping, Protocol, Sequence, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -39,7 +39,36 @@ class PolicyTraits:
         self.batched: bool = callable(getattr(policy, "act_batch", None))
 
     def as_dict(self) -> dict[str, Any]:
-        return dict(vars(self))
+        """The declarations that can change a rollout (part of every episode's identity).
+
+        ``batched`` is left out: it changes how calls are scheduled, never an episode's actions
+        (sampling is seeded per episode and step, see ``rng_for``).
+        """
+        return {k: v for k, v in vars(self).items() if k != "batched"}
+
+
+T = TypeVar("T")
+
+
+class PerEpisode(Generic[T]):
+    """Per-episode state of a policy that serves concurrent episodes (one with ``act_batch``).
+
+    ``state = self.episodes(observation)`` gives the value kept for ``observation.stream``, made
+    afresh by ``factory()`` whenever that stream starts a new episode (its first query is step 0,
+    and its ``episode_id`` differs from the last one seen there). ``reset(instruction)`` cannot
+    say which stream starts, so such a policy keeps nothing per episode outside this.
+    """
+
+    def __init__(self, factory: Callable[[], T]):
+        self._factory = factory
+        self._by_stream: dict[int, tuple[str, T]] = {}
+
+    def __call__(self, observation: Observation) -> T:
+        held = self._by_stream.get(observation.stream)
+        if held is None or observation.step == 0 or held[0] != observation.episode_id:
+            held = (observation.episode_id, self._factory())
+            self._by_stream[observation.stream] = held
+        return held[1]
 
 
 def as_action_chunk(raw: Any) -> np.ndarray:

@@ -170,6 +170,8 @@ class Observation:
     privileged: PrivilegedState | None = None
     stream: int = 0
     """Which concurrent episode this belongs to (worker slot); batched policies key state by it."""
+    episode_id: str = ""
+    """The episode's identity in the store; with ``step`` it seeds sampling (:func:`rng_for`)."""
 
 
 @dataclass(frozen=True)
@@ -232,6 +234,10 @@ class EpisodeRecord:
     numpy_version: str = ""
     config_hash: str = ""
     wall_time_s: float = 0.0
+    """Seconds from handing the episode to a worker to its result (simulation, policy and waiting)."""
+    sim_time_s: float | None = None
+    """Seconds the worker spent simulating (env build, reset, warm-up, steps, capture), not waiting for
+    the policy; ``None`` where not measured (stored before this column existed, or never simulated)."""
     created_at: str = ""
 
     @property

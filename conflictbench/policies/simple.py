@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
-from conflictbench.core import Observation
+from conflictbench.core import Observation, rng_for
 
 GRIPPER_OPEN = -1.0
 
@@ -23,28 +22,34 @@ class NoopPolicy:
     def act(self, observation: Observation) -> np.ndarray:
         return np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, GRIPPER_OPEN])
 
+    def act_batch(self, observations: list[Observation]) -> list[np.ndarray]:
+        return [self.act(o) for o in observations]
+
 
 @dataclass
 class RandomConfig:
     seed: int = 0
-    """Base seed; each episode draws from a generator seeded by (seed, instruction)."""
+    """Mixed into each decision's seed, which the episode's identity and step determine (``rng_for``)."""
     scale: float = 1.0
     """Arm actions are uniform in [-scale, scale]; the gripper is uniform in {-1, +1}."""
 
 
 class RandomPolicy:
-    """Seeded uniform random actions; the same episode always gets the same sequence."""
+    """Seeded uniform random actions; the same episode always gets the same sequence, however it is scheduled."""
 
     needs_images = False
 
     def __init__(self, cfg: RandomConfig):
         self.cfg = cfg
-        self._rng = np.random.default_rng(cfg.seed)
 
     def reset(self, instruction: str) -> None:
-        self._rng = np.random.default_rng([self.cfg.seed, zlib.crc32(instruction.encode())])
+        pass
 
     def act(self, observation: Observation) -> np.ndarray:
-        arm = self._rng.uniform(-self.cfg.scale, self.cfg.scale, size=6)
-        gripper = self._rng.choice([-1.0, 1.0])
+        rng = rng_for(observation, self.cfg.seed)
+        arm = rng.uniform(-self.cfg.scale, self.cfg.scale, size=6)
+        gripper = rng.choice([-1.0, 1.0])
         return np.concatenate([arm, [gripper]])
+
+    def act_batch(self, observations: list[Observation]) -> list[np.ndarray]:
+        return [self.act(o) for o in observations]

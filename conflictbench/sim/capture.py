@@ -219,7 +219,7 @@ def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase 
                            geometry=geometry)
 
 
-def make_observation(raw_obs: dict, *, step: int, instruction: str, stream: int, images: bool,
+def make_observation(raw_obs: dict, *, step: int, instruction: str, stream: int, episode_id: str, images: bool,
                      privileged: PrivilegedState | None) -> Observation:
     """The policy's view: robosuite's own observation values, exactly as a native client gets them."""
     eef_pos = np.asarray(raw_obs["robot0_eef_pos"], dtype=np.float64).copy()
@@ -240,4 +240,5 @@ def make_observation(raw_obs: dict, *, step: int, instruction: str, stream: int,
         joint_positions=np.asarray(raw_obs["robot0_joint_pos"], dtype=np.float64).copy(),
         privileged=privileged,
         stream=stream,
+        episode_id=episode_id,
     )

@@ -5,13 +5,14 @@ from __future__ import annotations
 import multiprocessing as mp
 from collections import OrderedDict, deque
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import Any, Iterable
 
 from conflictbench.core import SimulatorUnavailable
 
 from .libero_env import EnvSettings
+from .messages import EpisodeJob, Fatal, Ready, Stop
 from .plan import EpisodeSpec
-from .worker import EpisodeJob, worker_main
+from .worker import worker_main
 
 START_TIMEOUT_S = 300
 TaskKey = tuple[str, int]
@@ -32,7 +33,6 @@ class Slot:
     index: int
     process: Any = None
     conn: Any = None
-    policy: Any = None
     item: Item | None = None
     task_key: TaskKey | None = None
     started: float = 0.0
@@ -88,13 +88,15 @@ class WorkerPool:
             if not slot.conn.poll(START_TIMEOUT_S):
                 raise SimulatorUnavailable(f"a simulator worker did not start within {START_TIMEOUT_S} s")
             try:
-                kind, payload = slot.conn.recv()
+                msg = slot.conn.recv()
             except EOFError:
                 raise SimulatorUnavailable(
                     f"a simulator worker died while starting (exit code {slot.process.exitcode})") from None
-            if kind == "fatal":
-                raise SimulatorUnavailable(payload)
-            self.versions = payload
+            if isinstance(msg, Fatal):
+                raise SimulatorUnavailable(msg.message)
+            if not isinstance(msg, Ready):
+                raise SimulatorUnavailable(f"a simulator worker said {type(msg).__name__} instead of Ready")
+            self.versions = dict(msg.versions)
 
     def start_all(self) -> None:
         for slot in self.slots:
@@ -109,7 +111,7 @@ class WorkerPool:
         for slot in self.slots:
             try:
                 if slot.conn is not None:
-                    slot.conn.send(("stop",))
+                    slot.conn.send(Stop())
             except (BrokenPipeError, OSError):
                 pass
         for slot in self.slots:
@@ -117,11 +119,3 @@ class WorkerPool:
                 slot.process.join(timeout=10)
                 if slot.process.is_alive():
                     slot.process.kill()
-
-    def close_policies(self) -> None:
-        closed: set[int] = set()
-        for slot in self.slots:
-            close: Callable[[], None] | None = getattr(slot.policy, "close", None)
-            if id(slot.policy) not in closed and callable(close):
-                closed.add(id(slot.policy))
-                close()

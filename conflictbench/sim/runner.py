@@ -1,4 +1,11 @@
-"""Playing a plan: a pool of simulator workers driven by the policy in this process."""
+"""Playing a plan: a pool of simulator workers driven by the policy in this process.
+
+The policy is loaded once, whatever the number of workers. One with ``act_batch`` serves every
+worker's episodes at once (it keys per-episode state by ``observation.stream``). One without is
+served one episode at a time: ``reset`` right before that episode's first ``act``, its queries
+answered until it ends, while the other workers reset their next episodes and wait with their
+first observation.
+"""
 
 from __future__ import annotations
 
@@ -29,9 +36,9 @@ from conflictbench.store.episodes import EpisodeStore
 from conflictbench.tasks.libero_tasks import base_task
 
 from .libero_env import EnvSettings, simulator_versions
+from .messages import Abort, Actions, Done, EpisodeJob, EpisodeOutcome, Play, Query
 from .plan import EpisodeSpec, episode_id
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
-from .worker import EpisodeJob
 
 
 @dataclass
@@ -58,8 +65,13 @@ class Runner:
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
         self.progress, self.on_episode = progress, on_episode
-        self._bar: Any = _NoBar()
+        self._bar: Any = _progress(0, spec.name, enabled=False)
         self._pool: WorkerPool | None = None
+        self._policy: Any = None
+        self._serving: Slot | None = None
+        """The slot whose episode a policy without act_batch is serving (it serves one at a time)."""
+        self._held: list[tuple[Slot, Any]] = []
+        """First queries of episodes waiting their turn with such a policy, oldest first."""
 
     # -- policy ----------------------------------------------------------------------------
     def _load_policy(self) -> Any:
@@ -111,8 +123,7 @@ class Runner:
 
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
         pool = self._pool = WorkerPool(settings, size=min(self.workers, len(todo)))
-        for slot in pool.slots:
-            slot.policy = policy if (traits.batched or slot.index == 0) else self._load_policy()
+        self._policy, self._serving, self._held = policy, None, []
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
         try:
             pool.start_all()
@@ -123,7 +134,9 @@ class Runner:
                     self.store.release(slot.item.job.episode_id)
             pool.stop()
             self._bar.close()
-            pool.close_policies()
+            close = getattr(policy, "close", None)
+            if callable(close):
+                close()
         return result
 
     def _next_item(self, slot: Slot, queue: EpisodeQueue, deferred: list[Item], stored: set[str],
@@ -146,16 +159,36 @@ class Runner:
             return item
         return None
 
-    def _assign(self, slot: Slot, item: Item, result: RunResult) -> None:
+    def _assign(self, slot: Slot, item: Item, result: RunResult, traits: PolicyTraits) -> None:
         job = dataclasses.replace(item.job, stream=slot.index)
         item = Item(item.spec, job)
         slot.item, slot.task_key, slot.started = item, item.spec.task_key, time.time()
-        try:
-            slot.policy.reset(job.instruction)
-        except Exception as exc:
-            self._finish(slot, {"error": f"policy reset raised {type(exc).__name__}: {exc}"}, result)
-            return
-        slot.conn.send(("episode", job))
+        if traits.batched:  # otherwise reset comes right before the episode's first act (_serve)
+            try:
+                self._policy.reset(job.instruction)
+            except Exception as exc:
+                self._finish(slot, EpisodeOutcome.failed(_reset_error(exc), len(job.targets)), result)
+                return
+        slot.conn.send(Play(job))
+
+    def _queried(self, slot: Slot, observation: Any, waiting: list[tuple[Slot, Any]], traits: PolicyTraits) -> None:
+        """A worker asks for actions: decide now, or hold its episode until the policy is free."""
+        if traits.batched or slot is self._serving:
+            waiting.append((slot, observation))
+        else:
+            self._held.append((slot, observation))
+
+    def _serve_next(self, waiting: list[tuple[Slot, Any]]) -> None:
+        """Give a policy without act_batch the oldest held episode once it has finished its last one."""
+        while self._serving is None and self._held:
+            slot, observation = self._held.pop(0)
+            try:
+                self._policy.reset(slot.item.job.instruction)
+            except Exception as exc:
+                slot.conn.send(Abort(_reset_error(exc)))
+                continue
+            self._serving = slot
+            waiting.append((slot, observation))
 
     def _loop(self, queue: EpisodeQueue, result: RunResult, traits: PolicyTraits) -> None:
         slots = self._pool.slots
@@ -169,7 +202,7 @@ class Runner:
                     item = self._next_item(slot, queue, deferred, stored, busy, result)
                     if item is None:
                         break
-                    self._assign(slot, item, result)
+                    self._assign(slot, item, result, traits)
 
         fill()
         while True:
@@ -199,16 +232,20 @@ class Runner:
                 try:
                     if ready is slot.process.sentinel and not slot.conn.poll():
                         raise EOFError
-                    kind, payload = slot.conn.recv()
+                    msg = slot.conn.recv()
                 except (EOFError, ConnectionResetError):
-                    self._finish(slot, {"error": f"{SIMULATOR_ERROR_PREFIX}: the worker process died "
-                                             f"(exit code {slot.process.exitcode})"}, result)
+                    error = f"{SIMULATOR_ERROR_PREFIX}: the worker process died (exit code {slot.process.exitcode})"
+                    self._finish(slot, EpisodeOutcome.failed(error, len(slot.item.job.targets)), result)
                     self._pool.restart(slot)
                     continue
-                if kind == "obs":
-                    waiting.append((slot, payload))
-                elif kind == "done":
-                    self._finish(slot, payload, result)
+                match msg:
+                    case Query(observation=observation):
+                        self._queried(slot, observation, waiting, traits)
+                    case Done(outcome=outcome):
+                        self._finish(slot, outcome, result)
+                    case _:
+                        raise TypeError(f"a worker sent {type(msg).__name__} during an episode")
+            self._serve_next(waiting)
             if waiting:
                 self._decide(waiting, traits)
             fill()
@@ -217,14 +254,14 @@ class Runner:
         outputs: list[Any]
         if traits.batched:
             try:
-                outputs = batch_outputs(waiting[0][0].policy, [obs for _, obs in waiting])
+                outputs = batch_outputs(self._policy, [obs for _, obs in waiting])
             except Exception as exc:
                 outputs = [_as_error(exc)] * len(waiting)
         else:
             outputs = []
             for slot, obs in waiting:
                 try:
-                    outputs.append(slot.policy.act(obs))
+                    outputs.append(self._policy.act(obs))
                 except Exception as exc:
                     outputs.append(_as_error(exc))
         for (slot, obs), raw in zip(waiting, outputs):
@@ -242,38 +279,41 @@ class Runner:
                 if not np.all(np.isfinite(executed)):
                     raise PolicyError("post-processing produced a non-finite action")
             except PolicyError as exc:
-                slot.conn.send(("abort", str(exc)))
+                slot.conn.send(Abort(str(exc)))
                 continue
             except Exception as exc:
-                slot.conn.send(("abort", f"action post-processing raised {type(exc).__name__}: {exc}"))
+                slot.conn.send(Abort(f"action post-processing raised {type(exc).__name__}: {exc}"))
                 continue
-            slot.conn.send(("act", chunk, executed))
+            slot.conn.send(Actions(raw=chunk, executed=executed))
 
-    def _finish(self, slot: Slot, payload: dict, result: RunResult) -> None:
-        item = slot.item
-        assert item is not None
+    def _record(self, item: Item, outcome: EpisodeOutcome, wall_time_s: float) -> EpisodeRecord:
+        """The stored row: the episode's keys and provenance from here, the rest from the worker's outcome."""
         spec, job = item.spec, item.job
         case = spec.case
-        record = EpisodeRecord(
+        return EpisodeRecord(
             policy=self.spec.name, suite=spec.suite, task_id=spec.task_id, init_state=spec.init_state,
             prompt=spec.prompt, instruction=spec.instruction, seed=job.seed,
             case_id=spec.case_id, family=case.family if case else None, level=case.level if case else None,
             episode_id=job.episode_id, base_instruction=spec.base_instruction, prompt_text=job.instruction,
             max_steps=job.max_steps, target_names=job.targets,
-            target_pos=np.zeros((0, len(job.targets), 3)),
             conflictbench_version=_own_version(), plugin=self.spec.plugin, plugin_version=self.spec.plugin_version,
             config_hash=self.config_hash, created_at=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            wall_time_s=time.time() - slot.started, **self._pool.versions,
+            wall_time_s=wall_time_s, **self._pool.versions, **outcome.record_fields(),
         )
-        for key, value in payload.items():
-            if key != "wall_time_s":
-                setattr(record, key, value)
+
+    def _finish(self, slot: Slot, outcome: EpisodeOutcome, result: RunResult) -> None:
+        item = slot.item
+        assert item is not None
+        record = self._record(item, outcome, wall_time_s=time.time() - slot.started)
         self.store.write(record)
-        self.store.release(job.episode_id)
+        self.store.release(item.job.episode_id)
         result.played += 1
         result.succeeded += int(record.success)
         result.errors += int(record.error is not None)
         slot.item = None
+        if self._serving is slot:
+            self._serving = None
+        self._held = [(s, o) for s, o in self._held if s is not slot]
         self._bar.update(1)
         self._bar.set_postfix(success=result.succeeded, errors=result.errors)
         if self.on_episode is not None:
@@ -291,6 +331,10 @@ def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str,
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
+def _reset_error(exc: Exception) -> str:
+    return f"policy reset raised {type(exc).__name__}: {exc}"
+
+
 def _as_error(exc: Exception) -> PolicyError:
     if isinstance(exc, PolicyError):
         return exc
@@ -303,15 +347,7 @@ def _own_version() -> str:
     return conflictbench.__version__
 
 
-class _NoBar:
-    def update(self, n: int = 1) -> None: ...
-    def set_postfix(self, **kw: Any) -> None: ...
-    def close(self) -> None: ...
-
-
 def _progress(total: int, name: str, enabled: bool):
-    if not enabled:
-        return _NoBar()
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, unit="episode", desc=f"{name}", dynamic_ncols=True)
+    return tqdm(total=total, unit="episode", desc=name, dynamic_ncols=True, disable=not enabled)

@@ -1,8 +1,8 @@
 """A worker process: owns one LIBERO env and plays episodes step by step for the main process.
 
-The policy never runs here. For each episode the worker sends an :class:`Observation` whenever the
-policy must decide, receives the chunk of actions to execute (raw and post-processed), and
-finally sends back the recorded arrays.
+The policy never runs here. For each episode the worker sends a :class:`Query` (an observation)
+whenever the policy must decide, receives the chunk of actions to execute (raw and post-processed),
+and finally sends back the recorded arrays (see :mod:`.messages`).
 """
 
 from __future__ import annotations
@@ -14,55 +14,37 @@ from typing import Any
 
 import numpy as np
 
-from conflictbench.core import SIMULATOR_ERROR_PREFIX, ConflictCase
+from conflictbench.core import ACTION_DIM, SIMULATOR_ERROR_PREFIX
+
+from .messages import Abort, Actions, Done, EpisodeJob, EpisodeOutcome, Fatal, Play, Query, Ready, Stop
 
 NOOP_ACTION = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])
 
 
-@dataclass(frozen=True)
-class EpisodeJob:
-    episode_id: str
-    suite: str
-    task_id: int
-    bddl_path: str
-    init_state: int
-    seed: int
-    instruction: str
-    """The prompt text the policy gets (also handed over in every observation)."""
-    goal: tuple[tuple[str, ...], ...]
-    targets: tuple[str, ...]
-    warmup_steps: int
-    max_steps: int
-    needs_privileged: bool
-    case: ConflictCase | None = None
-    stream: int = 0
-
-
 @dataclass
-class EpisodeOutcome:
+class _Recording:
+    """An episode's outcome while it is being played."""
+
+    targets: int
     success: bool = False
     steps: int = 0
     error: str | None = None
     eef_pos: list[np.ndarray] = field(default_factory=list)
     target_pos: list[np.ndarray] = field(default_factory=list)
-    target_names: tuple[str, ...] = ()
     actions: list[np.ndarray] = field(default_factory=list)
     raw_actions: list[np.ndarray] = field(default_factory=list)
-    wall_time_s: float = 0.0
+    waiting_s: float = 0.0
+    """Time spent waiting for the policy's answers (subtracted from the simulation time)."""
 
-    def arrays(self) -> dict[str, Any]:
-        k = len(self.target_names)
-        return {
-            "success": self.success,
-            "steps": self.steps,
-            "error": self.error,
-            "eef_pos": np.array(self.eef_pos, dtype=np.float64).reshape(-1, 3),
-            "target_pos": np.array(self.target_pos, dtype=np.float64).reshape(-1, k, 3),
-            "target_names": self.target_names,
-            "actions": np.array(self.actions, dtype=np.float64).reshape(-1, 7),
-            "raw_actions": np.array(self.raw_actions, dtype=np.float64).reshape(-1, 7),
-            "wall_time_s": self.wall_time_s,
-        }
+    def outcome(self, elapsed_s: float) -> EpisodeOutcome:
+        return EpisodeOutcome(
+            success=self.success, steps=self.steps, error=self.error,
+            eef_pos=np.array(self.eef_pos, dtype=np.float64).reshape(-1, 3),
+            target_pos=np.array(self.target_pos, dtype=np.float64).reshape(-1, self.targets, 3),
+            actions=np.array(self.actions, dtype=np.float64).reshape(-1, ACTION_DIM),
+            raw_actions=np.array(self.raw_actions, dtype=np.float64).reshape(-1, ACTION_DIM),
+            sim_time_s=elapsed_s - self.waiting_s,
+        )
 
 
 class EpisodePlayer:
@@ -101,7 +83,7 @@ class EpisodePlayer:
         from .capture import make_observation, privileged_state, target_resolver
 
         start = time.perf_counter()
-        out = EpisodeOutcome(target_names=job.targets)
+        out = _Recording(targets=len(job.targets))
         try:
             env = self._env_for(job)
             env.seed(job.seed)
@@ -131,15 +113,17 @@ class EpisodePlayer:
             out.success = bool(env.check_success())
             while not out.success and out.steps < job.max_steps:
                 priv = privileged_state(env, job.goal, job.case) if job.needs_privileged else None
-                conn.send(("obs", make_observation(raw, step=out.steps, instruction=job.instruction, stream=job.stream,
-                                                   images=gate is not None, privileged=priv)))
+                conn.send(Query(make_observation(raw, step=out.steps, instruction=job.instruction, stream=job.stream,
+                                                 episode_id=job.episode_id, images=gate is not None, privileged=priv)))
+                asked = time.perf_counter()
                 reply = conn.recv()
-                if reply[0] == "abort":
-                    out.error = reply[1]
+                out.waiting_s += time.perf_counter() - asked
+                if isinstance(reply, Abort):
+                    out.error = reply.reason
                     break
-                _, raw_chunk, executed_chunk = reply
-                last = len(executed_chunk) - 1
-                for i, (raw_action, action) in enumerate(zip(raw_chunk, executed_chunk)):
+                assert isinstance(reply, Actions), f"a worker expects Actions or Abort, got {type(reply).__name__}"
+                last = len(reply.executed) - 1
+                for i, (raw_action, action) in enumerate(zip(reply.raw, reply.executed)):
                     render_next(i == last and out.steps + 1 < job.max_steps)
                     raw, _, done, _ = env.step(action)
                     out.steps += 1
@@ -156,8 +140,7 @@ class EpisodePlayer:
             out.success = False
             self.close()
             traceback.print_exc()
-        out.wall_time_s = time.perf_counter() - start
-        return out
+        return out.outcome(time.perf_counter() - start)
 
 
 def worker_main(conn, settings) -> None:
@@ -171,21 +154,22 @@ def worker_main(conn, settings) -> None:
         player = EpisodePlayer(settings)
         import libero.libero.envs  # noqa: F401  (import the simulator now, not inside the first episode)
 
-        conn.send(("ready", libero_env.simulator_versions()))
+        conn.send(Ready(libero_env.simulator_versions()))
     except SimulatorUnavailable as exc:
-        conn.send(("fatal", str(exc)))
+        conn.send(Fatal(str(exc)))
         return
     except Exception as exc:
-        conn.send(("fatal", f"worker could not start the simulator: {type(exc).__name__}: {exc}"))
+        conn.send(Fatal(f"worker could not start the simulator: {type(exc).__name__}: {exc}"))
         return
     try:
         while True:
-            msg = conn.recv()
-            if msg[0] == "stop":
-                break
-            if msg[0] == "episode":
-                outcome = player.play(msg[1], conn)
-                conn.send(("done", outcome.arrays()))
+            match conn.recv():
+                case Stop():
+                    break
+                case Play(job=job):
+                    conn.send(Done(player.play(job, conn)))
+                case other:
+                    raise TypeError(f"a worker expects Play or Stop, got {type(other).__name__}")
     except (EOFError, KeyboardInterrupt, BrokenPipeError):
         pass
     finally:

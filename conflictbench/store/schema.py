@@ -58,6 +58,7 @@ SCHEMA = pa.schema(
         ("numpy_version", pa.string()),
         ("config_hash", pa.string()),
         ("wall_time_s", pa.float64()),
+        ("sim_time_s", pa.float64()),
         ("created_at", pa.string()),
     ],
     metadata={"conflictbench.schema_version": str(SCHEMA_VERSION)},

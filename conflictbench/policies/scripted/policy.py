@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 
-from conflictbench.core import Observation
+from conflictbench.core import Observation, PerEpisode
 
 from .control import OPEN, servo
 from .primitives import Context, Skill
@@ -23,12 +23,19 @@ class ScriptedConfig:
     """Episode budget per LIBERO suite (longer than learned policies get: the expert moves slowly)."""
 
 
+@dataclass
+class _Episode:
+    ctx: Context | None = None
+    plan: Skill | None = None
+
+
 class ScriptedPolicy:
     """Privileged, deterministic, camera-free expert for the 40 LIBERO base tasks.
 
     It reads the goal predicates from ``observation.privileged.goal`` and never reads the
     instruction, so on a conflict episode it keeps executing the original task: the reference
-    point for maximal Failed Persistence.
+    point for maximal Failed Persistence. One instance serves every worker: its per-episode
+    state (the plan being executed) is kept per stream.
     """
 
     needs_images = False
@@ -37,24 +44,28 @@ class ScriptedPolicy:
     def __init__(self, cfg: ScriptedConfig | None = None):
         self.cfg = cfg or ScriptedConfig()
         self.max_steps = dict(self.cfg.max_steps)
-        self._ctx: Context | None = None
-        self._plan: Skill | None = None
+        self._episodes: PerEpisode[_Episode] = PerEpisode(_Episode)
 
-    def reset(self, instruction: str) -> None:  # the instruction is deliberately ignored
-        self._ctx, self._plan = None, None
+    def reset(self, instruction: str) -> None:
+        """Nothing to do: the instruction is deliberately ignored, and a new episode starts its own state."""
 
     def act(self, observation: Observation) -> np.ndarray:
         scene = Scene(observation)
-        if self._ctx is None:
+        episode = self._episodes(observation)
+        if episode.ctx is None:
             table = min(scene.box(n)[0, 2] for n in scene.geo.objects if scene.has(n))
-            self._ctx = Context(scene=scene, theta=scene.finger_theta, table=float(table))
-            self._plan = _run(self._ctx, tuple(observation.privileged.goal))
-        self._ctx.scene = scene
+            episode.ctx = Context(scene=scene, theta=scene.finger_theta, table=float(table))
+            episode.plan = _run(episode.ctx, tuple(observation.privileged.goal))
+        episode.ctx.scene = scene
         try:
-            return next(self._plan)
+            return next(episode.plan)
         except StopIteration:
-            self._plan = _idle(self._ctx)
-            return next(self._plan)
+            episode.plan = _idle(episode.ctx)
+            return next(episode.plan)
+
+    def act_batch(self, observations: list[Observation]) -> list[np.ndarray]:
+        """Concurrent episodes, one after another (each stream's plan is its own)."""
+        return [self.act(o) for o in observations]
 
 
 def _idle(ctx: Context) -> Skill:
