@@ -6,7 +6,8 @@
     conflictbench suite ...              validate, inspect, sample, export or rebuild the conflict suite
 
 A mistake of the user's prints one line and exits with code 2; a simulator that cannot run
-here prints what to install and exits with code 3.
+here prints what to install, and a policy server that cannot be reached is named by its URL;
+both exit with code 3.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import sys
 from importlib import resources
 from typing import Sequence
 
-from conflictbench.core import SimulatorUnavailable, UserError
+from conflictbench.core import ServerUnavailable, SimulatorUnavailable, UserError
 from conflictbench.core.plugins import Plugins, unknown_choice
 
 VERBS = ("list", "report", "suite")
@@ -68,7 +69,7 @@ def _hydra_main(argv: list[str], plugins: Plugins) -> int:
         state["started"] = True
         try:
             return run_job(cfg, plugins, HydraConfig.get().runtime.choices["model"])
-        except (UserError, SimulatorUnavailable) as exc:
+        except (UserError, SimulatorUnavailable, ServerUnavailable) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             raise SystemExit(exc.exit_code) from None
 
@@ -107,7 +108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             return suite_command(argv[1:], plugins)
         return _hydra_main(argv, plugins)
-    except (UserError, SimulatorUnavailable) as exc:
+    except (UserError, SimulatorUnavailable, ServerUnavailable) as exc:
         print(f"conflictbench: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # output piped into `head` and the like

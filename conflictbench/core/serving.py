@@ -62,7 +62,7 @@ import urllib.parse
 from abc import ABC, abstractmethod
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
@@ -153,7 +153,15 @@ class HttpJsonTransport(Transport):
 
 @dataclass
 class ServingConfig:
-    """Settings of a served policy; a plugin's config dataclass inherits them (``model.server=URL``)."""
+    """Settings of a served policy; a plugin's config dataclass inherits them (``model.server=URL``).
+
+    They say where and how patiently to reach the server, not what the model does, so they are no
+    part of an episode's identity (``identity_exempt``): a server moved to another address resumes
+    the same run. Name the model itself (its checkpoint) in a setting of the plugin's own.
+    """
+
+    identity_exempt: ClassVar[tuple[str, ...]] = ("server", "connect_timeout_s", "request_timeout_s",
+                                                  "connect_retries", "backoff_s", "max_backoff_s", "resends")
 
     server: str = "http://127.0.0.1:8000/act"
     """Where the policy server listens."""

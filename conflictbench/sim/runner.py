@@ -23,10 +23,13 @@ import numpy as np
 from conflictbench.core import (
     ActionContext,
     EpisodeRecord,
+    INFRASTRUCTURE_ERROR_PREFIX,
+    InfrastructureError,
     PolicyError,
     PolicySpec,
     PolicyTraits,
     SIMULATOR_ERROR_PREFIX,
+    ServerUnavailable,
     UserError,
     as_action_chunk,
 )
@@ -77,7 +80,7 @@ class Runner:
     def _load_policy(self) -> Any:
         try:
             policy = self.spec.load(self.config)
-        except UserError:
+        except (UserError, ServerUnavailable):
             raise
         except Exception as exc:
             raise UserError(f"could not load policy {self.spec.name!r}: {type(exc).__name__}: {exc}") from exc
@@ -128,6 +131,9 @@ class Runner:
         try:
             pool.start_all()
             self._loop(EpisodeQueue(todo), result, traits)
+        except ServerUnavailable:
+            self._end_in_flight(result)
+            raise
         finally:
             for slot in pool.slots:
                 if slot.item is not None:
@@ -166,6 +172,8 @@ class Runner:
         if traits.batched:  # otherwise reset comes right before the episode's first act (_serve)
             try:
                 self._policy.reset(job.instruction)
+            except ServerUnavailable:
+                raise
             except Exception as exc:
                 self._finish(slot, EpisodeOutcome.failed(_reset_error(exc), len(job.targets)), result)
                 return
@@ -184,6 +192,8 @@ class Runner:
             slot, observation = self._held.pop(0)
             try:
                 self._policy.reset(slot.item.job.instruction)
+            except ServerUnavailable:
+                raise
             except Exception as exc:
                 slot.conn.send(Abort(_reset_error(exc)))
                 continue
@@ -255,6 +265,8 @@ class Runner:
         if traits.batched:
             try:
                 outputs = batch_outputs(self._policy, [obs for _, obs in waiting])
+            except ServerUnavailable:
+                raise
             except Exception as exc:
                 outputs = [_as_error(exc)] * len(waiting)
         else:
@@ -262,12 +274,17 @@ class Runner:
             for slot, obs in waiting:
                 try:
                     outputs.append(self._policy.act(obs))
+                except ServerUnavailable:
+                    raise
                 except Exception as exc:
                     outputs.append(_as_error(exc))
         for (slot, obs), raw in zip(waiting, outputs):
+            if isinstance(raw, InfrastructureError):  # not the model's behaviour: stored apart, replayed next run
+                slot.conn.send(Abort(f"{INFRASTRUCTURE_ERROR_PREFIX}: {raw}"))
+                continue
             try:
-                if isinstance(raw, PolicyError):
-                    raise raw
+                if isinstance(raw, Exception):  # act_batch may end one episode alone by returning its error
+                    raise _as_error(raw)
                 chunk = as_action_chunk(raw)
                 job = slot.item.job
                 executed = np.stack([
@@ -285,6 +302,20 @@ class Runner:
                 slot.conn.send(Abort(f"action post-processing raised {type(exc).__name__}: {exc}"))
                 continue
             slot.conn.send(Actions(raw=chunk, executed=executed))
+
+    def _end_in_flight(self, result: RunResult) -> None:
+        """The policy server is gone: store the episodes whose workers already sent their end, then stop
+        the workers mid-episode (those episodes are not stored; their claims are released by ``run``)."""
+        for slot in self._pool.slots:
+            try:
+                while slot.item is not None and slot.conn.poll():
+                    msg = slot.conn.recv()
+                    if isinstance(msg, Done):
+                        self._finish(slot, msg.outcome, result)
+            except (EOFError, OSError):
+                pass
+            if slot.process is not None:
+                slot.process.kill()  # waiting for an answer that will never come; a Stop would not reach it
 
     def _record(self, item: Item, outcome: EpisodeOutcome, wall_time_s: float) -> EpisodeRecord:
         """The stored row: the episode's keys and provenance from here, the rest from the worker's outcome."""
@@ -326,17 +357,21 @@ def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str,
     policy's plugin and of every plugin implementing a global per-episode hook, see
     ``Plugins.provenance``) and the simulator stack (a store never mixes MuJoCo versions)."""
     settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
+    for name in getattr(config, "identity_exempt", ()):  # a served policy's address and timeouts (ServingConfig)
+        settings.pop(name, None)
     blob = json.dumps({"policy": policy, "config": settings, "traits": traits.as_dict(), "code": list(code),
                        "simulator": simulator_versions()}, sort_keys=True, default=repr)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
 def _reset_error(exc: Exception) -> str:
+    if isinstance(exc, InfrastructureError):
+        return f"{INFRASTRUCTURE_ERROR_PREFIX}: {exc}"
     return f"policy reset raised {type(exc).__name__}: {exc}"
 
 
-def _as_error(exc: Exception) -> PolicyError:
-    if isinstance(exc, PolicyError):
+def _as_error(exc: Exception) -> PolicyError | InfrastructureError:
+    if isinstance(exc, (PolicyError, InfrastructureError)):
         return exc
     return PolicyError(f"policy raised {type(exc).__name__}: {exc}")
 

@@ -1,0 +1,143 @@
+"""Whole runs of a served policy on real LIBERO episodes: its server killed mid-run, its server failing an episode.
+
+The policy is tests/plugins/conflictbench-served (the shared client, 10 policy steps per episode,
+no cameras); its server is tests/policy_server.py on 127.0.0.1, a subprocess always stopped at teardown.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import conflictbench
+from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, ConflictCase
+from conflictbench.core.plugins import Plugins
+from conflictbench.report.summary import pair_up, report_records
+from conflictbench.store import EpisodeStore
+from conflictbench.tasks.libero_tasks import base_task
+from conftest import conflict_spec, reference_spec
+from policy_server import PolicyServer, served_action
+
+pytestmark = pytest.mark.sim
+
+SERVED_PLUGIN = Path(__file__).parent / "plugins" / "conflictbench-served"
+# Two base tasks of libero_goal, two L1 cases each: 4 conflict + 2 reference episodes with one initial state.
+CASES = [
+    ("s-inst-1", 8, "instruction", "L1", "put the bowl on the plate without moving the bowl"),
+    ("s-grnd-1", 1, "grounding", "L1", "put the bowl on the toaster"),
+    ("s-spat-1", 8, "spatial", "L1", "put the bowl that sits on top of the cabinet on the plate"),
+    ("s-phys-1", 1, "physical", "L1", "pick up the stove and put it on the plate"),
+]
+EPISODES, STEPS = 6, 10
+
+
+@pytest.fixture
+def servers():
+    started: list[PolicyServer] = []
+
+    def _start(*options: str, port: int = 0) -> PolicyServer:
+        started.append(PolicyServer(*options, port=port))
+        return started[-1]
+
+    yield _start
+    for server in started:
+        server.stop()
+
+
+@pytest.fixture(scope="module")
+def served_plugin_site(tmp_path_factory) -> Path:
+    """The served test plugin, pip-installed (a real distribution with a real entry point) into a directory."""
+    target = tmp_path_factory.mktemp("served-plugin-site")
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--no-compile", "--target", str(target), str(SERVED_PLUGIN)], check=True)
+    return target
+
+
+def _cases_file(tmp_path: Path) -> Path:
+    from conflictbench.tasks.suite_file import case_line
+
+    path = tmp_path / "cases.jsonl"
+    path.write_text("".join(case_line(ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language,
+                                                   text, family, level)) + "\n"
+                            for cid, task, family, level, text in CASES))
+    return path
+
+
+def _counts(stderr: str) -> dict[str, int]:
+    match = re.search(r"(\d+) played, (\d+) already stored, (\d+) played by another job, (\d+) with errors", stderr)
+    assert match, stderr[-3000:]
+    return dict(zip(("played", "stored", "elsewhere", "errors"), map(int, match.groups())))
+
+
+def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(
+        tmp_path, servers, served_plugin_site):
+    server = servers("--die-after", "25")  # two workers: each has finished about one episode by then
+    args = ["model=served-test", f"model.server={server.url}", "level=L1", "run.init_states=1",
+            f"suite.file={_cases_file(tmp_path)}", "run.workers=2", "run.progress=false", "run.report=false"]
+
+    def cli() -> subprocess.CompletedProcess:
+        return subprocess.run([str(Path(sys.executable).parent / "conflictbench"), *args], cwd=tmp_path,
+                              env={**os.environ, "PYTHONPATH": str(served_plugin_site)}, capture_output=True,
+                              text=True, timeout=600, stdin=subprocess.DEVNULL)
+
+    out = cli()
+    assert out.returncode == 3, out.stderr[-3000:]
+    errors = [line for line in out.stderr.splitlines() if line.startswith("conflictbench: error:")]
+    assert len(errors) == 1 and server.url in errors[0] and "connection refused" in errors[0], out.stderr[-3000:]
+    assert "Traceback" not in out.stderr
+    assert server.process.wait(timeout=5) != 0  # it really died
+
+    store = EpisodeStore(tmp_path / "results")
+    before = {p.name: p.read_bytes() for p in store.files()}
+    assert 1 <= len(before) < EPISODES  # every episode finished before the crash is stored ...
+    assert all(r.error is None and r.steps == STEPS for r in store.records())
+    assert store.replay_ids() == set()  # ... and none of those cut off by it (they are simply not played yet)
+    assert not list((tmp_path / "results" / "claims").glob("*.claim"))
+
+    restarted = servers(port=server.port)  # the same URL again
+    out = cli()
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert _counts(out.stderr) == {"played": EPISODES - len(before), "stored": len(before), "elsewhere": 0, "errors": 0}
+    assert restarted.stats()["requests"] == (EPISODES - len(before)) * STEPS  # only the missing episodes
+    after = {p.name: p.read_bytes() for p in store.files()}
+    assert len(after) == EPISODES and all(after[name] == before[name] for name in before)
+    for record in store.records():  # the server's actions, executed
+        np.testing.assert_allclose(record.raw_actions[:, 0], [served_action(t, [0.0] * 8)[0] for t in range(STEPS)])
+
+
+def test_an_episode_the_server_fails_is_stored_left_out_and_played_again(play, servers, tmp_path):
+    spec = importlib.util.spec_from_file_location("conflictbench_served", SERVED_PLUGIN / "conflictbench_served" / "__init__.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[module])
+    toaster = ConflictCase("s-grnd-1", "libero_goal", 1, base_task("libero_goal", 1).language,
+                           "put the bowl on the toaster", "grounding", "L1")
+    specs = [reference_spec("libero_goal", 1), conflict_spec(toaster)]
+
+    failing = servers("--fail-instruction", "toaster")  # HTTP 500 for the conflict episode's requests
+    result, store = play("served-test", specs, settings={"server": failing.url}, workers=2, plugin_set=plugins)
+    assert (result.played, result.errors) == (2, 1)
+    [failed] = [r for r in store.records() if r.case_id]
+    assert failed.error.startswith(INFRASTRUCTURE_ERROR_PREFIX) and "HTTP 500" in failed.error
+    assert failed.infrastructure_failed and store.replay_ids() == {failed.episode_id}
+    pairs, counts = pair_up(store.records())
+    assert pairs == [] and [r.episode_id for r in counts.unserved] == [failed.episode_id]
+    text = io.StringIO()
+    report_records(store.records(), plugins, stream=text, figures=False)
+    assert "1 episode(s) ended with an infrastructure failure and are left out" in text.getvalue()
+
+    healthy = servers()
+    result, store = play("served-test", specs, settings={"server": healthy.url}, workers=2, plugin_set=plugins)
+    assert (result.already_stored, result.played, result.errors) == (1, 1, 0)  # only the failed one, again
+    assert healthy.stats()["requests"] == STEPS
+    assert store.replay_ids() == set() and [r.error for r in store.records()] == [None, None]
+    pairs, counts = pair_up(store.records())
+    assert len(pairs) == 1 and counts.unserved == []
