@@ -10,6 +10,7 @@ import importlib.util
 import io
 import os
 import re
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -20,7 +21,8 @@ import pytest
 import conflictbench
 from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, ConflictCase
 from conflictbench.core.plugins import Plugins
-from conflictbench.report.summary import pair_up, report_records
+from conflictbench.report import report_store
+from conflictbench.report.summary import pair_up
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.libero_tasks import base_task
 from conftest import conflict_spec, reference_spec
@@ -77,6 +79,23 @@ def _counts(stderr: str) -> dict[str, int]:
     return dict(zip(("played", "stored", "elsewhere", "errors"), map(int, match.groups())))
 
 
+def _cli(args, cwd: Path, site: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(Path(sys.executable).parent / "conflictbench"), *args], cwd=cwd,
+                          env={**os.environ, "PYTHONPATH": str(site)}, capture_output=True, text=True,
+                          timeout=600, stdin=subprocess.DEVNULL)
+
+
+def test_no_server_stops_the_run_before_any_simulator_starts(tmp_path, served_plugin_site):
+    with socket.socket() as sock:  # a port nobody listens on
+        sock.bind(("127.0.0.1", 0))
+        url = f"http://127.0.0.1:{sock.getsockname()[1]}/act"
+    out = _cli(["model=served-test", f"model.server={url}", "level=L1", f"suite.file={_cases_file(tmp_path)}",
+                "run.progress=false"], tmp_path, served_plugin_site)
+    assert out.returncode == 3, out.stderr[-3000:]
+    assert out.stderr.splitlines()[-1].startswith(f"conflictbench: error: the policy server at {url} cannot be reached")
+    assert "Traceback" not in out.stderr and not (tmp_path / "results" / "episodes").exists()
+
+
 def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(
         tmp_path, servers, served_plugin_site):
     server = servers("--die-after", "25")  # two workers: each has finished about one episode by then
@@ -84,9 +103,7 @@ def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_re
             f"suite.file={_cases_file(tmp_path)}", "run.workers=2", "run.progress=false", "run.report=false"]
 
     def cli() -> subprocess.CompletedProcess:
-        return subprocess.run([str(Path(sys.executable).parent / "conflictbench"), *args], cwd=tmp_path,
-                              env={**os.environ, "PYTHONPATH": str(served_plugin_site)}, capture_output=True,
-                              text=True, timeout=600, stdin=subprocess.DEVNULL)
+        return _cli(args, tmp_path, served_plugin_site)
 
     out = cli()
     assert out.returncode == 3, out.stderr[-3000:]
@@ -131,7 +148,7 @@ def test_an_episode_the_server_fails_is_stored_left_out_and_played_again(play, s
     pairs, counts = pair_up(store.records())
     assert pairs == [] and [r.episode_id for r in counts.unserved] == [failed.episode_id]
     text = io.StringIO()
-    report_records(store.records(), plugins, stream=text, figures=False)
+    report_store(store, plugins, stream=text, figures=False)  # what `conflictbench report DIR` prints
     assert "1 episode(s) ended with an infrastructure failure and are left out" in text.getvalue()
 
     healthy = servers()
