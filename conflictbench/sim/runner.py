@@ -315,7 +315,7 @@ class Runner:
             except (EOFError, OSError):
                 pass
             if slot.process is not None:
-                slot.process.kill()  # waiting for an answer that will never come; a Stop would not reach it
+                slot.process.kill()  # its episode cannot finish: no need to wait for it to reach a Stop
 
     def _record(self, item: Item, outcome: EpisodeOutcome, wall_time_s: float) -> EpisodeRecord:
         """The stored row: the episode's keys and provenance from here, the rest from the worker's outcome."""

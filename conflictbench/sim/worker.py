@@ -121,7 +121,8 @@ class EpisodePlayer:
                 if isinstance(reply, Abort):
                     out.error = reply.reason
                     break
-                assert isinstance(reply, Actions), f"a worker expects Actions or Abort, got {type(reply).__name__}"
+                if not isinstance(reply, Actions):  # Stop: the run ends (e.g. its policy server died)
+                    raise StopRequested
                 last = len(reply.executed) - 1
                 for i, (raw_action, action) in enumerate(zip(reply.raw, reply.executed)):
                     render_next(i == last and out.steps + 1 < job.max_steps)
@@ -135,12 +136,18 @@ class EpisodePlayer:
                         break
                     if out.steps >= job.max_steps:
                         break
+        except StopRequested:
+            raise
         except Exception as exc:  # the simulator failed: keep what was recorded, report, go on
             out.error = f"{SIMULATOR_ERROR_PREFIX}: {type(exc).__name__}: {exc}"
             out.success = False
             self.close()
             traceback.print_exc()
         return out.outcome(time.perf_counter() - start)
+
+
+class StopRequested(Exception):
+    """The main process sent Stop while an episode waited for actions: leave now, store nothing."""
 
 
 def worker_main(conn, settings) -> None:
@@ -170,7 +177,7 @@ def worker_main(conn, settings) -> None:
                     conn.send(Done(player.play(job, conn)))
                 case other:
                     raise TypeError(f"a worker expects Play or Stop, got {type(other).__name__}")
-    except (EOFError, KeyboardInterrupt, BrokenPipeError):
+    except (StopRequested, EOFError, KeyboardInterrupt, BrokenPipeError):
         pass
     finally:
         player.close()
