@@ -24,11 +24,21 @@ def conflictbench_register_policies(register):
     - ``name``: the Hydra ``model`` option (``conflictbench model=<name>``);
     - ``load(cfg) -> policy``: builds the policy from an instance of ``config``;
     - ``config``: a dataclass whose fields become the overrides ``model.<field>=...``
-      (optional; a policy without settings may omit it).
+      (optional; a policy without settings may omit it);
+    - ``format_prompt(instruction, condition) -> str | None`` (optional): the model's own P0/P1
+      text (its native template); ``None`` falls back to the core's default;
+    - ``postprocess(action, context) -> ndarray | None`` (optional): the model's own action
+      post-processing, applied to each (7,) action before any global post-processor; ``None``
+      leaves the action unchanged.
+
+    ``format_prompt`` and ``postprocess`` belong to the policy they are registered with: they
+    never touch another model's episodes, and the registering distribution's version is part of
+    every episode's identity, so upgrading the plugin plays its episodes again.
 
     The policy returned by ``load`` has ``reset(instruction: str) -> None`` and
     ``act(observation) -> ndarray`` of shape ``(7,)`` or a chunk ``(k, 7)`` executed open-loop.
-    It may also define ``act_batch(observations) -> list[ndarray]``, ``close()``, and these
+    It may also define ``act_batch(observations) -> list[ndarray]`` (an exception in place of one
+    result ends that episode alone), ``close()``, and these
     attributes (defaults in brackets): ``needs_images`` [True], ``needs_privileged`` [False],
     ``image_size`` [256], ``warmup_steps`` [10], ``max_steps`` [a mapping LIBERO suite -> steps;
     220/280/300/520].
@@ -56,7 +66,10 @@ def conflictbench_format_prompt(instruction, condition, policy):
 
     ``condition`` is ``"p0"`` (standard task text) or ``"p1"`` (the task text after the fixed
     premise-check preamble); ``policy`` is the policy's registered name. The first non-``None``
-    result wins; the core's own implementation runs last and is the fallback.
+    result wins. This global hook is for deliberate cross-cutting plugins (a lab's prompt style
+    for every model): it runs for every policy and overrides a policy's own ``format_prompt``. A
+    model's native template belongs in its registration instead (``register(..., format_prompt=)``).
+    Where every implementation returns ``None``: the policy's own, else the core's default.
     """
 
 
@@ -65,10 +78,15 @@ def conflictbench_postprocess_action(action, context):
     """Transform one action before it reaches the environment.
 
     ``action`` is a float64 array of shape ``(7,)``; ``context`` an :class:`ActionContext`.
-    Implementations are chained: each receives the action returned by the one before, in
-    pluggy's call order (``tryfirst`` implementations first, then the most recently registered
-    first, ``trylast`` ones last). Returning ``None`` leaves the action unchanged. The store keeps
-    both what the policy returned (``raw_actions``) and what was executed (``actions``).
+    This global hook is for deliberate cross-cutting plugins (clip every action): it runs for every
+    policy, after the policy's own ``postprocess``. A model's own post-processing belongs in its
+    registration instead (``register(..., postprocess=)``). Implementations are chained: each
+    receives the action returned by the one before, in pluggy's call order (``tryfirst``
+    implementations first, then the most recently registered first, ``trylast`` ones last); a
+    ``wrapper=True`` implementation wraps each link. Returning ``None`` leaves the action
+    unchanged. The store keeps both what the policy returned (``raw_actions``) and what was
+    executed (``actions``). Every installed plugin implementing this hook is part of every
+    episode's identity.
     """
 
 
@@ -76,10 +94,22 @@ def conflictbench_postprocess_action(action, context):
 def conflictbench_register_metrics(register):
     """Declare per-pair metrics.
 
-    Call ``register(name, compute=..., description="")``; ``compute(pair) -> float | None`` gets a
-    :class:`Pair` (``pair.reference`` and ``pair.conflict`` are :class:`EpisodeRecord`) and returns
-    ``None`` where the measure is undefined for that pair. A metric is averaged over the pairs
-    where it is defined and appears in every report and CSV beside the built-ins.
+    Call ``register(name, compute=..., description="", label=None, unit="", higher_is_better=None,
+    compute_many=None)`` once per metric:
+
+    - ``compute(pair) -> float | None`` gets a :class:`Pair` (``pair.reference`` and
+      ``pair.conflict`` are :class:`EpisodeRecord`) and returns ``None`` where the measure is
+      undefined for that pair;
+    - ``compute_many(references, conflicts) -> sequence of float | None`` (optional): the batched
+      form over aligned lists of episodes; used instead of ``compute`` where given (one of the two
+      is required);
+    - ``label``: the column title in tables and figures (default: the name); ``unit``: ``"%"`` for a
+      fraction in [0, 1] shown as a percentage, other text (``"m"``) shown after the value;
+      ``higher_is_better``: which way reports mark the most favourable value (``None``: unmarked).
+
+    A metric is averaged over the pairs where it is defined and appears in every report and CSV,
+    shown only as its registration says. The built-in TAR, TS, Early20 TS and AMS register through
+    this same hook with the same arguments.
     """
 
 
