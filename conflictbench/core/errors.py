@@ -1,8 +1,8 @@
 """Errors the framework raises on purpose.
 
-The command line turns a :class:`UserError` into one line on stderr and exit code 2, and a
-:class:`SimulatorUnavailable` or :class:`ServerUnavailable` into one line and exit code 3; anything
-else is a bug and keeps its traceback.
+The command line turns every error with an ``exit_code`` into one line on stderr and that exit
+code: a :class:`UserError` or :class:`PluginError` 2, a :class:`SimulatorUnavailable` or
+:class:`ServerUnavailable` 3; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -32,7 +32,10 @@ class PolicyError(ConflictbenchError):
 
 
 class PluginError(ConflictbenchError):
-    """A plugin registered something invalid (a duplicate name, a non-dataclass config)."""
+    """A plugin registered something invalid (a duplicate name, a non-dataclass config) or implements
+    a hook that does not exist; the message names the plugin."""
+
+    exit_code = 2
 
 
 class InfrastructureError(ConflictbenchError):
