@@ -65,3 +65,6 @@ def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_p
     records = store.records()
     assert len(records) == 3 and len({r.config_hash for r in records}) == 3
     assert {r.plugin_version for r in records} == {"0.3.1", "0.3.2"}
+    demo_pins = {pin for r in records for pin in r.code_versions if pin.startswith("conflictbench-demo==")}
+    assert demo_pins == {"conflictbench-demo==0.3.1", "conflictbench-demo==0.3.2"}
+    assert sum("(in-process)==" in pin for r in records for pin in r.code_versions) == 1  # the post-processor

@@ -42,9 +42,9 @@ def test_episodes_stored_before_the_sim_time_column_still_read(tmp_path):
                            instruction="x", episode_id="old", wall_time_s=2.0)
     path = store.path_for("noop", "old")
     path.parent.mkdir(parents=True)
-    pq.write_table(records_to_table([record]).drop_columns(["sim_time_s"]), path)
+    pq.write_table(records_to_table([record]).drop_columns(["sim_time_s", "code_versions"]), path)
     (read,) = store.records()
-    assert read.episode_id == "old" and read.wall_time_s == 2.0 and read.sim_time_s is None
+    assert read.episode_id == "old" and read.wall_time_s == 2.0 and read.sim_time_s is None and read.code_versions == ()
 
 
 def test_progress_off_uses_tqdm_disabled(plugins, tmp_path):

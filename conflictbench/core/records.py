@@ -228,6 +228,9 @@ class EpisodeRecord:
     conflictbench_version: str = ""
     plugin: str = ""
     plugin_version: str = ""
+    code_versions: tuple[str, ...] = ()
+    """``distribution==version`` of all code that can change this episode (the policy's plugin and every
+    plugin implementing a global per-episode hook); part of its identity."""
     libero_version: str = ""
     robosuite_version: str = ""
     mujoco_version: str = ""

@@ -67,6 +67,7 @@ class Runner:
         self.plugins, self.spec, self.config = plugins, spec, config
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
+        self.code_versions: tuple[str, ...] = ()
         self.progress, self.on_episode = progress, on_episode
         self._bar: Any = _progress(0, spec.name, enabled=False)
         self._pool: WorkerPool | None = None
@@ -111,7 +112,8 @@ class Runner:
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
         policy = self._load_policy()
         traits = PolicyTraits(policy)
-        self.config_hash = config_hash(self.spec.name, self.config, traits, self.plugins.provenance(self.spec.name))
+        self.code_versions = self.plugins.provenance(self.spec.name)
+        self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:
             raise UserError(f"policy {self.spec.name!r} declares no max_steps for {', '.join(missing)}")
@@ -328,6 +330,7 @@ class Runner:
             episode_id=job.episode_id, base_instruction=spec.base_instruction, prompt_text=job.instruction,
             max_steps=job.max_steps, target_names=job.targets,
             conflictbench_version=_own_version(), plugin=self.spec.plugin, plugin_version=self.spec.plugin_version,
+            code_versions=self.code_versions,
             config_hash=self.config_hash, created_at=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             wall_time_s=wall_time_s, **self._pool.versions, **outcome.record_fields(),
         )

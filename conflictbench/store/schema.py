@@ -52,6 +52,7 @@ SCHEMA = pa.schema(
         ("conflictbench_version", pa.string()),
         ("plugin", pa.string()),
         ("plugin_version", pa.string()),
+        ("code_versions", pa.list_(pa.string())),
         ("libero_version", pa.string()),
         ("robosuite_version", pa.string()),
         ("mujoco_version", pa.string()),
@@ -98,7 +99,7 @@ def records_to_table(records: Iterable[EpisodeRecord]) -> pa.Table:
                 columns[name] = _nested(values, width, ndim=3 if name == "target_pos" else 2)
             except ValueError as exc:
                 raise ValueError(f"column {name}: {exc}") from None
-        elif name == "target_names":
+        elif name in ("target_names", "code_versions"):
             columns[name] = pa.array([list(v) for v in values], type=SCHEMA.field(name).type)
         else:
             columns[name] = pa.array(values, type=SCHEMA.field(name).type)
@@ -141,6 +142,7 @@ def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
     records = []
     for i, row in enumerate(scalars):
         row["target_names"] = tuple(row["target_names"] or ())
+        row["code_versions"] = tuple(row["code_versions"] or ())  # null in stores written before the column
         for name in ARRAY_COLUMNS:
             row[name] = arrays[name][i]
         records.append(EpisodeRecord(**row))
