@@ -9,8 +9,7 @@ from hydra import compose, initialize_config_module
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
-from conflictbench.app import register_model_configs, run_options
-from conflictbench.cli import group_choices
+from conflictbench.cli.run import group_choices, register_model_configs, run_options
 from conflictbench.core import FAMILIES, LEVELS, UserError
 
 

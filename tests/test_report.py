@@ -10,10 +10,10 @@ import pandas as pd
 import pytest
 
 import conflictbench
+from conflictbench.cli.report import command as report_command
 from conflictbench.core import EpisodeRecord, Plugins, hookimpl
 from conflictbench.report import report_records
 from conflictbench.store import EpisodeStore
-from conflictbench.verbs import report_command
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
+from conflictbench.cli.args import Parser
 from conflictbench.core import LEVELS, LIBERO_SUITES, PROMPT_CONDITIONS, UserError
 from conflictbench.core.plugins import Plugins
 
@@ -22,12 +22,7 @@ USAGE = """usage: conflictbench suite validate [FILE]          re-check every ca
 """
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # a usage mistake is a UserError: one line, exit code 2
-        raise UserError(f"{self.prog}: {message}")
-
-
-def suite_command(argv: list[str], plugins: Plugins) -> int:
+def command(argv: list[str], plugins: Plugins) -> int:
     if not argv:
         raise UserError(f"conflictbench suite: name a command: {', '.join(SUBCOMMANDS)} (see: conflictbench suite --help)")
     if argv[0] in ("-h", "--help", "help"):
@@ -46,7 +41,7 @@ def _load(path: str | None, plugins: Plugins):
 
 
 def _validate(argv: Sequence[str], plugins: Plugins) -> int:
-    parser = _Parser(prog="conflictbench suite validate", description="Re-check every case of a suite or export.")
+    parser = Parser(prog="conflictbench suite validate", description="Re-check every case of a suite or export.")
     parser.add_argument("file", nargs="?", help="a suite file or a headerless export (default: the shipped suite)")
     parser.add_argument("--facts", help="scene facts file (default: the shipped one)")
     args = parser.parse_args(argv)
@@ -86,7 +81,7 @@ def stats_table(cases, families: Sequence[str], markdown: bool = False) -> str:
 
 
 def _stats(argv: Sequence[str], plugins: Plugins) -> int:
-    parser = _Parser(prog="conflictbench suite stats", description="Usable cases per family x level x LIBERO suite.")
+    parser = Parser(prog="conflictbench suite stats", description="Usable cases per family x level x LIBERO suite.")
     parser.add_argument("file", nargs="?", help="a suite file or export (default: the shipped suite)")
     parser.add_argument("--markdown", action="store_true", help="print a Markdown table (as in the README)")
     args = parser.parse_args(argv)
@@ -99,7 +94,7 @@ def _stats(argv: Sequence[str], plugins: Plugins) -> int:
 
 
 def _sample(argv: Sequence[str], plugins: Plugins) -> int:
-    parser = _Parser(prog="conflictbench suite sample", description="A stratified sample of cases for manual review.")
+    parser = Parser(prog="conflictbench suite sample", description="A stratified sample of cases for manual review.")
     parser.add_argument("--per-cell", type=int, required=True, metavar="N", help="cases per family x level cell")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--suite", help="suite file (default: the shipped suite)")
@@ -125,7 +120,7 @@ EXPORT_KEYS = ("case_id", "suite", "task_id", "base_instruction", "instruction",
 
 
 def _export(argv: Sequence[str], plugins: Plugins) -> int:
-    parser = _Parser(prog="conflictbench suite export", description="Every case, one JSON object per line.")
+    parser = Parser(prog="conflictbench suite export", description="Every case, one JSON object per line.")
     parser.add_argument("out", metavar="FILE.jsonl")
     parser.add_argument("--suite", help="suite file (default: the shipped suite)")
     parser.add_argument("--prompts", action="store_true",
@@ -148,7 +143,7 @@ def _export(argv: Sequence[str], plugins: Plugins) -> int:
 
 
 def _build(argv: Sequence[str], plugins: Plugins) -> int:
-    parser = _Parser(prog="conflictbench suite build", description="Generate the suite from the base tasks.")
+    parser = Parser(prog="conflictbench suite build", description="Generate the suite from the base tasks.")
     parser.add_argument("--seed", type=int, default=None, help="generation seed (default: 0, the shipped suite's)")
     parser.add_argument("--out", help="where to write (default: the shipped suite file)")
     parser.add_argument("--facts", action="store_true",

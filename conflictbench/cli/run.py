@@ -1,16 +1,26 @@
-"""The Hydra application behind ``conflictbench [overrides]``: compose a run, play it, report."""
+"""``conflictbench [OVERRIDE ...]``: the Hydra application that composes a run, plays it and reports."""
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, PROMPT_CONDITIONS, UserError
-from conflictbench.core.plugins import Plugins
+from conflictbench.core import (
+    FAMILIES,
+    LEVELS,
+    LIBERO_SUITES,
+    PROMPT_CONDITIONS,
+    ServerUnavailable,
+    SimulatorUnavailable,
+    UserError,
+)
+from conflictbench.core.plugins import Plugins, unknown_choice
 
 CONFIG_PACKAGE = "pkg://conflictbench.conf"
 GROUPS = ("model", "suite", "level", "prompt", "run")
@@ -79,6 +89,29 @@ def run_options(run: DictConfig) -> RunOptions:
     )
 
 
+def group_choices(group: str, plugins: Plugins) -> list[str]:
+    """The options of a config group: registered policies for ``model``, YAML files otherwise."""
+    if group == "model":
+        return sorted(plugins.policies())
+    folder = resources.files("conflictbench.conf") / group
+    return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def check_group_overrides(argv: Sequence[str], plugins: Plugins) -> None:
+    """Reject ``group=unknown`` before Hydra composes anything (one line, exit code 2)."""
+    for arg in argv:
+        if arg.startswith("-") or "=" not in arg:
+            continue
+        key, value = arg.lstrip("+~").split("=", 1)
+        if key not in GROUPS or any(ch in value for ch in "()[]{}*$"):
+            continue  # a field override or a sweep function: Hydra checks those
+        choices = group_choices(key, plugins)
+        for item in value.split(","):
+            if item.strip() not in choices:
+                failures = plugins.load_failures if key == "model" else None
+                raise UserError(unknown_choice(key, item.strip(), choices, failures))
+
+
 def register_model_configs(plugins: Plugins) -> None:
     """Make every registered policy a Hydra ``model`` option (its config dataclass as the schema)."""
     from hydra.core.config_store import ConfigStore
@@ -129,4 +162,35 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     if options.report:
         report_store(store, plugins, episode_ids=result.episode_ids, out_dir=store.root / "report",
                      metrics=options.metrics)
+    return 0
+
+
+def command(argv: list[str], plugins: Plugins) -> int:
+    """Compose the run from Hydra overrides and play it (Hydra's own errors exit with code 2)."""
+    import hydra
+    from hydra.core.hydra_config import HydraConfig
+
+    register_model_configs(plugins)
+    check_group_overrides(argv, plugins)
+    state = {"started": False}
+
+    @hydra.main(version_base=None, config_path=CONFIG_PACKAGE, config_name="config")
+    def task(cfg) -> int:
+        state["started"] = True
+        try:
+            return run_job(cfg, plugins, HydraConfig.get().runtime.choices["model"])
+        except (UserError, SimulatorUnavailable, ServerUnavailable) as exc:
+            print(f"conflictbench: error: {exc}", file=sys.stderr)
+            raise SystemExit(exc.exit_code) from None
+
+    saved = sys.argv
+    sys.argv = ["conflictbench", *[("--help" if a == "--hydra-help" else a) for a in argv]]
+    try:
+        task()
+    except SystemExit as exc:
+        if exc.code == 1 and not state["started"]:
+            return 2  # Hydra rejected an override; it has printed why
+        return int(exc.code or 0)
+    finally:
+        sys.argv = saved
     return 0

@@ -1,0 +1,55 @@
+"""The ``conflictbench`` command: one module of this package per verb.
+
+    conflictbench [hydra overrides]   run.py      compose and play a run (``-m`` for sweeps)
+    conflictbench list                listing.py  policies, metrics, families, levels, prompts, presets
+    conflictbench report DIR          report.py   tables from an episode store, running nothing
+    conflictbench suite ...           suite.py    validate, inspect, sample, export or rebuild the conflict suite
+
+Each verb's module has ``command(argv, plugins) -> int``; a new verb is a new module named in ``VERBS``.
+No module of the package imports this one, and none is named after a builtin: importing
+``conflictbench.cli.X`` binds ``X`` in this module's namespace. A mistake of the user's prints one
+line and exits with code 2; a simulator that cannot run here prints what to install, and a policy
+server that cannot be reached is named by its URL; both exit with code 3.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Sequence
+
+from conflictbench.core import ServerUnavailable, SimulatorUnavailable, UserError
+
+VERBS = {"list": "listing", "report": "report", "suite": "suite"}  # verb -> module; anything else is a run
+USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noop suite=physical prompt=p1
+       conflictbench -m [OVERRIDE ...]     sweep, e.g. -m model=noop,random prompt=p0,p1
+       conflictbench list                  what can be chosen, and which package provides it
+       conflictbench report DIR            tables from the episode store in DIR
+       conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
+       conflictbench --hydra-help          Hydra's own options
+"""
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv[:1] in (["-h"], ["--help"], ["help"]):
+            print(USAGE, end="")
+            return 0
+        import conflictbench
+
+        plugins = conflictbench.plugins()
+        module, rest = (VERBS[argv[0]], argv[1:]) if argv[:1] and argv[0] in VERBS else ("run", argv)
+        return importlib.import_module(f"{__name__}.{module}").command(rest, plugins)
+    except (UserError, SimulatorUnavailable, ServerUnavailable) as exc:
+        print(f"conflictbench: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except BrokenPipeError:  # output piped into `head` and the like
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except KeyboardInterrupt:
+        print("\nconflictbench: interrupted; every finished episode is stored, and the same command resumes the run",
+              file=sys.stderr)
+        return 130

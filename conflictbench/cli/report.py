@@ -1,0 +1,30 @@
+"""``conflictbench report DIR``: tables from an episode store, playing nothing."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from conflictbench.cli.args import Parser
+from conflictbench.core import UserError
+from conflictbench.core.plugins import Plugins
+
+
+def command(argv: Sequence[str], plugins: Plugins) -> int:
+    parser = Parser(prog="conflictbench report", description="Tables from an episode store; plays nothing.")
+    parser.add_argument("store", metavar="DIR", help="the run.out directory of earlier runs")
+    parser.add_argument("--metrics", help="comma-separated metric names (default: all registered)")
+    parser.add_argument("--out", help="where to write the table files (default: DIR/report)")
+    args = parser.parse_args(argv)
+    from conflictbench.report import report_store
+    from conflictbench.store import EpisodeStore
+
+    root = Path(args.store)
+    if not root.is_dir():
+        raise UserError(f"no such directory: {root}")
+    store = EpisodeStore(root)
+    if len(store) == 0:
+        raise UserError(f"{root} holds no stored episodes (expected {root}/episodes/<policy>/*.parquet)")
+    metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
+    report_store(store, plugins, out_dir=Path(args.out) if args.out else root / "report", metrics=metrics)
+    return 0
