@@ -21,6 +21,7 @@ from conflictbench.tasks.libero_tasks import all_base_tasks, base_task
 from conflictbench.tasks.scene import load_scene_facts
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_every_category_of_the_40_base_tasks_is_in_the_table():
     table = load_table()
     used = {c for t in all_base_tasks() for c in [*t.problem.objects.values(), *t.problem.fixtures.values()]}
@@ -94,6 +95,7 @@ def test_the_shipped_table_parses_from_its_file():
 
 
 # -- absent referents ------------------------------------------------------------------------------
+@pytest.mark.sim  # LIBERO's base tasks
 def test_absence_refuses_names_synonyms_categories_and_shared_words():
     problem = base_task("libero_10", 4).problem  # mugs and plates
     assert absence_problem("cup", (), problem)  # a synonym of mug
@@ -106,6 +108,7 @@ def test_absence_refuses_names_synonyms_categories_and_shared_words():
     assert absence_problem("teapot", ("pot",), base_task("libero_10", 2).problem)  # moka pot present
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_every_absent_referent_is_absent_somewhere_and_roles_are_filled_everywhere():
     for concept in absent_concepts():
         assert any(absence_problem(concept.phrase, concept.synonyms, t.problem) is None for t in all_base_tasks())
@@ -114,6 +117,7 @@ def test_every_absent_referent_is_absent_somewhere_and_roles_are_filled_everywhe
             assert len(absent_for(task.problem, role)) >= 3, (task.key, role)
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_scene_vocabulary_includes_region_words_and_the_robot():
     phrases, _ = scene_vocabulary(base_task("libero_goal", 0).problem)
     assert {"drawer", "top drawer", "gripper", "stove", "cooktop"} <= phrases

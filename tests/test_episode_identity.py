@@ -18,7 +18,6 @@ from conflictbench.store import EpisodeStore
 from conftest import DEMO_PLUGIN, reference_spec
 
 pytestmark = pytest.mark.sim
-SPECS = [reference_spec("libero_spatial", 0, 0)]
 
 
 def install_demo(version: str, target: Path) -> Path:
@@ -50,7 +49,7 @@ def play(site: Path, store: EpisodeStore, monkeypatch, *extra) -> int:
         plugins = Plugins(BUILTIN_PLUGINS, extra=extra)
         spec = plugins.policy("demo-wave")
         runner = Runner(plugins, spec, spec.make_config({}), store=store, workers=1, progress=False)
-        return runner.run(SPECS).played
+        return runner.run([reference_spec("libero_spatial", 0, 0)]).played
 
 
 def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_path, monkeypatch):

@@ -19,6 +19,8 @@ from conflictbench.tasks.operators import builtin_operators
 from conflictbench.tasks.scene import load_scene_facts
 from conflictbench.tasks.validate import new_context, validate_case
 
+pytestmark = pytest.mark.sim  # nearly every test needs LIBERO's base tasks
+
 TASKS = [("libero_spatial", 0), ("libero_object", 4), ("libero_goal", 3), ("libero_goal", 7), ("libero_10", 2),
          ("libero_10", 4)]
 OPERATORS = {family: (name, gen) for name, family, gen in builtin_operators()}

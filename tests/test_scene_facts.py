@@ -71,6 +71,7 @@ def test_directional_margin_is_stated_in_code():
 
 
 # -- the shipped file -------------------------------------------------------------------------------
+@pytest.mark.sim  # LIBERO's base tasks
 def test_shipped_facts_cover_every_base_task_with_50_states():
     facts = load_scene_facts()
     assert set(facts) == {t.key for t in all_base_tasks()}

@@ -18,12 +18,14 @@ def run(capsys, *argv):
     return code, out, err
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_validate_the_shipped_suite(capsys):
     code, out, err = run(capsys, "validate")
     assert code == 0, out
     assert "all valid" in err and out == ""
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_export_then_validate_the_export(tmp_path, capsys):
     path = tmp_path / "all.jsonl"
     code, _, _ = run(capsys, "export", str(path))
@@ -38,6 +40,7 @@ def test_export_then_validate_the_export(tmp_path, capsys):
     assert code == 0, out
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_validate_reports_each_failing_case_and_exits_1(tmp_path, capsys):
     rows = [json.loads(line) for line in shipped_suite_path().read_text().splitlines()[1:4]]
     rows[1]["instruction"] = rows[1]["base_instruction"]
@@ -113,12 +116,14 @@ def test_usage_mistakes_exit_2(capsys, argv, message):
     assert code == 2 and message in err
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_build_is_deterministic_and_matches_the_shipped_file(capsys):
     code, _, err = run(capsys, "build", "--check")
     assert code == 0, err
     assert "identical to a fresh build" in err
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_build_with_another_seed_differs(tmp_path, capsys):
     out = tmp_path / "s1.jsonl"
     assert run(capsys, "build", "--seed", "1", "--out", str(out))[0] == 0

@@ -38,6 +38,7 @@ def decisions(*rows) -> list:
     return parse_reviews("\n".join(json.dumps(r) for r in rows), "review.jsonl")
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_removed_and_accepted_and_revised(cases, ctx):
     a, b, c = cases[0], cases[1], next(x for x in cases if x.family == "grounding")
     ref = c.witness["referents"][0]["text"]
@@ -52,6 +53,7 @@ def test_removed_and_accepted_and_revised(cases, ctx):
     assert len(out) == len(cases)
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_a_revision_that_breaks_its_witness_is_refused(cases, ctx):
     c = next(x for x in cases if x.family == "grounding")
     with pytest.raises(ReviewError, match="fails validation"):
@@ -59,6 +61,7 @@ def test_a_revision_that_breaks_its_witness_is_refused(cases, ctx):
                                         "instruction": "put the bowl somewhere nice"}), ctx)
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_a_revision_may_bring_its_own_witness(cases, ctx):
     c = next(x for x in cases if x.family == "grounding" and x.level == "L1")
     text = "put the bowl on the purple trampoline"
@@ -69,6 +72,7 @@ def test_a_revision_may_bring_its_own_witness(cases, ctx):
     assert next(x for x in out if x.case_id == c.case_id).witness == witness
 
 
+@pytest.mark.sim  # LIBERO's base tasks
 def test_a_stale_decision_stops_the_build(cases):
     with pytest.raises(ReviewError, match="not produced by the generator"):
         apply_reviews(cases, decisions({"case_id": "goal08-gro-L1-00000000", "decision": "accepted", "note": ""}))

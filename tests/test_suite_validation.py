@@ -14,6 +14,8 @@ from conflictbench.tasks.scene import load_scene_facts
 from conflictbench.tasks.suite_file import load_suite
 from conflictbench.tasks.validate import Context, new_context, normalise, validate_case, validate_cases
 
+pytestmark = pytest.mark.sim  # nearly every test needs LIBERO's base tasks
+
 
 @pytest.fixture(scope="module")
 def suite():
