@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# The package as a user gets it, not the checkout. Build a wheel from a clean copy of the sources and
+# check that it holds every file of the package and of the config tree; install it (not editable)
+# into a fresh virtual environment with the test tools but without the simulator, and run
+# `pytest -m "not sim"` against it (the README's promise); then add the simulator and, from an empty
+# directory, run `conflictbench list` and a real run of the default model (one reference and one
+# conflict episode of libero_spatial, about 25 s). pip's cache makes the installs quick.
+#
+#   scripts/check_wheel.sh          PYTHON=... picks the interpreter (default: .venv's)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repo=$PWD
+PYTHON=${PYTHON:-.venv/bin/python}
+
+say() { printf '[check_wheel] %s\n' "$*" >&2; }
+work=$(mktemp -d "${TMPDIR:-/tmp}/conflictbench-wheel.XXXXXX")
+trap 'rm -rf "$work"' EXIT
+
+# 1. The files a fresh clone has (tracked and new, not ignored): no build/, egg-info or caches,
+#    which an in-place build would read (a stale build/lib puts deleted modules into the wheel).
+mkdir "$work/src"
+git ls-files -z --cached --others --exclude-standard | tar --null -T - --ignore-failed-read -cf - | tar -xf - -C "$work/src"
+
+say "building the wheel"
+"$PYTHON" -m pip wheel -q --no-deps --wheel-dir "$work/dist" "$work/src"
+wheel=$(echo "$work"/dist/conflictbench-*.whl)
+
+# 2. Every file under conflictbench/ and conf/ (installed as conflictbench/conf/) is in the wheel.
+"$PYTHON" - "$work/src" "$wheel" <<'EOF'
+import sys
+import zipfile
+from pathlib import Path
+
+src, wheel = Path(sys.argv[1]), sys.argv[2]
+roots = {"conflictbench": "conflictbench", "conf": "conflictbench/conf"}
+want = {f"{dest}/{p.relative_to(src / root).as_posix()}"
+        for root, dest in roots.items() for p in (src / root).rglob("*") if p.is_file()}
+missing = sorted(want - set(zipfile.ZipFile(wheel).namelist()))
+if missing:
+    sys.exit(f"[check_wheel] the wheel lacks {len(missing)} files of the package: {', '.join(missing)}")
+print(f"[check_wheel] the wheel holds all {len(want)} files of the package and its config tree", file=sys.stderr)
+EOF
+
+# 3. A fresh environment with the wheel and the test tools, no simulator; a directory that is not
+#    the checkout (the checkout's tests/ is on sys.path, its root is not: they test the wheel).
+"$PYTHON" -m venv "$work/venv"
+py=$work/venv/bin/python
+mkdir "$work/run"
+cd "$work/run"
+say "installing the wheel with the test tools, without the simulator"
+"$py" -m pip install -q "$wheel[test]"
+if "$py" -c 'import libero' 2>/dev/null; then
+  say "the simulator got installed without the sim extra"; exit 1
+fi
+say "pytest -m 'not sim' against the installed wheel, no simulator"
+"$py" -m pytest -c "$repo/pyproject.toml" --rootdir "$repo" -m "not sim" -q "$repo/tests"
+
+# 4. The simulator added: the command lists what it has and plays real episodes.
+say "adding the simulator"
+"$py" -m pip install -q "$wheel[sim]"
+"$work/venv/bin/conflictbench" list
+status=0
+"$work/venv/bin/conflictbench" model=scripted suite=physical level=L1 prompt=p0 run.init_states=1 \
+  run.cases_per_cell=1 run.libero_suites=[libero_spatial] run.progress=false 2>"$work/run.log" || status=$?
+cat "$work/run.log" >&2
+[ "$status" -eq 0 ] || { say "the run exited with code $status"; exit 1; }
+grep -q "2 played, 0 already stored, 0 played by another job, 0 with errors" "$work/run.log" \
+  || { say "the run did not play its two episodes cleanly"; exit 1; }
+say "ok: the installed wheel passes the tests without a simulator, lists its plugins and plays real episodes"
