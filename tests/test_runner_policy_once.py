@@ -20,7 +20,6 @@ from conftest import reference_spec
 
 pytestmark = pytest.mark.sim
 
-SPECS = [reference_spec("libero_object", 4, 0), reference_spec("libero_object", 4, 1)]
 BATCHED = {"on": False}
 """Whether the next Sampler built exposes act_batch (a switch outside its config, which is part of
 every episode's identity: the same episodes must be compared)."""
@@ -87,12 +86,13 @@ def runs(tmp_path_factory):
     """(batched, workers) -> (the policy instances built, the stored records by init state)."""
     plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
     spec = plugins.policy("sampler")
+    specs = [reference_spec("libero_object", 4, 0), reference_spec("libero_object", 4, 1)]
     out = {}
     for batched, workers in ((True, 2), (False, 1), (False, 2)):
         BATCHED["on"] = batched
         Sampler.instances.clear()
         store = EpisodeStore(tmp_path_factory.mktemp(f"b{int(batched)}w{workers}"))
-        result = Runner(plugins, spec, spec.make_config(), store=store, workers=workers, progress=False).run(SPECS)
+        result = Runner(plugins, spec, spec.make_config(), store=store, workers=workers, progress=False).run(specs)
         assert result.played == 2 and result.errors == 0
         out[batched, workers] = (list(Sampler.instances), {r.init_state: r for r in store.records()})
     BATCHED["on"] = False
