@@ -8,7 +8,8 @@
 Each verb's module has ``command(argv, plugins) -> int``; a new verb is a new module named in ``VERBS``.
 No module of the package imports this one, and none is named after a builtin: importing
 ``conflictbench.cli.X`` binds ``X`` in this module's namespace. A mistake of the user's prints one
-line and exits with code 2; a simulator that cannot run here prints what to install, and a policy
+line and exits with code 2 (so does a plugin that registers something invalid or implements a hook
+that does not exist); a simulator that cannot run here prints what to install, and a policy
 server that cannot be reached is named by its URL; both exit with code 3.
 """
 
@@ -18,7 +19,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from conflictbench.core import ServerUnavailable, SimulatorUnavailable, UserError
+from conflictbench.core import PluginError, ServerUnavailable, SimulatorUnavailable, UserError
 
 VERBS = {"list": "listing", "report": "report", "suite": "suite"}  # verb -> module; anything else is a run
 USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noop suite=physical prompt=p1
@@ -41,7 +42,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         plugins = conflictbench.plugins()
         module, rest = (VERBS[argv[0]], argv[1:]) if argv[:1] and argv[0] in VERBS else ("run", argv)
         return importlib.import_module(f"{__name__}.{module}").command(rest, plugins)
-    except (UserError, SimulatorUnavailable, ServerUnavailable) as exc:
+    except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
         print(f"conflictbench: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # output piped into `head` and the like

@@ -16,6 +16,7 @@ from conflictbench.core import (
     LEVELS,
     LIBERO_SUITES,
     PROMPT_CONDITIONS,
+    PluginError,
     ServerUnavailable,
     SimulatorUnavailable,
     UserError,
@@ -179,7 +180,7 @@ def command(argv: list[str], plugins: Plugins) -> int:
         state["started"] = True
         try:
             return run_job(cfg, plugins, HydraConfig.get().runtime.choices["model"])
-        except (UserError, SimulatorUnavailable, ServerUnavailable) as exc:
+        except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             raise SystemExit(exc.exit_code) from None
 
