@@ -6,13 +6,22 @@ The public plugin API is re-exported here; see ``conflictbench.core.hookspecs`` 
 from importlib import metadata as _metadata
 
 from .core import (
+    P1_PREAMBLE,
     ActionContext,
     ConflictCase,
     EpisodeRecord,
+    HttpJsonTransport,
+    InfrastructureError,
     Observation,
     Pair,
     PerEpisode,
+    PolicyClient,
     PrivilegedState,
+    ServedPolicy,
+    ServerUnavailable,
+    ServingConfig,
+    Transport,
+    default_format_prompt,
     hookimpl,
     rng_for,
     sampling_seed,
@@ -35,20 +44,31 @@ def plugins(**kwargs):
 
 
 __all__ = [
-    "ActionContext", "ConflictCase", "EpisodeRecord", "Observation", "Pair", "PerEpisode", "PrivilegedState",
-    "BUILTIN_PLUGINS", "hookimpl", "plugins", "rng_for", "sampling_seed", "__version__",
+    # records a plugin sees, and the hook marker
+    "ActionContext",
+    "ConflictCase",
+    "EpisodeRecord",
+    "Observation",
+    "Pair",
+    "PrivilegedState",
+    "hookimpl",
+    # the prompt conditions: the P1 preamble and the core's default text, for a model's own template
+    "P1_PREAMBLE",
+    "default_format_prompt",
+    # per-episode state and seeded sampling for policies
+    "PerEpisode",
+    "rng_for",
+    "sampling_seed",
+    # the shared client for served policies: what a model plugin needs to talk to its server
+    "HttpJsonTransport",
+    "InfrastructureError",
+    "PolicyClient",
+    "ServedPolicy",
+    "ServerUnavailable",
+    "ServingConfig",
+    "Transport",
+    # the plugin manager
+    "BUILTIN_PLUGINS",
+    "plugins",
+    "__version__",
 ]
-
-# The shared client for served policies: what a model plugin needs to talk to its server.
-from .core import (  # noqa: E402
-    HttpJsonTransport,
-    InfrastructureError,
-    PolicyClient,
-    ServedPolicy,
-    ServerUnavailable,
-    ServingConfig,
-    Transport,
-)
-
-__all__ += ["HttpJsonTransport", "InfrastructureError", "PolicyClient", "ServedPolicy", "ServerUnavailable",
-            "ServingConfig", "Transport"]

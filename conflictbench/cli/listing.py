@@ -31,9 +31,17 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         per_level = "  ".join(f"{level}:{counts[(family, level)]}" for level in LEVELS)
         print(f"  {family:<20} {per_level}")
     print(f"levels (level=...): {', '.join(group_choices('level', plugins))}")
-    print(f"prompt conditions (prompt=...): {', '.join(group_choices('prompt', plugins))} "
-          f"(conditions: {', '.join(PROMPT_CONDITIONS)})")
+    print(
+        f"prompt conditions (prompt=...): {', '.join(group_choices('prompt', plugins))} "
+        f"(conditions: {', '.join(PROMPT_CONDITIONS)})"
+    )
     print(f"run presets (run=...): {', '.join(group_choices('run', plugins))}")
+    hooks = plugins.global_hook_plugins()
+    print("global hooks (run for every policy; each such plugin is part of every episode's identity):")
+    if not hooks:
+        print("  (none installed)")
+    for pin, names in sorted(hooks.items()):
+        print(f"  {pin:<30} {', '.join(names)}")
     if plugins.load_failures:
         print("plugins that failed to load:")
         for name, why in plugins.load_failures.items():

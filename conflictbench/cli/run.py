@@ -69,13 +69,19 @@ def run_options(run: DictConfig) -> RunOptions:
     else:
         count = _int(states, "run.init_states", minimum=1)
         if count > INIT_STATES_PER_TASK:
-            raise UserError(f"run.init_states={count}, but LIBERO has {INIT_STATES_PER_TASK} fixed initial states per task")
+            raise UserError(
+                f"run.init_states={count}, but LIBERO has {INIT_STATES_PER_TASK} fixed initial states per task"
+            )
         init_states = list(range(count))
     if init_states[-1] >= INIT_STATES_PER_TASK:
         raise UserError(f"run.init_states names state {init_states[-1]}; LIBERO's are 0..{INIT_STATES_PER_TASK - 1}")
     per_cell = run.cases_per_cell
     cases_per_cell = None if per_cell == "all" else _int(per_cell, "run.cases_per_cell (or 'all')")
-    metrics = None if run.metrics is None else [str(m) for m in (run.metrics if isinstance(run.metrics, (list, ListConfig)) else [run.metrics])]
+    metrics = (
+        None
+        if run.metrics is None
+        else [str(m) for m in (run.metrics if isinstance(run.metrics, (list, ListConfig)) else [run.metrics])]
+    )
     return RunOptions(
         init_states=init_states,
         cases_per_cell=cases_per_cell,
@@ -136,6 +142,11 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     levels = _names(cfg.level.levels, "level", LEVELS)
     prompts = _names(cfg.prompt.conditions, "prompt condition", PROMPT_CONDITIONS)
     spec = plugins.policy(model)
+    for name, why in plugins.load_failures.items():  # e.g. a global post-processor the user counts on
+        print(
+            f"conflictbench: warning: plugin {name} failed to load and takes no part in this run: {why}",
+            file=sys.stderr,
+        )
     settings = OmegaConf.to_container(cfg.model, resolve=True) if cfg.get("model") is not None else {}
     config = spec.make_config(settings or {})
     if options.metrics is not None:
@@ -145,24 +156,42 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
 
     suite = load_suite(cfg.suite.get("file"))
     tasks = {t.key: t.language for t in all_base_tasks(tuple(options.libero_suites))}
-    plan = build_plan(suite.cases, base_instructions=tasks, families=families, levels=levels, prompts=prompts,
-                      init_states=options.init_states, cases_per_cell=options.cases_per_cell,
-                      sample_seed=options.sample_seed, libero_suites=options.libero_suites)
+    plan = build_plan(
+        suite.cases,
+        base_instructions=tasks,
+        families=families,
+        levels=levels,
+        prompts=prompts,
+        init_states=options.init_states,
+        cases_per_cell=options.cases_per_cell,
+        sample_seed=options.sample_seed,
+        libero_suites=options.libero_suites,
+    )
     if not plan:
-        raise UserError("this selection plans no episodes (no accepted case matches the suite/level/LIBERO-suite filters)")
+        raise UserError(
+            "this selection plans no episodes (no accepted case matches the suite/level/LIBERO-suite filters)"
+        )
     store = EpisodeStore(options.out)
     conflicts = sum(e.case is not None for e in plan)
-    print(f"conflictbench: model={model} suite={'+'.join(families)} level={'+'.join(levels)} "
-          f"prompt={'+'.join(prompts)}: {len(plan)} episodes ({conflicts} conflict, {len(plan) - conflicts} reference) "
-          f"from suite {suite.name} {suite.version}; store {store.root}/", file=sys.stderr)
-    runner = Runner(plugins, spec, config, store=store, workers=options.workers, seed=options.seed,
-                    progress=options.progress)
+    print(
+        f"conflictbench: model={model} suite={'+'.join(families)} level={'+'.join(levels)} "
+        f"prompt={'+'.join(prompts)}: {len(plan)} episodes ({conflicts} conflict, {len(plan) - conflicts} reference) "
+        f"from suite {suite.name} {suite.version}; store {store.root}/",
+        file=sys.stderr,
+    )
+    runner = Runner(
+        plugins, spec, config, store=store, workers=options.workers, seed=options.seed, progress=options.progress
+    )
     result = runner.run(plan)
-    print(f"conflictbench: {result.played} played, {result.already_stored} already stored, "
-          f"{result.played_elsewhere} played by another job, {result.errors} with errors", file=sys.stderr)
+    print(
+        f"conflictbench: {result.played} played, {result.already_stored} already stored, "
+        f"{result.played_elsewhere} played by another job, {result.errors} with errors",
+        file=sys.stderr,
+    )
     if options.report:
-        report_store(store, plugins, episode_ids=result.episode_ids, out_dir=store.root / "report",
-                     metrics=options.metrics)
+        report_store(
+            store, plugins, episode_ids=result.episode_ids, out_dir=store.root / "report", metrics=options.metrics
+        )
     return 0
 
 

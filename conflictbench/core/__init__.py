@@ -1,7 +1,14 @@
 """The contract every plugin sees. Imports nothing else of conflictbench, no simulator, no torch."""
 
-from .errors import ConflictbenchError, PluginError, PolicyError, SimulatorUnavailable, UserError
-from .errors import InfrastructureError, ServerUnavailable
+from .errors import (
+    ConflictbenchError,
+    InfrastructureError,
+    PluginError,
+    PolicyError,
+    ServerUnavailable,
+    SimulatorUnavailable,
+    UserError,
+)
 from .hookspecs import hookimpl, hookspec
 from .plugins import MetricSpec, Plugins, PolicySpec
 from .policy import DEFAULT_MAX_STEPS, PerEpisode, Policy, PolicyTraits, as_action_chunk
@@ -9,6 +16,7 @@ from .prompts import P1_PREAMBLE, default_format_prompt
 from .records import (
     ACTION_DIM,
     FAMILIES,
+    INFRASTRUCTURE_ERROR_PREFIX,
     LEVELS,
     LIBERO_SUITES,
     PROMPT_CONDITIONS,
@@ -25,19 +33,50 @@ from .records import (
     SiteInfo,
 )
 from .sampling import rng_for, sampling_seed
+from .serving import HttpJsonTransport, PolicyClient, ServedPolicy, ServingConfig, Transport
 
 __all__ = [
-    "ACTION_DIM", "ActionContext", "ConflictCase", "ConflictbenchError", "DEFAULT_MAX_STEPS",
-    "EpisodeRecord", "FAMILIES", "JointInfo", "LEVELS", "LIBERO_SUITES", "MetricSpec", "Observation",
-    "OrientedBoxes", "P1_PREAMBLE", "PROMPT_CONDITIONS", "Pair", "PerEpisode", "PluginError", "Plugins", "Policy",
-    "PolicyError", "PolicySpec", "PolicyTraits", "PrivilegedState", "SIMULATOR_ERROR_PREFIX", "SceneGeometry",
-    "SimulatorUnavailable", "SiteInfo", "UserError", "as_action_chunk", "default_format_prompt", "hookimpl",
-    "hookspec", "rng_for", "sampling_seed",
+    "ACTION_DIM",
+    "ActionContext",
+    "ConflictCase",
+    "ConflictbenchError",
+    "DEFAULT_MAX_STEPS",
+    "EpisodeRecord",
+    "FAMILIES",
+    "HttpJsonTransport",
+    "INFRASTRUCTURE_ERROR_PREFIX",
+    "InfrastructureError",
+    "JointInfo",
+    "LEVELS",
+    "LIBERO_SUITES",
+    "MetricSpec",
+    "Observation",
+    "OrientedBoxes",
+    "P1_PREAMBLE",
+    "PROMPT_CONDITIONS",
+    "Pair",
+    "PerEpisode",
+    "PluginError",
+    "Plugins",
+    "Policy",
+    "PolicyClient",
+    "PolicyError",
+    "PolicySpec",
+    "PolicyTraits",
+    "PrivilegedState",
+    "SIMULATOR_ERROR_PREFIX",
+    "SceneGeometry",
+    "ServedPolicy",
+    "ServerUnavailable",
+    "ServingConfig",
+    "SimulatorUnavailable",
+    "SiteInfo",
+    "Transport",
+    "UserError",
+    "as_action_chunk",
+    "default_format_prompt",
+    "hookimpl",
+    "hookspec",
+    "rng_for",
+    "sampling_seed",
 ]
-
-# The shared client for served policies (model plugins), and the errors it raises.
-from .records import INFRASTRUCTURE_ERROR_PREFIX  # noqa: E402
-from .serving import HttpJsonTransport, PolicyClient, ServedPolicy, ServingConfig, Transport  # noqa: E402
-
-__all__ += ["HttpJsonTransport", "INFRASTRUCTURE_ERROR_PREFIX", "InfrastructureError", "PolicyClient",
-            "ServedPolicy", "ServerUnavailable", "ServingConfig", "Transport"]

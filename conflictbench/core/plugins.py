@@ -19,8 +19,9 @@ from __future__ import annotations
 import difflib
 import importlib
 import sys
+from collections.abc import Callable, Iterable, Sequence
 from importlib import metadata
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 import pluggy
@@ -53,8 +54,7 @@ class Plugins:
     plugin that implements a hook that does not exist (a misspelling) is an error naming both.
     """
 
-    def __init__(self, builtins: Sequence[str] = (), *, entry_points: bool = True,
-                 extra: Iterable[object] = ()):
+    def __init__(self, builtins: Sequence[str] = (), *, entry_points: bool = True, extra: Iterable[object] = ()):
         self.pm = pluggy.PluginManager(hookspecs.PROJECT_NAME)
         self.pm.add_hookspecs(hookspecs)
         self._sources: dict[str, PluginSource] = {}
@@ -70,8 +70,9 @@ class Plugins:
         self._check_hooks()
         self._registries: dict[str, dict[str, Any]] = {}
         self._chain: list[tuple[str, Any]] | None = None
-        self._global_prompt = self.pm.subset_hook_caller("conflictbench_format_prompt",
-                                                         remove_plugins=[self.pm.get_plugin(_CORE_PROMPTS)])
+        self._global_prompt = self.pm.subset_hook_caller(
+            "conflictbench_format_prompt", remove_plugins=[self.pm.get_plugin(_CORE_PROMPTS)]
+        )
 
     # -- discovery -------------------------------------------------------------------------
     def _register(self, plugin: object, name: str, source: PluginSource) -> None:
@@ -83,6 +84,15 @@ class Plugins:
         self._sources[name] = source
 
     def _load_entry_points(self) -> None:
+        twice = _installed_twice()
+        if twice:  # which copy imports first is up to the file system: its version would be guesswork
+            raise PluginError(
+                "; ".join(
+                    f"plugin distribution {name} is installed more than once ({', '.join(v)})"
+                    for name, v in sorted(twice.items())
+                )
+                + ": remove the stale copy, or episodes could be stored under the wrong version"
+            )
         for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
             if self.pm.get_plugin(ep.name) is not None or self.pm.is_blocked(ep.name):
                 continue
@@ -104,8 +114,10 @@ class Plugins:
             for impl in caller.get_hookimpls():
                 close = difflib.get_close_matches(name, known, n=1)
                 hint = f" (did you mean {close[0]}?)" if close else ""
-                raise PluginError(f"plugin {impl.plugin_name} ({self.source(impl.plugin_name).distribution}) "
-                                  f"implements an unknown hook {name!r}{hint}; the hooks are: {', '.join(known)}")
+                raise PluginError(
+                    f"plugin {impl.plugin_name} ({self.source(impl.plugin_name).distribution}) "
+                    f"implements an unknown hook {name!r}{hint}; the hooks are: {', '.join(known)}"
+                )
         self.pm.check_pending()
 
     def source(self, plugin_name: str) -> PluginSource:
@@ -177,16 +189,21 @@ class Plugins:
             raise UserError(unknown_choice("model", name, specs, self.load_failures))
         return specs[name]
 
+    def global_hook_plugins(self) -> dict[str, list[str]]:
+        """``distribution==version`` -> the global per-episode hooks it implements (they run for every policy)."""
+        found: dict[str, list[str]] = {}
+        for hook_name in GLOBAL_EPISODE_HOOKS:
+            for impl in getattr(self.pm.hook, hook_name).get_hookimpls():
+                if impl.plugin_name != _CORE_PROMPTS:
+                    found.setdefault(self.source(impl.plugin_name).pin, []).append(hook_name)
+        return found
+
     def provenance(self, policy: str) -> tuple[str, ...]:
         """``distribution==version`` of all code that can change this policy's episodes: the plugin
         that registered it (with its own prompt format and post-processing) and every plugin that
         implements a global per-episode hook. Part of every episode's identity."""
-        pins = {self.policy(policy).plugin + "==" + self.policy(policy).plugin_version}
-        for hook_name in GLOBAL_EPISODE_HOOKS:
-            for impl in getattr(self.pm.hook, hook_name).get_hookimpls():
-                if impl.plugin_name != _CORE_PROMPTS:
-                    pins.add(self.source(impl.plugin_name).pin)
-        return tuple(sorted(pins))
+        spec = self.policy(policy)
+        return tuple(sorted({f"{spec.plugin}=={spec.plugin_version}", *self.global_hook_plugins()}))
 
     # -- per-episode hooks -----------------------------------------------------------------
     def format_prompt(self, instruction: str, condition: str, policy: str) -> str:
@@ -211,17 +228,25 @@ class Plugins:
         and every wrapper, so links are called through pluggy one at a time."""
         if self._chain is None:
             name = "conflictbench_postprocess_action"
-            impls = [i for i in reversed(getattr(self.pm.hook, name).get_hookimpls())
-                     if not (i.hookwrapper or i.wrapper)]
-            self._chain = [(impl.plugin_name, self.pm.subset_hook_caller(
-                name, remove_plugins=[o.plugin for o in impls if o is not impl])) for impl in impls]
+            impls = [
+                i for i in reversed(getattr(self.pm.hook, name).get_hookimpls()) if not (i.hookwrapper or i.wrapper)
+            ]
+            self._chain = [
+                (
+                    impl.plugin_name,
+                    self.pm.subset_hook_caller(name, remove_plugins=[o.plugin for o in impls if o is not impl]),
+                )
+                for impl in impls
+            ]
         return self._chain
 
     def postprocess_action(self, action: np.ndarray, context: ActionContext) -> np.ndarray:
         """The action the environment executes: the policy's own post-processing, then the global chain."""
         spec = self.policies().get(context.policy)
         if spec is not None and spec.postprocess is not None:
-            action = _checked_action(spec.postprocess(action, context), action, f"postprocess of policy {context.policy!r}")
+            action = _checked_action(
+                spec.postprocess(action, context), action, f"postprocess of policy {context.policy!r}"
+            )
         for plugin_name, call in self._global_chain():
             results = call(action=action, context=context)
             action = _checked_action(results[0] if results else None, action, f"post-processor {plugin_name}")
@@ -243,6 +268,17 @@ def unknown_choice(what: str, value: str, choices: Iterable[str], failures: dict
     if failures:
         msg += "; plugins that failed to load: " + "; ".join(f"{k}: {v}" for k, v in failures.items())
     return msg
+
+
+def _installed_twice() -> dict[str, list[str]]:
+    """Plugin distributions found in several versions on the import path (``pip --target --upgrade``
+    can leave both), by name."""
+    versions: dict[str, set[str]] = {}
+    for dist in metadata.distributions():
+        if any(ep.group == ENTRY_POINT_GROUP for ep in dist.entry_points):
+            name = (dist.metadata["Name"] or "").lower().replace("_", "-")
+            versions.setdefault(name, set()).add(dist.version)
+    return {name: sorted(v) for name, v in versions.items() if len(v) > 1}
 
 
 def _version(distribution: str) -> str:
