@@ -52,14 +52,25 @@ def rollout(rng, start, goal, target, steps, case, pause=0) -> EpisodeRecord:
     actions[:, 3:6] = rng.normal(0, 0.05, (steps, 3))
     actions[:, 6] = np.where(np.arange(steps) > steps // 2, 1.0, -1.0)
     targets = np.repeat(target[None, None, :], steps + 1, axis=0) + rng.normal(0, 0.001, (steps + 1, 1, 3))
-    return EpisodeRecord(policy="bench", suite="libero_spatial", task_id=0, init_state=0, prompt="p0",
-                         instruction="x", case_id=case, eef_pos=eef, actions=actions, target_pos=targets,
-                         target_names=("akita_black_bowl_1",), success=bool(rng.random() < 0.5))
+    return EpisodeRecord(
+        policy="bench",
+        suite="libero_spatial",
+        task_id=0,
+        init_state=0,
+        prompt="p0",
+        instruction="x",
+        case_id=case,
+        eef_pos=eef,
+        actions=actions,
+        target_pos=targets,
+        target_names=("akita_black_bowl_1",),
+        success=bool(rng.random() < 0.5),
+    )
 
 
 def make_pool(rng, references: int, conflicts: int, steps: int):
     refs, cons, owner = [], [], []
-    for r in range(references):
+    for _ in range(references):
         start = rng.normal([0.0, 0.0, 1.1], 0.02)
         target = start + rng.normal([0.1, 0.15, -0.25], 0.05)
         refs.append((start, target, rollout(rng, start, target, target, steps, None)))
@@ -92,8 +103,10 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
     refs, cons, owner = make_pool(rng, REFERENCES_PER_MODEL, args.pool, args.steps)
-    print(f"generated {len(refs)} references and {len(cons)} conflict rollouts of ~{args.steps} steps "
-          f"in {time.perf_counter() - t0:.1f} s (not timed below)")
+    print(
+        f"generated {len(refs)} references and {len(cons)} conflict rollouts of ~{args.steps} steps "
+        f"in {time.perf_counter() - t0:.1f} s (not timed below)"
+    )
     evaluate_pairs(refs[:2], cons[:2])  # compile or load the cached kernels before timing
 
     cells = 0
@@ -121,12 +134,18 @@ def main() -> None:
     worst = max(abs(fast.at[j, k] - v) for j, row in enumerate(slow) for k, v in row.items() if v is not None)
 
     plain_total = plain_per_pair * args.pairs
-    print(f"machine: {os.cpu_count()} cores, {threads()} compiled threads, load average "
-          f"{', '.join(f'{x:.2f}' for x in os.getloadavg())} (other processes slow the wall clock)")
-    print(f"fast path:  {args.pairs} pairs, {cells / 1e9:.2f} G DTW cells: {wall:.1f} s wall, {cpu:.1f} s CPU "
-          f"({1e6 * wall / args.pairs:.0f} us/pair, {1e9 * cpu / cells:.2f} ns CPU/cell), peak RSS {rss:.0f} MiB")
-    print(f"plain:      {plain_per_pair:.3f} s/pair over {len(sample)} pairs -> {plain_total:.0f} s "
-          f"({plain_total / 3600:.1f} h) extrapolated to {args.pairs} pairs")
+    print(
+        f"machine: {os.cpu_count()} cores, {threads()} compiled threads, load average "
+        f"{', '.join(f'{x:.2f}' for x in os.getloadavg())} (other processes slow the wall clock)"
+    )
+    print(
+        f"fast path:  {args.pairs} pairs, {cells / 1e9:.2f} G DTW cells: {wall:.1f} s wall, {cpu:.1f} s CPU "
+        f"({1e6 * wall / args.pairs:.0f} us/pair, {1e9 * cpu / cells:.2f} ns CPU/cell), peak RSS {rss:.0f} MiB"
+    )
+    print(
+        f"plain:      {plain_per_pair:.3f} s/pair over {len(sample)} pairs -> {plain_total:.0f} s "
+        f"({plain_total / 3600:.1f} h) extrapolated to {args.pairs} pairs"
+    )
     print(f"ratio plain/fast (wall): {plain_total / wall:,.0f}x; largest |fast - plain| on the sample: {worst:.1e}")
     if not math.isfinite(worst) or worst > 1e-9:
         raise SystemExit("fast and plain results differ")

@@ -81,8 +81,10 @@ def main() -> None:
         print(f"round {r + 1}: bare {bare[-1]:.1f} s, harness {ours[-1]:.1f} s, ratio {ours[-1] / bare[-1]:.3f}")
     b, h = statistics.median(bare), statistics.median(ours)
     per_step = len(states) * (steps + 10)
-    print(f"\n{len(states)} episodes x {steps} steps of {suite} task {task_id}, {args.rounds} rounds, "
-          f"load average {os.getloadavg()[0]:.2f}")
+    print(
+        f"\n{len(states)} episodes x {steps} steps of {suite} task {task_id}, {args.rounds} rounds, "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
     print(f"bare LIBERO loop : {b:.1f} s  ({per_step / b:.1f} env steps/s)")
     print(f"conflictbench    : {h:.1f} s  ({per_step / h:.1f} env steps/s)")
     print(f"ratio (median)   : {h / b:.3f}   goal <= 1.05")

@@ -53,8 +53,9 @@ def main() -> None:
     plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False)
     spec = plugins.policy(args.model)
     tasks = parse_tasks(args.tasks)
-    plan = [EpisodeSpec(suite, t, s, "p0", base_task(suite, t).language)
-            for suite, t in tasks for s in range(args.states)]
+    plan = [
+        EpisodeSpec(suite, t, s, "p0", base_task(suite, t).language) for suite, t in tasks for s in range(args.states)
+    ]
     store = EpisodeStore(args.out)
     result = Runner(plugins, spec, spec.make_config(), store=store, workers=args.workers).run(plan)
 
@@ -70,8 +71,7 @@ def main() -> None:
         if record.error:
             errors.append(f"{record.suite} {record.task_id} state {record.init_state}: {record.error}")
 
-    print(f"\n{args.model}: {len(wanted)} episodes, first {args.states} initial states, "
-          f"{os.cpu_count()} cores")
+    print(f"\n{args.model}: {len(wanted)} episodes, first {args.states} initial states, {os.cpu_count()} cores")
     print("\n| LIBERO suite | successes | rate |\n| --- | ---: | ---: |")
     total = [0, 0]
     for suite in LIBERO_SUITES:
@@ -87,10 +87,13 @@ def main() -> None:
         print("\nTasks below 80%:")
         for (suite, t), oks in weak:
             failed = sorted(i for i, ok in oks.items() if not ok)
-            print(f"  {suite} {t} ({sum(oks.values())}/{len(oks)}, failed states {failed}): {base_task(suite, t).language!r}")
+            language = base_task(suite, t).language
+            print(f"  {suite} {t} ({sum(oks.values())}/{len(oks)}, failed states {failed}): {language!r}")
     if steps:
-        print(f"\nmean steps per episode: {sum(steps) / len(steps):.0f}, "
-              f"mean simulation wall time: {sum(wall) / len(wall):.1f} s")
+        print(
+            f"\nmean steps per episode: {sum(steps) / len(steps):.0f}, "
+            f"mean simulation wall time: {sum(wall) / len(wall):.1f} s"
+        )
     for line in errors:
         print("error:", line)
 

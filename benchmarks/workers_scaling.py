@@ -55,8 +55,9 @@ def play(plan, workers: int, images: bool) -> float:
     spec = plugins.policy("bench-still")
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        result = Runner(plugins, spec, StillConfig(images), store=EpisodeStore(tmp), workers=workers,
-                        progress=False).run(plan)
+        result = Runner(
+            plugins, spec, StillConfig(images), store=EpisodeStore(tmp), workers=workers, progress=False
+        ).run(plan)
         elapsed = time.perf_counter() - start
     assert result.played == len(plan) and result.errors == 0
     return elapsed
@@ -72,14 +73,19 @@ def main() -> None:
     from conflictbench.sim.plan import EpisodeSpec
     from conflictbench.tasks.libero_tasks import base_task
 
-    plan = [EpisodeSpec(args.suite, t, s, "p0", base_task(args.suite, t).language)
-            for t in range(args.tasks) for s in range(args.states)]
+    plan = [
+        EpisodeSpec(args.suite, t, s, "p0", base_task(args.suite, t).language)
+        for t in range(args.tasks)
+        for s in range(args.states)
+    ]
     one = play(plan, 1, args.images)
     print(f"workers=1: {one:.1f} s  ({3600 * len(plan) / one:.0f} episodes/h)")
     two = play(plan, 2, args.images)
     print(f"workers=2: {two:.1f} s  ({3600 * len(plan) / two:.0f} episodes/h)")
-    print(f"\n{len(plan)} episodes of {args.suite}, images={args.images}, {os.cpu_count()} cores, "
-          f"load average {os.getloadavg()[0]:.2f}")
+    print(
+        f"\n{len(plan)} episodes of {args.suite}, images={args.images}, {os.cpu_count()} cores, "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
     print(f"speed-up workers=2 / workers=1: {one / two:.2f}x   goal >= 1.6x")
 
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import pytest
 
@@ -32,8 +32,14 @@ def conflict_spec(case: ConflictCase, init_state: int = 0, prompt: str = "p0") -
 def play(tmp_path: Path, plugins):
     """play(policy_name, specs, settings=None, workers=1, store_dir=None) -> (RunResult, EpisodeStore)."""
 
-    def _play(policy: str, specs: Sequence[EpisodeSpec], settings: dict | None = None, workers: int = 1,
-              store_dir: Path | None = None, plugin_set=None) -> tuple[RunResult, EpisodeStore]:
+    def _play(
+        policy: str,
+        specs: Sequence[EpisodeSpec],
+        settings: dict | None = None,
+        workers: int = 1,
+        store_dir: Path | None = None,
+        plugin_set=None,
+    ) -> tuple[RunResult, EpisodeStore]:
         pl = plugin_set or plugins
         spec = pl.policy(policy)
         store = EpisodeStore(store_dir or tmp_path / "store")
@@ -53,8 +59,22 @@ def demo_plugin_site(tmp_path_factory) -> Path:
     import sys
 
     target = tmp_path_factory.mktemp("demo-plugin-site")
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--no-compile", "--target", str(target), str(DEMO_PLUGIN)], check=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-compile",
+            "--target",
+            str(target),
+            str(DEMO_PLUGIN),
+        ],
+        check=True,
+    )
     return target
 
 
@@ -69,7 +89,14 @@ def cli(tmp_path: Path, demo_plugin_site: Path):
 
     def _cli(*args: str, timeout: float = 600, cwd: Path | None = None) -> subprocess.CompletedProcess:
         env = {**os.environ, "PYTHONPATH": str(demo_plugin_site)}
-        return subprocess.run([str(exe), *args], cwd=cwd or tmp_path, env=env, capture_output=True, text=True,
-                              timeout=timeout, stdin=subprocess.DEVNULL)
+        return subprocess.run(
+            [str(exe), *args],
+            cwd=cwd or tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            stdin=subprocess.DEVNULL,
+        )
 
     return _cli

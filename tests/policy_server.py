@@ -101,8 +101,12 @@ class PolicyServer:
     """The server above in a subprocess on 127.0.0.1; a context manager that always stops it."""
 
     def __init__(self, *options: str, port: int = 0):
-        self.process = subprocess.Popen([sys.executable, str(Path(__file__)), "--port", str(port), *options],
-                                        stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+        self.process = subprocess.Popen(
+            [sys.executable, str(Path(__file__)), "--port", str(port), *options],
+            stdout=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
         line = self.process.stdout.readline()  # blocks until it listens (or dies: then the line is empty)
         if not line.startswith("PORT "):
             self.stop()

@@ -34,13 +34,26 @@ def test_fixtures_cannot_be_carried_and_are_fixed(cat):
     assert category(cat).lacks("graspable") and category(cat).has("fixed") is True
 
 
-@pytest.mark.parametrize("cat,affordance,value", [
-    ("plate", "container", False), ("plate", "support", True), ("akita_black_bowl", "container", True),
-    ("basket", "container", True), ("wine_bottle", "support", False), ("ketchup", "container", False),
-    ("flat_stove", "turnable", True), ("flat_stove", "openable", False), ("microwave", "openable", True),
-    ("porcelain_mug", "turnable", False), ("butter", "pourable", False), ("milk", "pourable", True),
-    ("black_book", "openable", True), ("desk_caddy", "graspable", None), ("moka_pot", "openable", None),
-])
+@pytest.mark.parametrize(
+    "cat,affordance,value",
+    [
+        ("plate", "container", False),
+        ("plate", "support", True),
+        ("akita_black_bowl", "container", True),
+        ("basket", "container", True),
+        ("wine_bottle", "support", False),
+        ("ketchup", "container", False),
+        ("flat_stove", "turnable", True),
+        ("flat_stove", "openable", False),
+        ("microwave", "openable", True),
+        ("porcelain_mug", "turnable", False),
+        ("butter", "pourable", False),
+        ("milk", "pourable", True),
+        ("black_book", "openable", True),
+        ("desk_caddy", "graspable", None),
+        ("moka_pot", "openable", None),
+    ],
+)
 def test_judgements_the_operators_rely_on(cat, affordance, value):
     assert category(cat).has(affordance) is value
 
@@ -75,16 +88,29 @@ def test_every_row_documents_itself():
 
 
 def _row(**override) -> str:
-    row = {"category": "thing", "names": ["thing"], "synonyms": [], "hypernyms": [], "size": 1, "note": "n",
-           **{a: False for a in AFFORDANCES}}
+    row = {
+        "category": "thing",
+        "names": ["thing"],
+        "synonyms": [],
+        "hypernyms": [],
+        "size": 1,
+        "note": "n",
+        **{a: False for a in AFFORDANCES},
+    }
     row.update(override)
     return json.dumps(row)
 
 
-@pytest.mark.parametrize("line,field", [
-    (_row(graspable="yes"), "graspable"), (_row(size=7), "size"), (_row(names=[]), "names"),
-    (_row(names=["Thing"]), "names"), ('{"category": "x"}', "names"),
-])
+@pytest.mark.parametrize(
+    "line,field",
+    [
+        (_row(graspable="yes"), "graspable"),
+        (_row(size=7), "size"),
+        (_row(names=[]), "names"),
+        (_row(names=["Thing"]), "names"),
+        ('{"category": "x"}', "names"),
+    ],
+)
 def test_a_malformed_table_names_line_and_field(line, field):
     with pytest.raises(AffordanceTableError, match=rf"t.jsonl line 2, field '{field}'"):
         parse_table(_row() + "\n" + line, "t.jsonl")

@@ -19,11 +19,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, Plugins
-
-from conftest import reference_spec
 
 pytestmark = pytest.mark.sim
 OBJECT_TASK = ("libero_object", 1, 4)  # the episode the defect was filed on (issue #11, defect 10)
@@ -52,7 +51,7 @@ class Replay:
 
     def act(self, obs):
         assert (obs.agentview_image is not None) == self.needs_images
-        return self.actions[obs.step:obs.step + self.chunk]
+        return self.actions[obs.step : obs.step + self.chunk]
 
 
 class ReplayPlugin:
@@ -99,8 +98,15 @@ np.savez(args["out"], eef=np.array(eef), targets=np.array(targets))
 
 def native_client_path(rec, actions_file: Path, out: Path) -> tuple[np.ndarray, np.ndarray]:
     """End-effector and target positions a plain OffScreenRenderEnv loop records for these actions."""
-    args = {"suite": rec.suite, "task_id": rec.task_id, "init_state": rec.init_state, "seed": rec.seed,
-            "targets": list(rec.target_names), "actions": str(actions_file), "out": str(out)}
+    args = {
+        "suite": rec.suite,
+        "task_id": rec.task_id,
+        "init_state": rec.init_state,
+        "seed": rec.seed,
+        "targets": list(rec.target_names),
+        "actions": str(actions_file),
+        "out": str(out),
+    }
     done = subprocess.run([sys.executable, "-c", NATIVE_CLIENT, json.dumps(args)], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     native = np.load(out)
@@ -112,8 +118,9 @@ def replay_plugins():
     return Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[ReplayPlugin()])
 
 
-def assert_every_mode_records_the_native_path(play, plugins, tmp_path: Path, episode, actions: np.ndarray,
-                                              modes=tuple(MODES), also=None) -> None:
+def assert_every_mode_records_the_native_path(
+    play, plugins, tmp_path: Path, episode, actions: np.ndarray, modes=tuple(MODES), also=None
+) -> None:
     """Replay ``actions`` in each mode; every recorded path (and those in ``also``) must be the native one."""
     actions_file = tmp_path / "actions.npy"
     np.save(actions_file, actions)
@@ -122,16 +129,22 @@ def assert_every_mode_records_the_native_path(play, plugins, tmp_path: Path, epi
     for mode in modes:
         # State-only: another episode first, so the compared one runs on a reused env (a second reset).
         before = [reference_spec(suite, task_id, init_state + 1)] if mode == "state-only" else []
-        _, store = play("replay", before + [reference_spec(*episode)],
-                        settings={"actions": str(actions_file), **MODES[mode]}, plugin_set=plugins,
-                        store_dir=tmp_path / mode)
+        _, store = play(
+            "replay",
+            before + [reference_spec(*episode)],
+            settings={"actions": str(actions_file), **MODES[mode]},
+            plugin_set=plugins,
+            store_dir=tmp_path / mode,
+        )
         (rec,) = [r for r in store.records() if r.init_state == init_state]
         assert rec.error is None and rec.steps == len(actions), (mode, rec.error, rec.steps)
         np.testing.assert_array_equal(rec.actions, actions)
         recorded[mode] = rec
     native_eef, native_targets = native_client_path(rec, actions_file, tmp_path / "native.npz")
-    drift = {mode: (float(np.abs(r.eef_pos - native_eef).max()), float(np.abs(r.target_pos - native_targets).max()))
-             for mode, r in recorded.items()}
+    drift = {
+        mode: (float(np.abs(r.eef_pos - native_eef).max()), float(np.abs(r.target_pos - native_targets).max()))
+        for mode, r in recorded.items()
+    }
     print(f"{episode}, {len(actions)} steps: max |delta| (eef, targets) per mode, m: {drift}")
     assert all(d == (0.0, 0.0) for d in drift.values()), f"max |delta| (eef, targets) per mode, m: {drift}"
 
@@ -148,8 +161,9 @@ def test_random_actions_record_the_native_camera_clients_path_in_every_mode(play
 def scripted_episode(play, episode, budget: int, tmp_path: Path):
     """The scripted expert's episode (a state-only, privileged policy)."""
     suite = episode[0]
-    _, store = play("scripted", [reference_spec(*episode)], settings={"max_steps": {suite: budget}},
-                    store_dir=tmp_path / "scripted")
+    _, store = play(
+        "scripted", [reference_spec(*episode)], settings={"max_steps": {suite: budget}}, store_dir=tmp_path / "scripted"
+    )
     (rec,) = store.records()
     assert rec.error is None
     return rec
@@ -157,8 +171,15 @@ def scripted_episode(play, episode, budget: int, tmp_path: Path):
 
 def test_the_scripted_experts_own_episode_is_the_native_clients(play, replay_plugins, tmp_path):
     expert = scripted_episode(play, OBJECT_TASK, 60, tmp_path)
-    assert_every_mode_records_the_native_path(play, replay_plugins, tmp_path, OBJECT_TASK, expert.actions,
-                                              modes=("camera gate",), also={"scripted expert": expert})
+    assert_every_mode_records_the_native_path(
+        play,
+        replay_plugins,
+        tmp_path,
+        OBJECT_TASK,
+        expert.actions,
+        modes=("camera gate",),
+        also={"scripted expert": expert},
+    )
 
 
 @pytest.mark.slow
@@ -171,5 +192,6 @@ def test_a_full_random_episode_records_the_native_path_in_every_mode(play, repla
 def test_a_full_grasp_and_place_records_the_native_path_in_every_mode(play, replay_plugins, tmp_path, episode):
     expert = scripted_episode(play, episode, 600, tmp_path)
     assert expert.success  # it grasped, carried and placed the object: contacts all the way
-    assert_every_mode_records_the_native_path(play, replay_plugins, tmp_path, episode, expert.actions,
-                                              also={"scripted expert": expert})
+    assert_every_mode_records_the_native_path(
+        play, replay_plugins, tmp_path, episode, expert.actions, also={"scripted expert": expert}
+    )

@@ -21,22 +21,25 @@ def test_help_lists_the_verbs(cli):
     assert out.returncode == 0 and "conflictbench list" in out.stdout and "conflictbench report DIR" in out.stdout
 
 
-@pytest.mark.parametrize("args, message", [
-    (["model=nope"], "unknown model 'nope'; valid choices: demo-wave, noop, oracle, random, scripted"),
-    (["suite=physicl"], "unknown suite 'physicl'; valid choices: all, grounding, instruction, physical, spatial"),
-    (["level=L5"], "unknown level 'L5'; valid choices: L1, L2, L3, L4, all"),
-    (["prompt=p3"], "unknown prompt 'p3'; valid choices: both, p0, p1"),
-    (["run=fast"], "unknown run 'fast'"),
-    (["-m", "model=noop,nope"], "unknown model 'nope'"),
-    (["run.metrics=[no_such_metric]"], "unknown metric 'no_such_metric'; valid choices:"),
-    (["run.workers=0"], "run.workers must be an integer >= 1"),
-    (["run.init_states=77"], "50 fixed initial states"),
-    (["model=random", "model.sed=3"], "model.sed"),
-    (["suite.file=/no/such/suite.jsonl"], "suite file not found: /no/such/suite.jsonl"),
-    (["report", "/no/such/dir"], "no such directory: /no/such/dir"),
-    (["report"], "the following arguments are required: DIR"),
-    (["list", "--bogus"], "unrecognized arguments: --bogus"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["model=nope"], "unknown model 'nope'; valid choices: demo-wave, noop, oracle, random, scripted"),
+        (["suite=physicl"], "unknown suite 'physicl'; valid choices: all, grounding, instruction, physical, spatial"),
+        (["level=L5"], "unknown level 'L5'; valid choices: L1, L2, L3, L4, all"),
+        (["prompt=p3"], "unknown prompt 'p3'; valid choices: both, p0, p1"),
+        (["run=fast"], "unknown run 'fast'"),
+        (["-m", "model=noop,nope"], "unknown model 'nope'"),
+        (["run.metrics=[no_such_metric]"], "unknown metric 'no_such_metric'; valid choices:"),
+        (["run.workers=0"], "run.workers must be an integer >= 1"),
+        (["run.init_states=77"], "50 fixed initial states"),
+        (["model=random", "model.sed=3"], "model.sed"),
+        (["suite.file=/no/such/suite.jsonl"], "suite file not found: /no/such/suite.jsonl"),
+        (["report", "/no/such/dir"], "no such directory: /no/such/dir"),
+        (["report"], "the following arguments are required: DIR"),
+        (["list", "--bogus"], "unrecognized arguments: --bogus"),
+    ],
+)
 def test_bad_input_is_one_clear_line_and_exit_code_2(cli, args, message):
     out = cli(*args)
     assert out.returncode == 2, (out.returncode, out.stdout, out.stderr)

@@ -24,7 +24,7 @@ def module_of(name: str) -> str | None:
     if name == PACKAGE:
         return "__init__"
     if name.startswith(PACKAGE + "."):
-        first = name[len(PACKAGE) + 1:].split(".")[0]
+        first = name[len(PACKAGE) + 1 :].split(".")[0]
         return first if first in MODULES else "__init__"  # a submodule, or a name defined in __init__
     return None
 
@@ -54,7 +54,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
     def visit(module: str, path: list[str]) -> list[str] | None:
         if module in path:
-            return path[path.index(module):] + [module]
+            return path[path.index(module) :] + [module]
         if module in done:
             return None
         for target in sorted(graph[module]):
@@ -79,8 +79,11 @@ def test_the_cycle_check_finds_a_cycle():
 
 def test_no_module_is_named_like_a_name_the_package_uses():
     """Importing conflictbench.cli.X binds X in the package: a module `list` would replace the builtin there."""
-    used = {node.id for node in ast.walk(ast.parse((ROOT / "__init__.py").read_text(encoding="utf-8")))
-            if isinstance(node, ast.Name)}
+    used = {
+        node.id
+        for node in ast.walk(ast.parse((ROOT / "__init__.py").read_text(encoding="utf-8")))
+        if isinstance(node, ast.Name)
+    }
     clash = set(MODULES) & (used | set(dir(builtins)))
     assert not clash, f"modules named like a builtin or a name in conflictbench/cli/__init__.py: {sorted(clash)}"
 

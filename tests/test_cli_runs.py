@@ -42,9 +42,15 @@ def suite_file(tmp_path) -> Path:
     from conflictbench.tasks.suite_file import case_line
 
     path = tmp_path / "cases.jsonl"
-    path.write_text("".join(case_line(ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language,
-                                                   text, family, level)) + "\n"
-                            for cid, task, family, level, text in CASES))
+    path.write_text(
+        "".join(
+            case_line(
+                ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language, text, family, level)
+            )
+            + "\n"
+            for cid, task, family, level, text in CASES
+        )
+    )
     return path
 
 
@@ -59,8 +65,14 @@ def counts(stderr: str) -> dict[str, int]:
 
 
 def test_a_pip_installed_plugin_runs_end_to_end_and_its_metric_is_reported(cli, tmp_path):
-    out = cli("model=demo-wave", "model.amplitude=0.8", "suite=physical", "level=L1",
-              "run.libero_suites=[libero_object]", "prompt=p1")
+    out = cli(
+        "model=demo-wave",
+        "model.amplitude=0.8",
+        "suite=physical",
+        "level=L1",
+        "run.libero_suites=[libero_object]",
+        "prompt=p1",
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     assert counts(out.stderr) == {"played": 2, "stored": 0, "elsewhere": 0, "errors": 0}
     assert "demo_path_ratio" in out.stdout and "physical" in out.stdout
@@ -80,9 +92,14 @@ def test_a_pip_installed_plugin_runs_end_to_end_and_its_metric_is_reported(cli, 
 def test_a_sweep_shares_one_store_and_never_replays_a_reference(cli, tmp_path, suite_file):
     out = cli("-m", "model=demo-wave", "suite=spatial,physical", "level=L3", f"suite.file={suite_file}")
     assert out.returncode == 0, out.stderr[-3000:]
-    jobs = [counts(m.group(0)) for m in re.finditer(r"\d+ played, \d+ already stored, \d+ played by another job, \d+ with errors", out.stderr)]
-    assert jobs == [{"played": 2, "stored": 0, "elsewhere": 0, "errors": 0},
-                    {"played": 1, "stored": 1, "elsewhere": 0, "errors": 0}]
+    jobs = [
+        counts(m.group(0))
+        for m in re.finditer(r"\d+ played, \d+ already stored, \d+ played by another job, \d+ with errors", out.stderr)
+    ]
+    assert jobs == [
+        {"played": 2, "stored": 0, "elsewhere": 0, "errors": 0},
+        {"played": 1, "stored": 1, "elsewhere": 0, "errors": 0},
+    ]
     records = EpisodeStore(tmp_path / "results").records()
     assert len(records) == 3 and sum(r.case_id is None for r in records) == 1
     assert {r.family for r in records if r.case_id} == {"spatial", "physical"}
@@ -90,8 +107,15 @@ def test_a_sweep_shares_one_store_and_never_replays_a_reference(cli, tmp_path, s
 
 def _start(cli_args, cwd: Path, demo_site: Path) -> subprocess.Popen:
     exe = Path(sys.executable).parent / "conflictbench"
-    return subprocess.Popen([str(exe), *cli_args], cwd=cwd, env={**os.environ, "PYTHONPATH": str(demo_site)},
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    return subprocess.Popen(
+        [str(exe), *cli_args],
+        cwd=cwd,
+        env={**os.environ, "PYTHONPATH": str(demo_site)},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
 
 
 def test_sigkill_loses_no_finished_episode_and_the_rerun_duplicates_none(cli, tmp_path, demo_plugin_site, suite_file):

@@ -73,15 +73,18 @@ def test_run_options_accept_a_list_of_initial_states(composed):
     assert opts.init_states == [0, 4] and opts.cases_per_cell is None
 
 
-@pytest.mark.parametrize("override, message", [
-    ("run.init_states=0", "run.init_states must be an integer >= 1"),
-    ("run.init_states=51", "50 fixed initial states"),
-    ("run.init_states=[3,50]", "0..49"),
-    ("run.cases_per_cell=-1", "run.cases_per_cell"),
-    ("run.cases_per_cell=some", "run.cases_per_cell"),
-    ("run.workers=0", "run.workers must be an integer >= 1"),
-    ("run.libero_suites=[libero_90]", "unknown LIBERO suite 'libero_90'"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("run.init_states=0", "run.init_states must be an integer >= 1"),
+        ("run.init_states=51", "50 fixed initial states"),
+        ("run.init_states=[3,50]", "0..49"),
+        ("run.cases_per_cell=-1", "run.cases_per_cell"),
+        ("run.cases_per_cell=some", "run.cases_per_cell"),
+        ("run.workers=0", "run.workers must be an integer >= 1"),
+        ("run.libero_suites=[libero_90]", "unknown LIBERO suite 'libero_90'"),
+    ],
+)
 def test_bad_run_options_are_user_errors(composed, override, message):
     with pytest.raises(UserError, match=message):
         run_options(composed(override).run)

@@ -16,7 +16,9 @@ def make(*extra) -> Plugins:
 
 
 def context(policy: str) -> ActionContext:
-    return ActionContext(policy=policy, suite="libero_goal", task_id=0, prompt="p0", case_id=None, step=0, chunk_index=0)
+    return ActionContext(
+        policy=policy, suite="libero_goal", task_id=0, prompt="p0", case_id=None, step=0, chunk_index=0
+    )
 
 
 class Named:
@@ -32,9 +34,12 @@ class Model(Named):
 
     @hookimpl
     def conflictbench_register_policies(self, register):
-        register("model-a", load=lambda cfg: None,
-                 format_prompt=lambda text, condition: f"In: {text.lower()}? ({condition})",
-                 postprocess=lambda action, ctx: np.concatenate([action[:6], [-action[6]]]))
+        register(
+            "model-a",
+            load=lambda cfg: None,
+            format_prompt=lambda text, condition: f"In: {text.lower()}? ({condition})",
+            postprocess=lambda action, ctx: np.concatenate([action[:6], [-action[6]]]),
+        )
         register("model-b", load=lambda cfg: None)
 
 
@@ -151,7 +156,11 @@ def test_register_knows_its_caller_even_through_a_helper():
     plugins._sources["two"] = plugins.source("two").__class__("pkg-two", "2.0")
     metrics = plugins.metrics()
     assert {m: metrics[m].plugin for m in ("one_a", "one_b", "two", "tar")} == {
-        "one_a": "pkg-one", "one_b": "pkg-one", "two": "pkg-two", "tar": "conflictbench"}
+        "one_a": "pkg-one",
+        "one_b": "pkg-one",
+        "two": "pkg-two",
+        "tar": "conflictbench",
+    }
     assert metrics["one_a"].direction == "higher" and metrics["two"].direction is None
 
 
@@ -162,8 +171,11 @@ def test_a_misspelled_hook_is_an_error_naming_the_plugin_and_the_hook():
         def conflictbench_register_policy(self, register):
             register("never", load=lambda cfg: None)
 
-    with pytest.raises(PluginError, match=r"plugin typo .*unknown hook 'conflictbench_register_policy' "
-                                          r"\(did you mean conflictbench_register_policies\?\)"):
+    with pytest.raises(
+        PluginError,
+        match=r"plugin typo .*unknown hook 'conflictbench_register_policy' "
+        r"\(did you mean conflictbench_register_policies\?\)",
+    ):
         make(Typo("typo"))
 
 

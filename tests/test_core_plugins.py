@@ -103,6 +103,7 @@ def test_postprocess_chain_runs_in_documented_order_and_keeps_none_as_unchanged(
             def conflictbench_postprocess_action(self, action, context):
                 calls.append(name)
                 return fn(action)
+
         P.__name__ = name
         return P()
 
@@ -126,10 +127,17 @@ def test_postprocess_returning_a_wrong_shape_is_a_policy_error():
         make(Bad()).postprocess_action(np.zeros(7), CONTEXT)
 
 
-@pytest.mark.parametrize("raw, message", [
-    (np.zeros(6), "shape"), (np.zeros((2, 3)), "shape"), (np.zeros((0, 7)), "shape"),
-    ([0, 0, 0, float("nan"), 0, 0, 0], "non-finite"), ([float("inf")] * 7, "non-finite"), ("left", "numeric"),
-])
+@pytest.mark.parametrize(
+    "raw, message",
+    [
+        (np.zeros(6), "shape"),
+        (np.zeros((2, 3)), "shape"),
+        (np.zeros((0, 7)), "shape"),
+        ([0, 0, 0, float("nan"), 0, 0, 0], "non-finite"),
+        ([float("inf")] * 7, "non-finite"),
+        ("left", "numeric"),
+    ],
+)
 def test_bad_policy_outputs_are_rejected(raw, message):
     with pytest.raises(PolicyError, match=message):
         as_action_chunk(raw)
@@ -169,7 +177,7 @@ def test_a_plugin_that_fails_to_import_is_reported_not_fatal(tmp_path, monkeypat
     monkeypatch.syspath_prepend(str(tmp_path))
     plugins = conflictbench.plugins()
     assert "noop" in plugins.policies()
-    (name, why), = plugins.load_failures.items()
+    ((name, why),) = plugins.load_failures.items()
     assert "broken-plugin" in name and "ModuleNotFoundError" in why
     with pytest.raises(UserError, match="plugins that failed to load: broken"):
         plugins.policy("whatever")
@@ -188,8 +196,9 @@ def test_core_imports_nothing_else_of_ours_nor_heavy_libraries():
                 continue
             for name in names:
                 assert not name.startswith("conflictbench"), f"{path.name} imports {name}"
-                assert name.split(".")[0] not in {"libero", "robosuite", "mujoco", "torch", "pandas", "hydra"}, \
+                assert name.split(".")[0] not in {"libero", "robosuite", "mujoco", "torch", "pandas", "hydra"}, (
                     f"{path.name} imports {name}"
+                )
 
 
 def test_a_register_call_with_wrong_arguments_names_the_plugin():

@@ -9,13 +9,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import DEMO_PLUGIN, reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import Plugins
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
-
-from conftest import DEMO_PLUGIN, reference_spec
 
 pytestmark = pytest.mark.sim
 
@@ -26,8 +25,22 @@ def install_demo(version: str, target: Path) -> Path:
     shutil.copytree(DEMO_PLUGIN, source)
     project = source / "pyproject.toml"
     project.write_text(project.read_text().replace('version = "0.3.1"', f'version = "{version}"'))
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--no-compile", "--target", str(target), str(source)], check=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-compile",
+            "--target",
+            str(target),
+            str(source),
+        ],
+        check=True,
+    )
     return target
 
 

@@ -8,18 +8,40 @@ import numpy as np
 import pytest
 
 from conflictbench.core import EpisodeRecord
-from conflictbench.metrics import (aggregate, evaluate_pairs, failure_rate, make_pairs, pcsr, prompt_couples,
-                                   prompt_differences, rgsr)
+from conflictbench.metrics import (
+    aggregate,
+    evaluate_pairs,
+    failure_rate,
+    make_pairs,
+    pcsr,
+    prompt_couples,
+    prompt_differences,
+    rgsr,
+)
 
 
-def episode(case=None, success=False, init=0, prompt="p0", policy="pi0", family=None, level=None, x=0.0,
-            task=0, config="h1") -> EpisodeRecord:
+def episode(
+    case=None, success=False, init=0, prompt="p0", policy="pi0", family=None, level=None, x=0.0, task=0, config="h1"
+) -> EpisodeRecord:
     eef = np.array([[0.0, 0, 0], [x, 0, 0]])
-    return EpisodeRecord(policy=policy, suite="libero_goal", task_id=task, init_state=init, prompt=prompt,
-                         instruction="i", case_id=case, family=family, level=level, success=success,
-                         eef_pos=eef, target_pos=np.zeros((2, 1, 3)), target_names=("bowl",),
-                         actions=np.array([[x, 0, 0, 0, 0, 0, 0]]), config_hash=config,
-                         episode_id=f"{policy}-{prompt}-{case}-{init}-{task}")
+    return EpisodeRecord(
+        policy=policy,
+        suite="libero_goal",
+        task_id=task,
+        init_state=init,
+        prompt=prompt,
+        instruction="i",
+        case_id=case,
+        family=family,
+        level=level,
+        success=success,
+        eef_pos=eef,
+        target_pos=np.zeros((2, 1, 3)),
+        target_names=("bowl",),
+        actions=np.array([[x, 0, 0, 0, 0, 0, 0]]),
+        config_hash=config,
+        episode_id=f"{policy}-{prompt}-{case}-{init}-{task}",
+    )
 
 
 def frame_of(records, metrics=("tar", "early20_ts", "ts", "ams")):
@@ -31,11 +53,14 @@ def frame_of(records, metrics=("tar", "early20_ts", "ts", "ams")):
 def test_a_reference_reused_by_k_pairs_counts_k_times():
     # reference A (succeeded) serves three conflicts, reference B (failed) one:
     # PCSR = 3/4 (per pair), not 1/2 (per reference)
-    records = [episode(success=True, init=0), episode(success=False, init=1),
-               episode("c1", init=0, family="grounding", level="L1"),
-               episode("c2", init=0, family="grounding", level="L1", success=True),
-               episode("c3", init=0, family="spatial", level="L1"),
-               episode("c1", init=1, family="grounding", level="L1")]
+    records = [
+        episode(success=True, init=0),
+        episode(success=False, init=1),
+        episode("c1", init=0, family="grounding", level="L1"),
+        episode("c2", init=0, family="grounding", level="L1", success=True),
+        episode("c3", init=0, family="spatial", level="L1"),
+        episode("c1", init=1, family="grounding", level="L1"),
+    ]
     pairs, _ = make_pairs(records)
     assert (pcsr(pairs).k, pcsr(pairs).n) == (3, 4)
     assert (rgsr(pairs).k, rgsr(pairs).n) == (1, 4)
@@ -48,8 +73,11 @@ def test_a_reference_reused_by_k_pairs_counts_k_times():
 
 
 def test_fr_is_undefined_when_no_reference_succeeded():
-    records = [episode(success=False), episode("c1", family="physical", level="L2"),
-               episode("c2", family="physical", level="L2", success=True)]
+    records = [
+        episode(success=False),
+        episode("c1", family="physical", level="L2"),
+        episode("c2", family="physical", level="L2", success=True),
+    ]
     row = aggregate(frame_of(records), ("model", "prompt"), ["ams"]).iloc[0]
     assert row["FR_n"] == 0 and row["FR_k"] == 0 and math.isnan(row["FR"])
     assert row["ams_qf_n"] == 0 and math.isnan(row["ams_qf"])
@@ -59,9 +87,11 @@ def test_fr_is_undefined_when_no_reference_succeeded():
 def test_process_means_over_all_pairs_and_over_qualified_failures():
     # AMS with the reference moving 0.2 on dim 0 (I+ = 1): a conflict moving x has AMS = 1 - x / 0.2
     ref = episode(success=True, x=0.2)
-    cons = [episode("a", x=0.05, family="spatial", level="L1"),               # AMS 0.75, QF
-            episode("b", x=0.1, family="spatial", level="L1", success=True),  # AMS 0.5, not QF
-            episode("c", x=0.15, family="physical", level="L3")]              # AMS 0.25, QF
+    cons = [
+        episode("a", x=0.05, family="spatial", level="L1"),  # AMS 0.75, QF
+        episode("b", x=0.1, family="spatial", level="L1", success=True),  # AMS 0.5, not QF
+        episode("c", x=0.15, family="physical", level="L3"),
+    ]  # AMS 0.25, QF
     frame = frame_of([ref, *cons])
     assert list(frame["ams"]) == pytest.approx([0.75, 0.5, 0.25])
     row = aggregate(frame, ("model",), ["ams"]).iloc[0]
@@ -74,22 +104,33 @@ def test_process_means_over_all_pairs_and_over_qualified_failures():
 
 
 def test_groupings_keep_models_prompts_suites_and_cases_apart():
-    records = [episode(success=True), episode(success=True, prompt="p1"), episode(policy="oft", success=False),
-               episode("c1", family="grounding", level="L1"), episode("c1", prompt="p1", family="grounding", level="L1",
-                                                                     success=True),
-               episode("c1", policy="oft", family="grounding", level="L1"),
-               episode("c2", policy="oft", family="instruction", level="L4")]
+    records = [
+        episode(success=True),
+        episode(success=True, prompt="p1"),
+        episode(policy="oft", success=False),
+        episode("c1", family="grounding", level="L1"),
+        episode("c1", prompt="p1", family="grounding", level="L1", success=True),
+        episode("c1", policy="oft", family="grounding", level="L1"),
+        episode("c2", policy="oft", family="instruction", level="L4"),
+    ]
     frame = frame_of(records)
     by_model = aggregate(frame, ("model", "prompt"), [])
     assert [tuple(r) for r in by_model[["model", "prompt", "pairs", "PCSR_k", "RGSR_k"]].itertuples(index=False)] == [
-        ("oft", "p0", 2, 0, 0), ("pi0", "p0", 1, 1, 0), ("pi0", "p1", 1, 1, 1)]
+        ("oft", "p0", 2, 0, 0),
+        ("pi0", "p0", 1, 1, 0),
+        ("pi0", "p1", 1, 1, 1),
+    ]
     by_case = aggregate(frame, ("model", "case_id"), [])
     assert len(by_case) == 3 and set(by_case["case_id"]) == {"c1", "c2"}
 
 
 def test_one_policy_with_two_settings_is_two_models():
-    records = [episode(success=True, config="aaaaaaaa"), episode("c1", config="aaaaaaaa"),
-               episode(success=False, config="bbbbbbbb"), episode("c1", config="bbbbbbbb")]
+    records = [
+        episode(success=True, config="aaaaaaaa"),
+        episode("c1", config="aaaaaaaa"),
+        episode(success=False, config="bbbbbbbb"),
+        episode("c1", config="bbbbbbbb"),
+    ]
     table = aggregate(frame_of(records), ("model",), [])
     assert list(table["model"]) == ["pi0[aaaaaa]", "pi0[bbbbbb]"]
     assert list(table["PCSR_k"]) == [1, 0]

@@ -22,8 +22,19 @@ def record(eef=None, actions=None, targets=None, names=("bowl",), case="c1", **k
     h = len(eef) - 1
     actions = np.zeros((h, 7)) if actions is None else np.asarray(actions, dtype=float)
     targets = np.zeros((len(eef), len(names), 3)) if targets is None else np.asarray(targets, dtype=float)
-    base = dict(policy="p", suite="libero_spatial", task_id=0, init_state=0, prompt="p0", instruction="x",
-                case_id=case, eef_pos=eef, actions=actions, target_pos=targets, target_names=tuple(names))
+    base = dict(
+        policy="p",
+        suite="libero_spatial",
+        task_id=0,
+        init_state=0,
+        prompt="p0",
+        instruction="x",
+        case_id=case,
+        eef_pos=eef,
+        actions=actions,
+        target_pos=targets,
+        target_names=tuple(names),
+    )
     base.update(kw)
     return EpisodeRecord(**base)
 
@@ -171,8 +182,10 @@ def test_tar_undefined_for_other_targets_no_target_or_non_finite():
     assert pair_metrics(ref, _approach_record([0.5, 0.3], names=("plate",)))["tar"] is None
     assert pair_metrics(ref, _approach_record([0.5, 0.3], names=("bowl", "plate")))["tar"] is None
     none = record(eef=line([0.5, 0.3]), targets=np.zeros((2, 0, 3)), names=())
-    assert pair_metrics(record(eef=line([0.5, 0.1]), targets=np.zeros((2, 0, 3)), names=(), case=None),
-                        none)["tar"] is None
+    assert (
+        pair_metrics(record(eef=line([0.5, 0.1]), targets=np.zeros((2, 0, 3)), names=(), case=None), none)["tar"]
+        is None
+    )
     bad = _approach_record([0.5, 0.3])
     bad.target_pos[1, 0, 2] = np.inf
     assert pair_metrics(ref, bad)["tar"] is None
@@ -234,10 +247,16 @@ def _random_record(rng, case, h=None, k=2):
     h = int(rng.integers(0, 45)) if h is None else h
     eef = np.cumsum(rng.normal(size=(h + 1, 3)) * 0.02, axis=0)
     if rng.random() < 0.3:  # repeated positions: a policy standing still
-        eef[h // 2:] = eef[h // 2]
+        eef[h // 2 :] = eef[h // 2]
     targets = eef[:, None, :] + rng.normal(size=(h + 1, k, 3)) * 0.1
-    return record(eef=eef, actions=rng.normal(size=(h, 7)) * 0.2, targets=targets,
-                  names=tuple(f"o{i}" for i in range(k)), case=case, success=bool(rng.random() < 0.5))
+    return record(
+        eef=eef,
+        actions=rng.normal(size=(h, 7)) * 0.2,
+        targets=targets,
+        names=tuple(f"o{i}" for i in range(k)),
+        case=case,
+        success=bool(rng.random() < 0.5),
+    )
 
 
 def test_batch_path_matches_the_plain_formulas_pair_by_pair():
@@ -280,8 +299,11 @@ class StepRatio:
 
     @hookimpl
     def conflictbench_register_metrics(self, register):
-        register("step_ratio", compute=lambda pair: pair.conflict.steps / pair.reference.steps if pair.reference.steps
-                 else None, description="conflict steps / reference steps")
+        register(
+            "step_ratio",
+            compute=lambda pair: pair.conflict.steps / pair.reference.steps if pair.reference.steps else None,
+            description="conflict steps / reference steps",
+        )
 
 
 def test_builtins_are_registered_through_the_hook_and_plugins_join_pair_metrics():

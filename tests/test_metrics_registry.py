@@ -16,10 +16,20 @@ from conflictbench.metrics.process import PerChunk, builtin_batch
 
 
 def record(x_end: float, steps: int, case: str | None = "c1") -> EpisodeRecord:
-    return EpisodeRecord(policy="p", suite="libero_goal", task_id=0, init_state=0, prompt="p0", instruction="x",
-                         case_id=case, steps=steps, eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
-                         actions=np.array([[0.2, 0, 0, 0, 0, 0, 1.0]]), target_pos=np.zeros((2, 1, 3)),
-                         target_names=("bowl",))
+    return EpisodeRecord(
+        policy="p",
+        suite="libero_goal",
+        task_id=0,
+        init_state=0,
+        prompt="p0",
+        instruction="x",
+        case_id=case,
+        steps=steps,
+        eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
+        actions=np.array([[0.2, 0, 0, 0, 0, 0, 1.0]]),
+        target_pos=np.zeros((2, 1, 3)),
+        target_names=("bowl",),
+    )
 
 
 class PathRatio:
@@ -34,15 +44,25 @@ class PathRatio:
 
     @hookimpl
     def conflictbench_register_metrics(self, register):
-        register("path_ratio", compute_many=self.compute_many, label="Path ratio", unit="%",
-                 higher_is_better=False, description="conflict steps / reference steps")
+        register(
+            "path_ratio",
+            compute_many=self.compute_many,
+            label="Path ratio",
+            unit="%",
+            higher_is_better=False,
+            description="conflict steps / reference steps",
+        )
 
 
 def test_builtins_carry_their_labels_units_and_directions():
     specs = conflictbench.plugins(entry_points=False).metrics()
     shown = {n: (specs[n].label, specs[n].unit, specs[n].direction) for n in ("tar", "early20_ts", "ts", "ams")}
-    assert shown == {"tar": ("TAR", "%", "lower"), "early20_ts": ("Early20 TS", "%", "lower"),
-                     "ts": ("TS", "%", "lower"), "ams": ("AMS", "%", "higher")}
+    assert shown == {
+        "tar": ("TAR", "%", "lower"),
+        "early20_ts": ("Early20 TS", "%", "lower"),
+        "ts": ("TS", "%", "lower"),
+        "ams": ("AMS", "%", "higher"),
+    }
     assert all(specs[n].compute_many is not None for n in shown)
 
 

@@ -21,8 +21,14 @@ from conflictbench.tasks.validate import new_context, validate_case
 
 pytestmark = pytest.mark.sim  # nearly every test needs LIBERO's base tasks
 
-TASKS = [("libero_spatial", 0), ("libero_object", 4), ("libero_goal", 3), ("libero_goal", 7), ("libero_10", 2),
-         ("libero_10", 4)]
+TASKS = [
+    ("libero_spatial", 0),
+    ("libero_object", 4),
+    ("libero_goal", 3),
+    ("libero_goal", 7),
+    ("libero_10", 2),
+    ("libero_10", 4),
+]
 OPERATORS = {family: (name, gen) for name, family, gen in builtin_operators()}
 
 
@@ -140,8 +146,9 @@ def test_levels_shape_the_text():
 def test_generated_text_is_varied_not_a_token_swap():
     key = ("libero_object", 4)
     m = model(key)
-    frames = {d.instruction.split(" the ")[0] for lv in LEVELS for fam in OPERATORS
-              for d in drafts(fam, key, lv, limit=20)}
+    frames = {
+        d.instruction.split(" the ")[0] for lv in LEVELS for fam in OPERATORS for d in drafts(fam, key, lv, limit=20)
+    }
     assert len(frames) >= 8  # many verb frames and connectives, not one template
     assert m.task.language not in {d.instruction for d in drafts("grounding", key, "L1")}
 
@@ -157,22 +164,38 @@ class ExtraOperators:
         def color_swap(model, level, rng):
             if level != "L1" or model.task.key != ("libero_goal", 8):
                 return
-            yield {"instruction": "put the bowl on the purple trampoline", "factors": ["destination"],
-                   "premise": "there is no purple trampoline in the scene",
-                   "witness": {"type": "absent_referent", "steps": ["put the bowl on the purple trampoline"],
-                               "referents": [{"step": 1, "role": "destination", "text": "the purple trampoline"}]}}
+            yield {
+                "instruction": "put the bowl on the purple trampoline",
+                "factors": ["destination"],
+                "premise": "there is no purple trampoline in the scene",
+                "witness": {
+                    "type": "absent_referent",
+                    "steps": ["put the bowl on the purple trampoline"],
+                    "referents": [{"step": 1, "role": "destination", "text": "the purple trampoline"}],
+                },
+            }
 
         def temporal(model, level, rng):
             if level == "L1" and model.task.key == ("libero_goal", 8):
-                yield {"instruction": "put the bowl on the plate yesterday", "factors": ["time"],
-                       "premise": "the past cannot be changed", "witness": {"type": "past_deadline", "when": "yesterday"}}
+                yield {
+                    "instruction": "put the bowl on the plate yesterday",
+                    "factors": ["time"],
+                    "premise": "the past cannot be changed",
+                    "witness": {"type": "past_deadline", "when": "yesterday"},
+                }
 
         def check(case, model):
             return [] if case.witness.get("when") in case.instruction else ["the deadline is not in the text"]
 
         register("extra.trampoline", family="grounding", generate=color_swap, levels=("L1",))
-        register("extra.temporal", family="temporal", generate=temporal, levels=("L1",),
-                 witness_type="past_deadline", check=check)
+        register(
+            "extra.temporal",
+            family="temporal",
+            generate=temporal,
+            levels=("L1",),
+            witness_type="past_deadline",
+            check=check,
+        )
 
 
 def test_a_plugin_adds_an_operator_and_a_family():
@@ -183,17 +206,22 @@ def test_a_plugin_adds_an_operator_and_a_family():
     assert plugins.families()[-1] == "temporal"
     key = ("libero_goal", 8)
     ctx = new_context(operators=ops.values())
-    cases = generate_task_cases(model(key), operator_entries(plugins), 0, ctx, per_cell={"grounding": 50, "temporal": 2})
+    cases = generate_task_cases(
+        model(key), operator_entries(plugins), 0, ctx, per_cell={"grounding": 50, "temporal": 2}
+    )
     instructions = {c.instruction: c for c in cases}
     assert "put the bowl on the purple trampoline" in instructions
     assert instructions["put the bowl on the plate yesterday"].family == "temporal"
 
 
-@pytest.mark.parametrize("kwargs,message", [
-    ({"family": "temporal", "generate": lambda m, l, r: []}, "needs a witness_type and a check"),
-    ({"family": "grounding", "generate": 3}, "must be callable"),
-    ({"family": "grounding", "generate": lambda m, l, r: [], "levels": ("L9",)}, "levels must be among"),
-])
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        ({"family": "temporal", "generate": lambda m, level, r: []}, "needs a witness_type and a check"),
+        ({"family": "grounding", "generate": 3}, "must be callable"),
+        ({"family": "grounding", "generate": lambda m, level, r: [], "levels": ("L9",)}, "levels must be among"),
+    ],
+)
 def test_bad_operator_registrations_are_refused(kwargs, message):
     class Bad:
         __name__ = "bad_ops"

@@ -14,13 +14,15 @@ BASE = {(s, t): f"task {s} {t}" for s in SUITES for t in range(10)}
 
 
 def case(cid, suite="libero_goal", task=0, family="physical", level="L1", states=None, status="accepted"):
-    return ConflictCase(cid, suite, task, BASE[(suite, task)], f"conflict {cid}", family, level,
-                        init_states=states, status=status)
+    return ConflictCase(
+        cid, suite, task, BASE[(suite, task)], f"conflict {cid}", family, level, init_states=states, status=status
+    )
 
 
 def plan(cases, **kw):
-    args = dict(base_instructions=BASE, families=FAMILIES, levels=LEVELS, prompts=["p0"], init_states=[0],
-                cases_per_cell=None)
+    args = dict(
+        base_instructions=BASE, families=FAMILIES, levels=LEVELS, prompts=["p0"], init_states=[0], cases_per_cell=None
+    )
     args.update(kw)
     return build_plan(cases, **args)
 
@@ -66,8 +68,13 @@ def test_negative_cases_per_cell_is_a_user_error():
 
 
 def test_sample_is_seeded_bounded_per_cell_and_spans_suites():
-    cases = [case(f"{s}-{t}-{f}-{l}", suite=s, task=t, family=f, level=l)
-             for s in SUITES for t in range(3) for f in FAMILIES for l in LEVELS]
+    cases = [
+        case(f"{s}-{t}-{f}-{level}", suite=s, task=t, family=f, level=level)
+        for s in SUITES
+        for t in range(3)
+        for f in FAMILIES
+        for level in LEVELS
+    ]
     picked = sample_cases(cases, 4, seed=0)
     cells = Counter((c.family, c.level) for c in picked)
     assert set(cells.values()) == {4} and len(cells) == 16
@@ -94,8 +101,13 @@ def test_episode_ids_are_stable_and_change_with_anything_that_changes_the_rollou
     base = dict(policy="noop", config_hash="h", spec=spec, prompt_text="open the drawer", seed=7)
     eid = episode_id(**base)
     assert eid == episode_id(**base) and len(eid) == 24
-    variants = [dict(policy="random"), dict(config_hash="h2"), dict(seed=8), dict(prompt_text="x"),
-                dict(spec=EpisodeSpec("libero_goal", 0, 1, "p0", "open the drawer")),
-                dict(spec=EpisodeSpec("libero_goal", 0, 0, "p1", "open the drawer")),
-                dict(spec=EpisodeSpec("libero_goal", 0, 0, "p0", "open the drawer", case("a")))]
+    variants = [
+        dict(policy="random"),
+        dict(config_hash="h2"),
+        dict(seed=8),
+        dict(prompt_text="x"),
+        dict(spec=EpisodeSpec("libero_goal", 0, 1, "p0", "open the drawer")),
+        dict(spec=EpisodeSpec("libero_goal", 0, 0, "p1", "open the drawer")),
+        dict(spec=EpisodeSpec("libero_goal", 0, 0, "p0", "open the drawer", case("a"))),
+    ]
     assert len({episode_id(**{**base, **v}) for v in variants} | {eid}) == len(variants) + 1

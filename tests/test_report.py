@@ -20,12 +20,26 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 def episode(policy, case, x_end, move, success, family=None, level=None, steps=1, init=0, error=None):
     """Two recorded states on the x axis (target at the origin) and one action of size ``move``."""
-    return EpisodeRecord(policy=policy, suite="libero_object", task_id=3, init_state=init, prompt="p0",
-                         instruction="pick", case_id=case, family=family, level=level, success=success,
-                         steps=steps, error=error, eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
-                         target_pos=np.zeros((2, 1, 3)), target_names=("alphabet_soup_1",),
-                         actions=np.array([[move, 0, 0, 0, 0, 0, 1.0]]),
-                         episode_id=f"{policy}-{case}-{init}", config_hash="cfg")
+    return EpisodeRecord(
+        policy=policy,
+        suite="libero_object",
+        task_id=3,
+        init_state=init,
+        prompt="p0",
+        instruction="pick",
+        case_id=case,
+        family=family,
+        level=level,
+        success=success,
+        steps=steps,
+        error=error,
+        eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
+        target_pos=np.zeros((2, 1, 3)),
+        target_names=("alphabet_soup_1",),
+        actions=np.array([[move, 0, 0, 0, 0, 0, 1.0]]),
+        episode_id=f"{policy}-{case}-{init}",
+        config_hash="cfg",
+    )
 
 
 def two_models() -> list[EpisodeRecord]:
@@ -133,8 +147,11 @@ def test_figures_are_written_as_png(tmp_path, plugins):
 class StepRatio:
     @hookimpl
     def conflictbench_register_metrics(self, register):
-        register("step_ratio", compute=lambda pair: pair.conflict.steps / pair.reference.steps,
-                 description="conflict steps / reference steps")
+        register(
+            "step_ratio",
+            compute=lambda pair: pair.conflict.steps / pair.reference.steps,
+            description="conflict steps / reference steps",
+        )
 
 
 def test_a_plugin_metric_appears_beside_the_builtins(tmp_path):
@@ -155,8 +172,10 @@ def test_a_plugin_metric_appears_beside_the_builtins(tmp_path):
 
 def test_empty_subsets_read_na_with_counts(tmp_path, plugins):
     # gamma's reference failed: D_Q is empty, so FR and every mean over D_QF are n/a
-    records = two_models() + [episode("gamma", None, 0.5, 0.0, False),
-                              episode("gamma", "c1", 0.5, 0.0, False, "physical", "L3")]
+    records = two_models() + [
+        episode("gamma", None, 0.5, 0.0, False),
+        episode("gamma", "c1", 0.5, 0.0, False, "physical", "L3"),
+    ]
     out = io.StringIO()
     report_records(records, plugins, out_dir=tmp_path, stream=out)
     gamma = [line for line in out.getvalue().splitlines() if line.startswith("gamma")]

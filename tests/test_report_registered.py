@@ -15,20 +15,37 @@ from conflictbench.report import report_records
 
 
 def episode(policy: str, case: str | None, steps: int, success: bool, family: str | None = None) -> EpisodeRecord:
-    return EpisodeRecord(policy=policy, suite="libero_object", task_id=3, init_state=0, prompt="p0",
-                         instruction="pick", case_id=case, family=family, level="L1" if case else None,
-                         success=success, steps=steps, eef_pos=np.array([[0.5, 0, 0], [0.3, 0, 0]]),
-                         target_pos=np.zeros((2, 1, 3)), target_names=("bowl",),
-                         actions=np.array([[0.1, 0, 0, 0, 0, 0, 1.0]]), episode_id=f"{policy}-{case}",
-                         config_hash="cfg")
+    return EpisodeRecord(
+        policy=policy,
+        suite="libero_object",
+        task_id=3,
+        init_state=0,
+        prompt="p0",
+        instruction="pick",
+        case_id=case,
+        family=family,
+        level="L1" if case else None,
+        success=success,
+        steps=steps,
+        eef_pos=np.array([[0.5, 0, 0], [0.3, 0, 0]]),
+        target_pos=np.zeros((2, 1, 3)),
+        target_names=("bowl",),
+        actions=np.array([[0.1, 0, 0, 0, 0, 0, 1.0]]),
+        episode_id=f"{policy}-{case}",
+        config_hash="cfg",
+    )
 
 
 def records() -> list[EpisodeRecord]:
     # steps of conflict / reference: alpha 10/40 and 20/40 (mean 0.375), beta 40/40 twice (1.0)
-    return [episode("alpha", None, 40, True), episode("alpha", "c1", 10, False, "grounding"),
-            episode("alpha", "c2", 20, True, "spatial"),
-            episode("beta", None, 40, True), episode("beta", "c1", 40, False, "grounding"),
-            episode("beta", "c2", 40, False, "spatial")]
+    return [
+        episode("alpha", None, 40, True),
+        episode("alpha", "c1", 10, False, "grounding"),
+        episode("alpha", "c2", 20, True, "spatial"),
+        episode("beta", None, 40, True),
+        episode("beta", "c1", 40, False, "grounding"),
+        episode("beta", "c2", 40, False, "spatial"),
+    ]
 
 
 def step_ratios(references, conflicts):
@@ -48,8 +65,12 @@ class Plain:
 
     @hookimpl
     def conflictbench_register_metrics(self, register):
-        register("steps_left", compute=lambda pair: (pair.reference.steps - pair.conflict.steps) / 100,
-                 label="Left_over & #", unit="m")
+        register(
+            "steps_left",
+            compute=lambda pair: (pair.reference.steps - pair.conflict.steps) / 100,
+            label="Left_over & #",
+            unit="m",
+        )
 
 
 def table_lines(text: str, model: str) -> list[str]:
@@ -68,8 +89,14 @@ def test_a_plugin_metric_shows_with_its_label_as_a_percentage_and_marked_where_l
     assert "Path ratio" in out.getvalue().splitlines()[2]  # the header row
     assert "lower RGSR, TAR, Early20 TS, TS, Path ratio" in out.getvalue()  # the legend
     md = (tmp_path / "table1_overall.md").read_text()
-    last = {c[0]: c[-1] for c in ([x.strip() for x in line.strip("|").split("|")] for line in md.splitlines()
-                                   if line.startswith("| alpha") or line.startswith("| beta"))}
+    last = {
+        c[0]: c[-1]
+        for c in (
+            [x.strip() for x in line.strip("|").split("|")]
+            for line in md.splitlines()
+            if line.startswith("| alpha") or line.startswith("| beta")
+        )
+    }
     assert last == {"alpha": "**37.5 (n=2)**", "beta": "100.0 (n=2)"}
     tex = (tmp_path / "table1_overall.tex").read_text()
     assert r"Path ratio \\" in tex and r"\textbf{37.5}\,{\scriptsize (n=2)}" in tex
@@ -99,8 +126,14 @@ def test_a_registry_without_the_builtins_reports_without_them(tmp_path):
     out = io.StringIO()
     frames = report_records(records(), plugins, out_dir=tmp_path, stream=out)
     t1 = pd.read_csv(tmp_path / "table1_overall.csv")
-    assert [c for c in t1.columns if not c.endswith(("_k", "_n"))] == ["model", "prompt", "PCSR", "RGSR", "dSR",
-                                                                        "Path ratio"]
+    assert [c for c in t1.columns if not c.endswith(("_k", "_n"))] == [
+        "model",
+        "prompt",
+        "PCSR",
+        "RGSR",
+        "dSR",
+        "Path ratio",
+    ]
     t3 = pd.read_csv(tmp_path / "table3_qualified_failures.csv")
     assert [c for c in t3.columns if not c.endswith(("_k", "_n"))] == ["model", "prompt", "FR", "Path ratio"]
     assert not {"tar", "ts", "early20_ts", "ams"} & set(frames["pairs"].columns)
@@ -124,6 +157,8 @@ def test_figures_scale_a_metric_as_registered(tmp_path):
     frame = with_model(evaluate_pairs([refs[(c.policy, c.prompt)] for c in cons], cons, plugins=plugins))
     differences = prompt_differences(prompt_couples(frame, ["steps_left"]), ["steps_left"])
     assert list(differences["steps_left_diff"]) == [0.0, 0.0]
-    for path in (figures.qualified_failure_distributions(frame, tmp_path / "qf.png", [spec]),
-                 figures.prompt_difference_figure(differences, tmp_path / "diff.png", [spec])):
+    for path in (
+        figures.qualified_failure_distributions(frame, tmp_path / "qf.png", [spec]),
+        figures.prompt_difference_figure(differences, tmp_path / "diff.png", [spec]),
+    ):
         assert path.read_bytes().startswith(b"\x89PNG") and path.stat().st_size > 5_000

@@ -14,12 +14,26 @@ from conflictbench.store import EpisodeStore
 
 def episode(rng, policy, case, state, success, prompt="p0", family="spatial", level="L1"):
     h = int(rng.integers(3, 30))
-    return EpisodeRecord(policy=policy, suite="libero_goal", task_id=state % 3, init_state=state, prompt=prompt,
-                         instruction=f"do {case}", case_id=case, family=family if case else None,
-                         level=level if case else None, success=success, steps=h,
-                         episode_id=f"{policy}-{case}-{state}-{prompt}", eef_pos=rng.normal(size=(h + 1, 3)) * 0.1,
-                         target_pos=rng.normal(size=(h + 1, 2, 3)), target_names=("a", "b"),
-                         actions=rng.normal(size=(h, 7)), raw_actions=rng.normal(size=(h, 7)), config_hash="h")
+    return EpisodeRecord(
+        policy=policy,
+        suite="libero_goal",
+        task_id=state % 3,
+        init_state=state,
+        prompt=prompt,
+        instruction=f"do {case}",
+        case_id=case,
+        family=family if case else None,
+        level=level if case else None,
+        success=success,
+        steps=h,
+        episode_id=f"{policy}-{case}-{state}-{prompt}",
+        eef_pos=rng.normal(size=(h + 1, 3)) * 0.1,
+        target_pos=rng.normal(size=(h + 1, 2, 3)),
+        target_names=("a", "b"),
+        actions=rng.normal(size=(h, 7)),
+        raw_actions=rng.normal(size=(h, 7)),
+        config_hash="h",
+    )
 
 
 def test_streamed_report_matches_the_in_memory_one(tmp_path):

@@ -10,13 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from conftest import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, PerEpisode, hookimpl, rng_for
 from conflictbench.core import LIBERO_SUITES, Plugins
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
-
-from conftest import reference_spec
 
 pytestmark = pytest.mark.sim
 
@@ -33,7 +32,7 @@ class SamplerConfig:
 class Sampler:
     """Samples its actions and keeps per-episode state (how many times it was asked this episode)."""
 
-    instances: list["Sampler"] = []
+    instances: list[Sampler] = []
     needs_images = False
     max_steps = {suite: 12 for suite in LIBERO_SUITES}
 

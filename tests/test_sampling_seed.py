@@ -15,9 +15,17 @@ from conflictbench.policies import RandomConfig, RandomPolicy
 
 
 def obs(episode_id: str = "e1", step: int = 0, stream: int = 0, **kw) -> Observation:
-    return Observation(step=step, instruction=kw.pop("instruction", "pick up the bowl"), eef_pos=np.zeros(3),
-                       eef_quat=np.array([0.0, 0.0, 0.0, 1.0]), gripper_qpos=np.zeros(2), state=np.zeros(8),
-                       stream=stream, episode_id=episode_id, **kw)
+    return Observation(
+        step=step,
+        instruction=kw.pop("instruction", "pick up the bowl"),
+        eef_pos=np.zeros(3),
+        eef_quat=np.array([0.0, 0.0, 0.0, 1.0]),
+        gripper_qpos=np.zeros(2),
+        state=np.zeros(8),
+        stream=stream,
+        episode_id=episode_id,
+        **kw,
+    )
 
 
 def test_the_sampling_api_is_public():
@@ -34,11 +42,21 @@ def test_the_seed_depends_on_episode_and_step_only():
 
 def test_the_seed_is_the_same_in_every_process():
     # hash() is salted per process; the seed must not be
-    code = ("import numpy as np; from conflictbench.core import Observation, sampling_seed; "
-            "print(sampling_seed(Observation(step=5, instruction='', eef_pos=np.zeros(3), eef_quat=np.zeros(4), "
-            "gripper_qpos=np.zeros(2), state=np.zeros(8), episode_id='abc')))")
-    seeds = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                            env={**os.environ, "PYTHONHASHSEED": salt}).stdout.strip() for salt in ("1", "2")}
+    code = (
+        "import numpy as np; from conflictbench.core import Observation, sampling_seed; "
+        "print(sampling_seed(Observation(step=5, instruction='', eef_pos=np.zeros(3), eef_quat=np.zeros(4), "
+        "gripper_qpos=np.zeros(2), state=np.zeros(8), episode_id='abc')))"
+    )
+    seeds = {
+        subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, "PYTHONHASHSEED": salt},
+        ).stdout.strip()
+        for salt in ("1", "2")
+    }
     assert seeds == {str(sampling_seed(obs(episode_id="abc", step=5)))}
 
 

@@ -24,8 +24,18 @@ from conflictbench.tasks.scene_build import file_sha256, states_sha256
 def _facts(positions: dict[str, list], radius=0.05, contacts=None, predicates=None) -> TaskFacts:
     n = len(next(iter(positions.values())))
     entities = {k: Entity(k, "thing", "object", radius=radius) for k in positions}
-    return TaskFacts("libero_goal", 0, "", "", n, entities, {k: np.asarray(v, float) for k, v in positions.items()},
-                     contacts or {}, predicates or {}, frozenset(range(n)))
+    return TaskFacts(
+        "libero_goal",
+        0,
+        "",
+        "",
+        n,
+        entities,
+        {k: np.asarray(v, float) for k, v in positions.items()},
+        contacts or {},
+        predicates or {},
+        frozenset(range(n)),
+    )
 
 
 def test_directions_follow_the_camera_view_with_a_margin():
@@ -52,8 +62,9 @@ def test_between_is_lenient_about_overshoot_but_not_about_the_side():
 
 def test_on_and_in_count_any_contact_as_true():
     touch = {frozenset(("a", "b")): frozenset({1})}
-    f = _facts({"a": [[0, 0, 0.1]] * 3, "b": [[0, 0, 0]] * 3}, contacts=touch,
-               predicates={("on", "a", "b"): frozenset({2})})
+    f = _facts(
+        {"a": [[0, 0, 0.1]] * 3, "b": [[0, 0, 0]] * 3}, contacts=touch, predicates={("on", "a", "b"): frozenset({2})}
+    )
     assert f.holds("on", "a", "b") == {1, 2}
     assert f.false_states("on", "a", "b") == {0}
 
@@ -132,10 +143,12 @@ def test_a_sample_of_shipped_facts_matches_a_fresh_simulator(key, states):
         for name in fresh.entities:
             assert np.allclose(fresh.positions[name][row], shipped.positions[name][state], atol=1e-3), (name, state)
     chosen = frozenset(states)
-    assert {k: v & chosen for k, v in fresh.contacts.items() if v} == \
-        {k: v & chosen for k, v in shipped.contacts.items() if v & chosen}
-    assert {k: v for k, v in fresh.predicates.items() if v} == \
-        {k: v & chosen for k, v in shipped.predicates.items() if v & chosen}
+    assert {k: v & chosen for k, v in fresh.contacts.items() if v} == {
+        k: v & chosen for k, v in shipped.contacts.items() if v & chosen
+    }
+    assert {k: v for k, v in fresh.predicates.items() if v} == {
+        k: v & chosen for k, v in shipped.predicates.items() if v & chosen
+    }
     for name, entity in fresh.entities.items():
         if entity.radius is not None:
             assert entity.radius == pytest.approx(shipped.entities[name].radius, abs=1e-3)

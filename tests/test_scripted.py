@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import conflict_spec, reference_spec
 
 from conflictbench.core import LIBERO_SUITES
 from conflictbench.metrics import pair_metrics
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.suite_file import load_suite
-
-from conftest import conflict_spec, reference_spec
 
 pytestmark = pytest.mark.sim
 
@@ -39,8 +38,10 @@ def paired(plugins, tmp_path_factory):
     case = next(c for c in load_suite().cases if (c.suite, c.task_id) == PAIRED and c.family == "physical")
     specs = [reference_spec(suite, task_id), conflict_spec(case)]
     store = tmp_path_factory.mktemp("paired")
-    return {policy: dict(zip(("reference", "conflict"), _play(plugins, policy, specs, store)))
-            for policy in ("scripted", "oracle")}
+    return {
+        policy: dict(zip(("reference", "conflict"), _play(plugins, policy, specs, store)))
+        for policy in ("scripted", "oracle")
+    }
 
 
 def test_scripted_completes_a_base_task_of_every_libero_suite(plugins, tmp_path):

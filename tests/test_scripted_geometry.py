@@ -17,8 +17,10 @@ from conflictbench.policies.scripted.scene import Boxes, Scene, finger_frame, qu
 
 def test_rotvec_inverts_scipy_rotations_including_half_turns():
     rng = np.random.default_rng(0)
-    vectors = [rng.normal(size=3) for _ in range(20)] + [np.array([0.0, 0.0, math.pi]),
-                                                        np.array([math.pi, 0.0, 0.0]) * 0.9999999]
+    vectors = [rng.normal(size=3) for _ in range(20)] + [
+        np.array([0.0, 0.0, math.pi]),
+        np.array([math.pi, 0.0, 0.0]) * 0.9999999,
+    ]
     for v in vectors:
         v = v / np.linalg.norm(v) * min(np.linalg.norm(v), math.pi)
         got = rotvec(Rotation.from_rotvec(v).as_matrix())
@@ -88,21 +90,29 @@ def test_work_order_opens_first_places_next_closes_last():
 
 
 def test_the_expert_refuses_observations_without_privileged_state():
-    obs = Observation(step=0, instruction="x", eef_pos=np.zeros(3), eef_quat=np.array([0, 0, 0, 1.0]),
-                      gripper_qpos=np.zeros(2), state=np.zeros(8))
+    obs = Observation(
+        step=0,
+        instruction="x",
+        eef_pos=np.zeros(3),
+        eef_quat=np.array([0, 0, 0, 1.0]),
+        gripper_qpos=np.zeros(2),
+        state=np.zeros(8),
+    )
     with pytest.raises(ValueError, match="privileged"):
         Scene(obs)
 
 
 # A moka pot's collision boxes in its own frame, (n, 2, 3) as the simulator reports them: an
 # 8 cm body, a lid knob on top, and a handle on the +y side (measured on libero_10 task 2).
-MOKA_POT = np.array([
-    [[-0.025, -0.025, -0.066], [0.025, 0.025, 0.067]],   # body
-    [[-0.041, -0.041, -0.066], [0.041, 0.041, 0.067]],   # body, outer faces
-    [[-0.005, -0.007, 0.063], [0.005, 0.005, 0.086]],    # lid knob
-    [[-0.007, 0.060, 0.039], [0.007, 0.091, 0.068]],     # handle, top
-    [[-0.007, 0.054, 0.000], [0.007, 0.091, 0.056]],     # handle, grip
-])
+MOKA_POT = np.array(
+    [
+        [[-0.025, -0.025, -0.066], [0.025, 0.025, 0.067]],  # body
+        [[-0.041, -0.041, -0.066], [0.041, 0.041, 0.067]],  # body, outer faces
+        [[-0.005, -0.007, 0.063], [0.005, 0.005, 0.086]],  # lid knob
+        [[-0.007, 0.060, 0.039], [0.007, 0.091, 0.068]],  # handle, top
+        [[-0.007, 0.054, 0.000], [0.007, 0.091, 0.056]],  # handle, grip
+    ]
+)
 
 
 def test_clusters_group_touching_footprints_only():
@@ -129,23 +139,25 @@ def test_band_grasps_take_separate_parts_not_the_box_around_them():
 
 # The yellow-and-white mug of libero_10 task 9 in its own frame: a 10.3 cm cup (wall boxes around
 # (-0.018, 0), radius 0.053, plus its floor) and a 1.8 cm thin handle on the +x side (measured).
-MUG = np.array([
-    [[-0.071, -0.053, 0.016], [-0.050, 0.053, 0.103]],   # wall, -x
-    [[0.013, -0.053, 0.016], [0.034, 0.053, 0.103]],     # wall, +x
-    [[-0.071, -0.053, 0.016], [0.034, -0.032, 0.103]],   # wall, -y
-    [[-0.071, 0.032, 0.016], [0.034, 0.053, 0.103]],     # wall, +y
-    [[-0.059, -0.041, 0.000], [0.022, 0.041, 0.021]],    # floor
-    [[0.060, -0.009, 0.027], [0.068, 0.009, 0.085]],     # handle, outer bar
-    [[0.015, -0.009, 0.017], [0.065, 0.009, 0.035]],     # handle, lower bar
-    [[0.024, -0.009, 0.073], [0.068, 0.009, 0.086]],     # handle, upper bar
-])
+MUG = np.array(
+    [
+        [[-0.071, -0.053, 0.016], [-0.050, 0.053, 0.103]],  # wall, -x
+        [[0.013, -0.053, 0.016], [0.034, 0.053, 0.103]],  # wall, +x
+        [[-0.071, -0.053, 0.016], [0.034, -0.032, 0.103]],  # wall, -y
+        [[-0.071, 0.032, 0.016], [0.034, 0.053, 0.103]],  # wall, +y
+        [[-0.059, -0.041, 0.000], [0.022, 0.041, 0.021]],  # floor
+        [[0.060, -0.009, 0.027], [0.068, 0.009, 0.085]],  # handle, outer bar
+        [[0.015, -0.009, 0.017], [0.065, 0.009, 0.035]],  # handle, lower bar
+        [[0.024, -0.009, 0.073], [0.068, 0.009, 0.086]],  # handle, upper bar
+    ]
+)
 
 
 def test_handle_grasp_pinches_the_outer_bar_with_the_hand_above_the_rim():
     from conflictbench.policies.scripted.grasp import HAND_BOTTOM, _handle_candidates, handle_parts
 
     assert handle_parts(MUG).tolist() == [5, 6, 7]
-    (point, axis, kind, idx), = _handle_candidates(MUG)
+    ((point, axis, kind, idx),) = _handle_candidates(MUG)
     assert kind == "handle" and idx.tolist() == [5, 6, 7]
     assert np.allclose(point[:2], [0.064, 0.0])  # the outermost bar, not the cup
     assert np.allclose(np.abs(axis), [0.0, 1.0])  # across the handle's thin side
@@ -161,8 +173,13 @@ class _BoxScene:
         boxes = np.asarray(boxes, dtype=float)
         centers, halves = boxes.mean(axis=1), (boxes[:, 1] - boxes[:, 0]) / 2
         self._oven = Boxes(centers, np.repeat(np.eye(3)[None], len(boxes), axis=0), halves)
-        self._site = SiteInfo(pos=np.asarray(region_pos, dtype=float), xmat=np.eye(3), size=np.asarray(region_size),
-                              joints=(), parent="oven")
+        self._site = SiteInfo(
+            pos=np.asarray(region_pos, dtype=float),
+            xmat=np.eye(3),
+            size=np.asarray(region_size),
+            joints=(),
+            parent="oven",
+        )
 
     def site(self, name):
         return self._site

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from policy_server import PolicyServer, served_action
 
 from conflictbench import InfrastructureError, PolicyClient, ServerUnavailable
 from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, SIMULATOR_ERROR_PREFIX, EpisodeRecord, Observation
 from conflictbench.report.summary import pair_up
 from conflictbench.store import EpisodeStore
-from policy_server import PolicyServer, served_action
 
 PLUGIN_SOURCE = Path(__file__).parent / "plugins" / "conflictbench-served" / "conflictbench_served" / "__init__.py"
 
@@ -35,8 +35,15 @@ served = _plugin_module()
 
 def observation(step: int = 0, stream: int = 0, instruction: str = "put the bowl on the plate") -> Observation:
     state = np.array([0.1 * (stream + 1), 0.2, 1.0, 0.0, 0.0, 0.0, 0.04, -0.04])
-    return Observation(step=step, instruction=instruction, eef_pos=state[:3], eef_quat=np.array([0, 0, 0, 1.0]),
-                       gripper_qpos=state[6:], state=state, stream=stream)
+    return Observation(
+        step=step,
+        instruction=instruction,
+        eef_pos=state[:3],
+        eef_quat=np.array([0, 0, 0, 1.0]),
+        gripper_qpos=state[6:],
+        state=state,
+        stream=stream,
+    )
 
 
 def expected(obs: Observation) -> np.ndarray:
@@ -225,12 +232,25 @@ def test_a_bad_url_is_one_clear_line():
 
 # -- what happens to an episode the infrastructure ended -------------------------------------------
 
+
 def record(episode_id: str, case_id: str | None = None, error: str | None = None) -> EpisodeRecord:
-    return EpisodeRecord(policy="served-test", suite="libero_goal", task_id=1, init_state=0, prompt="p0",
-                         instruction="put the bowl on the plate", case_id=case_id,
-                         family="physical" if case_id else None, level="L1" if case_id else None,
-                         episode_id=episode_id, error=error, steps=3, eef_pos=np.zeros((4, 3)),
-                         actions=np.zeros((3, 7)), raw_actions=np.zeros((3, 7)))
+    return EpisodeRecord(
+        policy="served-test",
+        suite="libero_goal",
+        task_id=1,
+        init_state=0,
+        prompt="p0",
+        instruction="put the bowl on the plate",
+        case_id=case_id,
+        family="physical" if case_id else None,
+        level="L1" if case_id else None,
+        episode_id=episode_id,
+        error=error,
+        steps=3,
+        eef_pos=np.zeros((4, 3)),
+        actions=np.zeros((3, 7)),
+        raw_actions=np.zeros((3, 7)),
+    )
 
 
 def test_infrastructure_and_simulator_failures_are_left_out_policy_errors_are_not():

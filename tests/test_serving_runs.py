@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import conflict_spec, reference_spec
+from policy_server import PolicyServer, served_action
 
 import conflictbench
 from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, ConflictCase
@@ -25,8 +27,6 @@ from conflictbench.report import report_store
 from conflictbench.report.summary import pair_up
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.libero_tasks import base_task
-from conftest import conflict_spec, reference_spec
-from policy_server import PolicyServer, served_action
 
 pytestmark = pytest.mark.sim
 
@@ -58,8 +58,22 @@ def servers():
 def served_plugin_site(tmp_path_factory) -> Path:
     """The served test plugin, pip-installed (a real distribution with a real entry point) into a directory."""
     target = tmp_path_factory.mktemp("served-plugin-site")
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--no-compile", "--target", str(target), str(SERVED_PLUGIN)], check=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-compile",
+            "--target",
+            str(target),
+            str(SERVED_PLUGIN),
+        ],
+        check=True,
+    )
     return target
 
 
@@ -67,9 +81,15 @@ def _cases_file(tmp_path: Path) -> Path:
     from conflictbench.tasks.suite_file import case_line
 
     path = tmp_path / "cases.jsonl"
-    path.write_text("".join(case_line(ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language,
-                                                   text, family, level)) + "\n"
-                            for cid, task, family, level, text in CASES))
+    path.write_text(
+        "".join(
+            case_line(
+                ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language, text, family, level)
+            )
+            + "\n"
+            for cid, task, family, level, text in CASES
+        )
+    )
     return path
 
 
@@ -80,27 +100,51 @@ def _counts(stderr: str) -> dict[str, int]:
 
 
 def _cli(args, cwd: Path, site: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([str(Path(sys.executable).parent / "conflictbench"), *args], cwd=cwd,
-                          env={**os.environ, "PYTHONPATH": str(site)}, capture_output=True, text=True,
-                          timeout=600, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [str(Path(sys.executable).parent / "conflictbench"), *args],
+        cwd=cwd,
+        env={**os.environ, "PYTHONPATH": str(site)},
+        capture_output=True,
+        text=True,
+        timeout=600,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def test_no_server_stops_the_run_before_any_simulator_starts(tmp_path, served_plugin_site):
     with socket.socket() as sock:  # a port nobody listens on
         sock.bind(("127.0.0.1", 0))
         url = f"http://127.0.0.1:{sock.getsockname()[1]}/act"
-    out = _cli(["model=served-test", f"model.server={url}", "level=L1", f"suite.file={_cases_file(tmp_path)}",
-                "run.progress=false"], tmp_path, served_plugin_site)
+    out = _cli(
+        [
+            "model=served-test",
+            f"model.server={url}",
+            "level=L1",
+            f"suite.file={_cases_file(tmp_path)}",
+            "run.progress=false",
+        ],
+        tmp_path,
+        served_plugin_site,
+    )
     assert out.returncode == 3, out.stderr[-3000:]
     assert out.stderr.splitlines()[-1].startswith(f"conflictbench: error: the policy server at {url} cannot be reached")
     assert "Traceback" not in out.stderr and not (tmp_path / "results" / "episodes").exists()
 
 
 def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(
-        tmp_path, servers, served_plugin_site):
+    tmp_path, servers, served_plugin_site
+):
     server = servers("--die-after", "25")  # two workers: each has finished about one episode by then
-    args = ["model=served-test", f"model.server={server.url}", "level=L1", "run.init_states=1",
-            f"suite.file={_cases_file(tmp_path)}", "run.workers=2", "run.progress=false", "run.report=false"]
+    args = [
+        "model=served-test",
+        f"model.server={server.url}",
+        "level=L1",
+        "run.init_states=1",
+        f"suite.file={_cases_file(tmp_path)}",
+        "run.workers=2",
+        "run.progress=false",
+        "run.report=false",
+    ]
 
     def cli() -> subprocess.CompletedProcess:
         return _cli(args, tmp_path, served_plugin_site)
@@ -131,12 +175,21 @@ def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_re
 
 
 def test_an_episode_the_server_fails_is_stored_left_out_and_played_again(play, servers, tmp_path):
-    spec = importlib.util.spec_from_file_location("conflictbench_served", SERVED_PLUGIN / "conflictbench_served" / "__init__.py")
+    spec = importlib.util.spec_from_file_location(
+        "conflictbench_served", SERVED_PLUGIN / "conflictbench_served" / "__init__.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[module])
-    toaster = ConflictCase("s-grnd-1", "libero_goal", 1, base_task("libero_goal", 1).language,
-                           "put the bowl on the toaster", "grounding", "L1")
+    toaster = ConflictCase(
+        "s-grnd-1",
+        "libero_goal",
+        1,
+        base_task("libero_goal", 1).language,
+        "put the bowl on the toaster",
+        "grounding",
+        "L1",
+    )
     specs = [reference_spec("libero_goal", 1), conflict_spec(toaster)]
 
     failing = servers("--fail-instruction", "toaster")  # HTTP 500 for the conflict episode's requests

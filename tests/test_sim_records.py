@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import (
@@ -27,8 +28,6 @@ from conflictbench.store import EpisodeStore
 from conflictbench.store.schema import SCHEMA, records_to_table
 from conflictbench.tasks.libero_tasks import base_task
 
-from conftest import reference_spec
-
 
 def test_every_outcome_field_lands_in_a_store_column_of_the_same_name():
     outcome = {f.name for f in dataclasses.fields(EpisodeOutcome)}
@@ -38,8 +37,16 @@ def test_every_outcome_field_lands_in_a_store_column_of_the_same_name():
 
 def test_episodes_stored_before_the_sim_time_column_still_read(tmp_path):
     store = EpisodeStore(tmp_path)
-    record = EpisodeRecord(policy="noop", suite="libero_goal", task_id=0, init_state=0, prompt="p0",
-                           instruction="x", episode_id="old", wall_time_s=2.0)
+    record = EpisodeRecord(
+        policy="noop",
+        suite="libero_goal",
+        task_id=0,
+        init_state=0,
+        prompt="p0",
+        instruction="x",
+        episode_id="old",
+        wall_time_s=2.0,
+    )
     path = store.path_for("noop", "old")
     path.parent.mkdir(parents=True)
     pq.write_table(records_to_table([record]).drop_columns(["sim_time_s", "code_versions"]), path)
@@ -92,7 +99,9 @@ def test_privileged_geometry_is_typed_and_the_simulation_time_is_stored(tmp_path
     plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
     spec = plugins.policy("slow")
     store = EpisodeStore(tmp_path)
-    result = Runner(plugins, spec, spec.make_config(), store=store, progress=False).run([reference_spec("libero_goal", 3)])
+    result = Runner(plugins, spec, spec.make_config(), store=store, progress=False).run(
+        [reference_spec("libero_goal", 3)]
+    )
     assert result.played == 1 and result.errors == 0
     (record,) = store.records()
     # the worker's own measure leaves out the time spent waiting for the policy

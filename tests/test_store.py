@@ -17,10 +17,23 @@ from conflictbench.store import SCHEMA, EpisodeStore
 
 def record(eid: str, h: int = 4, k: int = 2, policy: str = "noop", seed: int = 0, **kw) -> EpisodeRecord:
     rng = np.random.default_rng(seed)
-    fields = dict(policy=policy, suite="libero_goal", task_id=3, init_state=1, prompt="p1", instruction="put it there",
-                  episode_id=eid, success=bool(seed % 2), steps=h, eef_pos=rng.normal(size=(h + 1, 3)),
-                  target_pos=rng.normal(size=(h + 1, k, 3)), target_names=tuple(f"obj_{i}" for i in range(k)),
-                  actions=rng.normal(size=(h, 7)), raw_actions=rng.normal(size=(h, 7)), mujoco_version="2.3.7")
+    fields = dict(
+        policy=policy,
+        suite="libero_goal",
+        task_id=3,
+        init_state=1,
+        prompt="p1",
+        instruction="put it there",
+        episode_id=eid,
+        success=bool(seed % 2),
+        steps=h,
+        eef_pos=rng.normal(size=(h + 1, 3)),
+        target_pos=rng.normal(size=(h + 1, k, 3)),
+        target_names=tuple(f"obj_{i}" for i in range(k)),
+        actions=rng.normal(size=(h, 7)),
+        raw_actions=rng.normal(size=(h, 7)),
+        mujoco_version="2.3.7",
+    )
     fields.update(kw)
     return EpisodeRecord(**fields)
 
@@ -36,8 +49,11 @@ def assert_same(a: EpisodeRecord, b: EpisodeRecord) -> None:
 
 def test_round_trip_keeps_every_column_bit_for_bit(tmp_path):
     store = EpisodeStore(tmp_path)
-    originals = [record("a", h=5, k=2, seed=1), record("b", h=0, k=1, seed=2, case_id="c1", family="spatial", level="L2"),
-                 record("c", h=3, k=0, seed=3, error="policy returned NaN")]
+    originals = [
+        record("a", h=5, k=2, seed=1),
+        record("b", h=0, k=1, seed=2, case_id="c1", family="spatial", level="L2"),
+        record("c", h=3, k=0, seed=3, error="policy returned NaN"),
+    ]
     for r in originals:
         store.write(r)
     back = {r.episode_id: r for r in store.records()}
@@ -122,7 +138,7 @@ def test_empty_store_reads_as_nothing(tmp_path):
 def test_schema_rejects_arrays_of_the_wrong_width(tmp_path, bad):
     wrong = record("a")
     setattr(wrong, bad, np.zeros((3, 5)))
-    with pytest.raises(Exception):
+    with pytest.raises(ValueError, match=f"column {bad}"):
         EpisodeStore(tmp_path).write(wrong)
 
 
@@ -130,12 +146,12 @@ def test_schema_rejects_arrays_of_the_wrong_width(tmp_path, bad):
 def test_an_episode_another_job_landed_after_the_snapshot_is_not_played_twice(tmp_path, plugins):
     """Job B's list of stored episodes is a snapshot; job A may write an episode and release its
     claim after it. B then wins the claim, and must still see the file and skip the episode."""
+    from conftest import reference_spec
+
     from conflictbench.core import PolicyTraits
     from conflictbench.policies import NoopPolicy
     from conflictbench.sim.pool import EpisodeQueue, Slot
     from conflictbench.sim.runner import Runner, RunResult, config_hash
-
-    from conftest import reference_spec
 
     store = EpisodeStore(tmp_path)
     runner = Runner(plugins, plugins.policy("noop"), None, store=store, progress=False)

@@ -32,7 +32,17 @@ def test_export_then_validate_the_export(tmp_path, capsys):
     assert code == 0
     rows = [json.loads(line) for line in path.read_text().splitlines()]
     assert len(rows) == len(load_suite().cases)
-    for key in ("case_id", "suite", "task_id", "base_instruction", "instruction", "family", "level", "witness", "status"):
+    for key in (
+        "case_id",
+        "suite",
+        "task_id",
+        "base_instruction",
+        "instruction",
+        "family",
+        "level",
+        "witness",
+        "status",
+    ):
         assert key in rows[0]
     small = tmp_path / "some.jsonl"
     small.write_text("\n".join(json.dumps(r) for r in rows[::25]) + "\n")
@@ -52,13 +62,19 @@ def test_validate_reports_each_failing_case_and_exits_1(tmp_path, capsys):
     assert rows[0]["case_id"] not in out and "1 invalid" in err
 
 
-@pytest.mark.parametrize("mutate,message", [
-    (lambda lines: lines[:2] + ["{not json"] + lines[3:], "line 3: not valid JSON"),
-    (lambda lines: [lines[0], lines[1].replace('"level": "L', '"level": "M')] + lines[2:], "line 2, field 'level'"),
-    (lambda lines: [lines[0], lines[1].replace('"task_id": ', '"task_id": "')] + lines[2:], "line 2"),
-    (lambda lines: [lines[0], lines[2], lines[1]] + lines[3:], "line 1, field 'sha256': checksum mismatch"),
-    (lambda lines: [lines[0].replace('"format_version": 1', '"format_version": 9')] + lines[1:], "field 'format_version'"),
-])
+@pytest.mark.parametrize(
+    "mutate,message",
+    [
+        (lambda lines: lines[:2] + ["{not json"] + lines[3:], "line 3: not valid JSON"),
+        (lambda lines: [lines[0], lines[1].replace('"level": "L', '"level": "M')] + lines[2:], "line 2, field 'level'"),
+        (lambda lines: [lines[0], lines[1].replace('"task_id": ', '"task_id": "')] + lines[2:], "line 2"),
+        (lambda lines: [lines[0], lines[2], lines[1]] + lines[3:], "line 1, field 'sha256': checksum mismatch"),
+        (
+            lambda lines: [lines[0].replace('"format_version": 1', '"format_version": 9')] + lines[1:],
+            "field 'format_version'",
+        ),
+    ],
+)
 def test_a_malformed_or_tampered_file_is_one_line_and_exit_2(tmp_path, capsys, mutate, message):
     lines = shipped_suite_path().read_text().splitlines()
     path = tmp_path / "suite.jsonl"
@@ -78,7 +94,9 @@ def test_stats_counts_every_cell(capsys):
     assert "base tasks used: 40" in out
     code, md, _ = run(capsys, "stats", "--markdown")
     table = [line for line in md.splitlines() if line.startswith("|")]
-    assert table[0].startswith("| family | level | libero_spatial") and len(table) == 2 + len(FAMILIES) * len(LEVELS) + 1
+    assert (
+        table[0].startswith("| family | level | libero_spatial") and len(table) == 2 + len(FAMILIES) * len(LEVELS) + 1
+    )
 
 
 def test_sample_is_stratified(tmp_path, capsys):
@@ -103,14 +121,17 @@ def test_export_with_prompts_gives_both_conditions(tmp_path, capsys):
     assert first[0]["prompt_text"] == first[0]["instruction"] != first[1]["prompt_text"]
 
 
-@pytest.mark.parametrize("argv,message", [
-    (["sample"], "the following arguments are required: --per-cell"),
-    (["sample", "--per-cell", "0"], "--per-cell must be at least 1"),
-    (["frobnicate"], "unknown suite command 'frobnicate'"),
-    ([], "name a command: validate, stats, sample, export, build"),
-    (["validate", "/no/such/file.jsonl"], "suite file not found"),
-    (["stats", "--colour"], "unrecognized arguments: --colour"),
-])
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["sample"], "the following arguments are required: --per-cell"),
+        (["sample", "--per-cell", "0"], "--per-cell must be at least 1"),
+        (["frobnicate"], "unknown suite command 'frobnicate'"),
+        ([], "name a command: validate, stats, sample, export, build"),
+        (["validate", "/no/such/file.jsonl"], "suite file not found"),
+        (["stats", "--colour"], "unrecognized arguments: --colour"),
+    ],
+)
 def test_usage_mistakes_exit_2(capsys, argv, message):
     code, out, err = run(capsys, *argv)
     assert code == 2 and message in err

@@ -43,10 +43,15 @@ def test_removed_and_accepted_and_revised(cases, ctx):
     a, b, c = cases[0], cases[1], next(x for x in cases if x.family == "grounding")
     ref = c.witness["referents"][0]["text"]
     new_text = f"please, {c.instruction}"
-    out = apply_reviews(cases, decisions(
-        {"case_id": a.case_id, "decision": "removed", "note": "ambiguous"},
-        {"case_id": b.case_id, "decision": "accepted", "note": "fine"},
-        {"case_id": c.case_id, "decision": "revised", "note": "politer", "instruction": new_text}), ctx)
+    out = apply_reviews(
+        cases,
+        decisions(
+            {"case_id": a.case_id, "decision": "removed", "note": "ambiguous"},
+            {"case_id": b.case_id, "decision": "accepted", "note": "fine"},
+            {"case_id": c.case_id, "decision": "revised", "note": "politer", "instruction": new_text},
+        ),
+        ctx,
+    )
     by_id = {x.case_id: x for x in out}
     assert by_id[a.case_id].status == "removed" and by_id[b.case_id].status == "accepted"
     assert by_id[c.case_id].status == "revised" and by_id[c.case_id].instruction == new_text and ref in new_text
@@ -57,18 +62,29 @@ def test_removed_and_accepted_and_revised(cases, ctx):
 def test_a_revision_that_breaks_its_witness_is_refused(cases, ctx):
     c = next(x for x in cases if x.family == "grounding")
     with pytest.raises(ReviewError, match="fails validation"):
-        apply_reviews(cases, decisions({"case_id": c.case_id, "decision": "revised", "note": "x",
-                                        "instruction": "put the bowl somewhere nice"}), ctx)
+        apply_reviews(
+            cases,
+            decisions(
+                {"case_id": c.case_id, "decision": "revised", "note": "x", "instruction": "put the bowl somewhere nice"}
+            ),
+            ctx,
+        )
 
 
 @pytest.mark.sim  # LIBERO's base tasks
 def test_a_revision_may_bring_its_own_witness(cases, ctx):
     c = next(x for x in cases if x.family == "grounding" and x.level == "L1")
     text = "put the bowl on the purple trampoline"
-    witness = {"type": "absent_referent", "steps": [text],
-               "referents": [{"step": 1, "role": "destination", "text": "the purple trampoline"}]}
-    out = apply_reviews(cases, decisions({"case_id": c.case_id, "decision": "revised", "note": "x",
-                                          "instruction": text, "witness": witness}), ctx)
+    witness = {
+        "type": "absent_referent",
+        "steps": [text],
+        "referents": [{"step": 1, "role": "destination", "text": "the purple trampoline"}],
+    }
+    out = apply_reviews(
+        cases,
+        decisions({"case_id": c.case_id, "decision": "revised", "note": "x", "instruction": text, "witness": witness}),
+        ctx,
+    )
     assert next(x for x in out if x.case_id == c.case_id).witness == witness
 
 
@@ -78,12 +94,15 @@ def test_a_stale_decision_stops_the_build(cases):
         apply_reviews(cases, decisions({"case_id": "goal08-gro-L1-00000000", "decision": "accepted", "note": ""}))
 
 
-@pytest.mark.parametrize("row,message", [
-    ({"case_id": "x", "decision": "maybe", "note": ""}, "field 'decision': 'maybe' is not one of"),
-    ({"case_id": "x", "decision": "revised", "note": ""}, "field 'instruction': a revised case needs"),
-    ({"decision": "accepted", "note": ""}, "field 'case_id': missing"),
-    ({"case_id": "x", "decision": "removed"}, "field 'note': missing"),
-])
+@pytest.mark.parametrize(
+    "row,message",
+    [
+        ({"case_id": "x", "decision": "maybe", "note": ""}, "field 'decision': 'maybe' is not one of"),
+        ({"case_id": "x", "decision": "revised", "note": ""}, "field 'instruction': a revised case needs"),
+        ({"decision": "accepted", "note": ""}, "field 'case_id': missing"),
+        ({"case_id": "x", "decision": "removed"}, "field 'note': missing"),
+    ],
+)
 def test_malformed_decisions_name_line_and_field(row, message):
     with pytest.raises(ReviewError, match=f"review.jsonl line 2, {message}"):
         decisions({"case_id": "y", "decision": "accepted", "note": ""}, row)

@@ -28,8 +28,14 @@ def ctx():
 
 
 def pick(suite, family, level=None, key=None, where=lambda c: True):
-    return next(c for c in suite.accepted() if c.family == family and (level is None or c.level == level)
-                and (key is None or (c.suite, c.task_id) == key) and where(c))
+    return next(
+        c
+        for c in suite.accepted()
+        if c.family == family
+        and (level is None or c.level == level)
+        and (key is None or (c.suite, c.task_id) == key)
+        and where(c)
+    )
 
 
 def rejected(case, ctx, needle):
@@ -80,7 +86,9 @@ def test_p0_and_p1_come_from_the_one_case(suite, plugins):
 # -- rules for every family -----------------------------------------------------------------------------
 def test_instruction_equal_to_the_base_is_invalid(suite, ctx):
     case = pick(suite, "grounding")
-    rejected(dataclasses.replace(case, instruction=case.base_instruction.upper() + "."), ctx, "equals the base instruction")
+    rejected(
+        dataclasses.replace(case, instruction=case.base_instruction.upper() + "."), ctx, "equals the base instruction"
+    )
 
 
 def test_wrong_base_instruction_or_task(suite, ctx):
@@ -124,22 +132,33 @@ def test_duplicate_instruction_for_one_base_task(suite, ctx):
 
 
 def test_init_states_outside_the_fixed_ones(suite, ctx):
-    rejected(dataclasses.replace(pick(suite, "spatial"), init_states=(50, 51)), ctx, "are not among the task's 50 states")
+    rejected(
+        dataclasses.replace(pick(suite, "spatial"), init_states=(50, 51)), ctx, "are not among the task's 50 states"
+    )
 
 
 # -- grounding ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("replacement,reason", [
-    ("the plate", "names something in the scene"),
-    ("the dish", "names something in the scene"),  # a synonym of the plate and the bowl
-    ("the dishware", "names something in the scene"),  # a category of them
-    ("the wine glass", "shares the word(s) wine"),
-])
+@pytest.mark.parametrize(
+    "replacement,reason",
+    [
+        ("the plate", "names something in the scene"),
+        ("the dish", "names something in the scene"),  # a synonym of the plate and the bowl
+        ("the dishware", "names something in the scene"),  # a category of them
+        ("the wine glass", "shares the word(s) wine"),
+    ],
+)
 def test_grounding_referent_must_be_truly_absent(suite, ctx, replacement, reason):
     case = pick(suite, "grounding", "L1", key=("libero_goal", 8))
     ref = case.witness["referents"][0]
-    planted = dataclasses.replace(case, instruction=case.instruction.replace(ref["text"], replacement),
-                                  witness={**case.witness, "steps": [s.replace(ref["text"], replacement) for s in case.witness["steps"]],
-                                           "referents": [{**ref, "text": replacement, "concept": ""}]})
+    planted = dataclasses.replace(
+        case,
+        instruction=case.instruction.replace(ref["text"], replacement),
+        witness={
+            **case.witness,
+            "steps": [s.replace(ref["text"], replacement) for s in case.witness["steps"]],
+            "referents": [{**ref, "text": replacement, "concept": ""}],
+        },
+    )
     rejected(planted, ctx, reason)
 
 
@@ -154,22 +173,37 @@ def _relation_case(suite, relation):
     case = pick(suite, "spatial", "L1", key=("libero_spatial", 0))
     text = "the black bowl between the plate and the ramekin"
     steps = [f"pick up {text} and place it on the plate"]
-    return dataclasses.replace(case, instruction=steps[0], init_states=None,
-                               witness={"type": "false_relation", "steps": steps, "relations": [{**relation, "text": text}]})
+    return dataclasses.replace(
+        case,
+        instruction=steps[0],
+        init_states=None,
+        witness={"type": "false_relation", "steps": steps, "relations": [{**relation, "text": text}]},
+    )
 
 
 def test_a_true_relation_is_rejected(suite, ctx):
-    relation = {"step": 1, "relation": "between",
-                "subject": {"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]},
-                "landmarks": [{"phrase": "plate", "entities": ["plate_1"]},
-                              {"phrase": "ramekin", "entities": ["glazed_rim_porcelain_ramekin_1"]}]}
+    relation = {
+        "step": 1,
+        "relation": "between",
+        "subject": {"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]},
+        "landmarks": [
+            {"phrase": "plate", "entities": ["plate_1"]},
+            {"phrase": "ramekin", "entities": ["glazed_rim_porcelain_ramekin_1"]},
+        ],
+    }
     rejected(_relation_case(suite, relation), ctx, "holds in initial state(s)")
 
 
 def test_a_relation_must_cover_every_entity_its_words_could_mean(suite, ctx):
-    relation = {"step": 1, "relation": "between", "subject": {"phrase": "black bowl", "entities": ["akita_black_bowl_2"]},
-                "landmarks": [{"phrase": "plate", "entities": ["plate_1"]},
-                              {"phrase": "ramekin", "entities": ["glazed_rim_porcelain_ramekin_1"]}]}
+    relation = {
+        "step": 1,
+        "relation": "between",
+        "subject": {"phrase": "black bowl", "entities": ["akita_black_bowl_2"]},
+        "landmarks": [
+            {"phrase": "plate", "entities": ["plate_1"]},
+            {"phrase": "ramekin", "entities": ["glazed_rim_porcelain_ramekin_1"]},
+        ],
+    }
     rejected(_relation_case(suite, relation), ctx, "could also mean akita_black_bowl_1")
 
 
@@ -178,7 +212,9 @@ def test_listed_states_must_all_make_the_relation_false(suite, ctx):
     facts = load_scene_facts()[(case.suite, case.task_id)]
     true_somewhere = sorted(facts.states() - frozenset(case.init_states))
     assert true_somewhere, "a case with listed states leaves some out"
-    rejected(dataclasses.replace(case, init_states=(*case.init_states, true_somewhere[0])), ctx, "holds in initial state")
+    rejected(
+        dataclasses.replace(case, init_states=(*case.init_states, true_somewhere[0])), ctx, "holds in initial state"
+    )
 
 
 def test_a_relation_must_be_said(suite, ctx):
@@ -189,15 +225,23 @@ def test_a_relation_must_be_said(suite, ctx):
 
 
 # -- physical -------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("violation,reason", [
-    ({"entity": "plate_1", "needs": "support", "text": "the plate"}, "does not plainly lack 'support'"),
-    ({"entity": "basket_1", "needs": "graspable", "text": "the basket"}, "is not in the scene"),
-    ({"entity": "flat_stove_1", "needs": "edible", "text": "the stove"}, "unknown affordance"),
-    ({"entity": "flat_stove_1", "needs": "graspable", "text": "the cabinet"}, "does not name flat_stove_1"),
-])
+@pytest.mark.parametrize(
+    "violation,reason",
+    [
+        ({"entity": "plate_1", "needs": "support", "text": "the plate"}, "does not plainly lack 'support'"),
+        ({"entity": "basket_1", "needs": "graspable", "text": "the basket"}, "is not in the scene"),
+        ({"entity": "flat_stove_1", "needs": "edible", "text": "the stove"}, "unknown affordance"),
+        ({"entity": "flat_stove_1", "needs": "graspable", "text": "the cabinet"}, "does not name flat_stove_1"),
+    ],
+)
 def test_physical_violation_must_hold_for_a_present_named_entity(suite, ctx, violation, reason):
-    case = pick(suite, "physical", "L1", key=("libero_goal", 8),
-                where=lambda c: all(v["needs"] != "fits_in" for v in c.witness["violations"]))
+    case = pick(
+        suite,
+        "physical",
+        "L1",
+        key=("libero_goal", 8),
+        where=lambda c: all(v["needs"] != "fits_in" for v in c.witness["violations"]),
+    )
     planted = with_witness(case, violations=[{"step": 1, **violation}])
     planted = dataclasses.replace(planted, instruction=planted.instruction + " near " + violation["text"])
     rejected(planted, ctx, reason)
@@ -205,7 +249,9 @@ def test_physical_violation_must_hold_for_a_present_named_entity(suite, ctx, vio
 
 def test_unclear_affordances_are_not_violations(suite, ctx):
     case = pick(suite, "physical", "L1", key=("libero_10", 5))
-    planted = with_witness(case, violations=[{"step": 1, "entity": "desk_caddy_1", "needs": "graspable", "text": "the caddy"}])
+    planted = with_witness(
+        case, violations=[{"step": 1, "entity": "desk_caddy_1", "needs": "graspable", "text": "the caddy"}]
+    )
     rejected(planted, ctx, "does not plainly lack 'graspable'")
 
 
@@ -214,8 +260,11 @@ def test_compatible_requirements_are_not_a_contradiction(suite, ctx):
     case = pick(suite, "instruction", "L1", key=("libero_goal", 8))
     goal = next(r for r in case.witness["requirements"] if r["literal"][0] == "goal")
     harmless = {"id": "r9", "step": 1, "text": "the cream cheese", "literal": ["keep", "untouched", "cream_cheese_1"]}
-    planted = dataclasses.replace(case, instruction=case.instruction + ", and leave the cream cheese alone",
-                                  witness={**case.witness, "requirements": [goal, harmless], "conflicts": [[goal["id"], "r9"]]})
+    planted = dataclasses.replace(
+        case,
+        instruction=case.instruction + ", and leave the cream cheese alone",
+        witness={**case.witness, "requirements": [goal, harmless], "conflicts": [[goal["id"], "r9"]]},
+    )
     rejected(planted, ctx, "do not contradict")
 
 
@@ -230,5 +279,8 @@ def test_the_interim_witness_shapes_are_findings_not_crashes(suite, ctx):
     case = pick(suite, "grounding", "L1")
     planted = with_witness(case, referents=["banana"])
     assert any(r.startswith("malformed witness") for r in validate_case(planted, ctx))
-    rejected(dataclasses.replace(case, witness={"type": "absent_referent", "referents": []}), ctx,
-             "witness field 'steps' must list")
+    rejected(
+        dataclasses.replace(case, witness={"type": "absent_referent", "referents": []}),
+        ctx,
+        "witness field 'steps' must list",
+    )

@@ -14,9 +14,20 @@ pytestmark = pytest.mark.sim
 
 def test_stop_mid_episode_ends_the_worker_without_a_reply_or_a_traceback(capfd):
     task = base_task("libero_spatial", 0)
-    job = EpisodeJob(episode_id="stop-test", suite=task.suite, task_id=task.task_id, bddl_path=task.bddl_path,
-                     init_state=0, seed=7, instruction=task.language, goal=task.goal, targets=task.targets,
-                     warmup_steps=2, max_steps=5, needs_privileged=False)
+    job = EpisodeJob(
+        episode_id="stop-test",
+        suite=task.suite,
+        task_id=task.task_id,
+        bddl_path=task.bddl_path,
+        init_state=0,
+        seed=7,
+        instruction=task.language,
+        goal=task.goal,
+        targets=task.targets,
+        warmup_steps=2,
+        max_steps=5,
+        needs_privileged=False,
+    )
     pool = WorkerPool(EnvSettings(needs_images=False), size=1)
     pool.start_all()
     slot = pool.slots[0]

@@ -51,6 +51,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except KeyboardInterrupt:
-        print("\nconflictbench: interrupted; every finished episode is stored, and the same command resumes the run",
-              file=sys.stderr)
+        print(
+            "\nconflictbench: interrupted; every finished episode is stored, and the same command resumes the run",
+            file=sys.stderr,
+        )
         return 130

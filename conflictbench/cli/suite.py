@@ -24,14 +24,18 @@ USAGE = """usage: conflictbench suite validate [FILE]          re-check every ca
 
 def command(argv: list[str], plugins: Plugins) -> int:
     if not argv:
-        raise UserError(f"conflictbench suite: name a command: {', '.join(SUBCOMMANDS)} (see: conflictbench suite --help)")
+        raise UserError(
+            f"conflictbench suite: name a command: {', '.join(SUBCOMMANDS)} (see: conflictbench suite --help)"
+        )
     if argv[0] in ("-h", "--help", "help"):
         print(USAGE, end="")
         return 0
     verb, rest = argv[0], list(argv[1:])
     if verb not in SUBCOMMANDS:
         raise UserError(f"unknown suite command {verb!r}; valid: {', '.join(SUBCOMMANDS)}")
-    return {"validate": _validate, "stats": _stats, "sample": _sample, "export": _export, "build": _build}[verb](rest, plugins)
+    return {"validate": _validate, "stats": _stats, "sample": _sample, "export": _export, "build": _build}[verb](
+        rest, plugins
+    )
 
 
 def _load(path: str | None, plugins: Plugins):
@@ -56,8 +60,11 @@ def _validate(argv: Sequence[str], plugins: Plugins) -> int:
     checked = sum(1 for c in suite.cases if c.status != "removed")
     bad = len({cid for cid, _ in failures})
     where = args.file or f"the shipped suite ({suite.name} {suite.version})"
-    print(f"{checked} cases checked in {time.perf_counter() - start:.1f} s: "
-          f"{'all valid' if not bad else f'{bad} invalid'} ({where})", file=sys.stderr)
+    print(
+        f"{checked} cases checked in {time.perf_counter() - start:.1f} s: "
+        f"{'all valid' if not bad else f'{bad} invalid'} ({where})",
+        file=sys.stderr,
+    )
     return 1 if failures else 0
 
 
@@ -108,24 +115,44 @@ def _sample(argv: Sequence[str], plugins: Plugins) -> int:
     lines = [json.dumps(review_template(c), ensure_ascii=False) for c in picked]
     if args.out:
         _write(Path(args.out), "\n".join(lines) + "\n")
-        print(f"wrote {len(lines)} cases to review to {args.out}; fill in decision (accepted/revised/removed) and note, "
-              "then append the lines to conflictbench/tasks/data/review.jsonl and rebuild", file=sys.stderr)
+        print(
+            f"wrote {len(lines)} cases to review to {args.out}; fill in decision (accepted/revised/removed) and note, "
+            "then append the lines to conflictbench/tasks/data/review.jsonl and rebuild",
+            file=sys.stderr,
+        )
     else:
         print("\n".join(lines))
     return 0
 
 
-EXPORT_KEYS = ("case_id", "suite", "task_id", "base_instruction", "instruction", "family", "level",
-               "factors", "premise", "witness", "status", "init_states")
+EXPORT_KEYS = (
+    "case_id",
+    "suite",
+    "task_id",
+    "base_instruction",
+    "instruction",
+    "family",
+    "level",
+    "factors",
+    "premise",
+    "witness",
+    "status",
+    "init_states",
+)
 
 
 def _export(argv: Sequence[str], plugins: Plugins) -> int:
     parser = Parser(prog="conflictbench suite export", description="Every case, one JSON object per line.")
     parser.add_argument("out", metavar="FILE.jsonl")
     parser.add_argument("--suite", help="suite file (default: the shipped suite)")
-    parser.add_argument("--prompts", action="store_true",
-                        help=f"one line per case and prompt condition ({', '.join(PROMPT_CONDITIONS)}), with the prompt text")
-    parser.add_argument("--policy", default="", help="policy whose prompt format to use with --prompts (default: the core's)")
+    parser.add_argument(
+        "--prompts",
+        action="store_true",
+        help=f"one line per case and prompt condition ({', '.join(PROMPT_CONDITIONS)}), with the prompt text",
+    )
+    parser.add_argument(
+        "--policy", default="", help="policy whose prompt format to use with --prompts (default: the core's)"
+    )
     args = parser.parse_args(argv)
     suite = _load(args.suite, plugins)
     lines = []
@@ -136,7 +163,9 @@ def _export(argv: Sequence[str], plugins: Plugins) -> int:
             continue
         for condition in PROMPT_CONDITIONS:
             prompt = plugins.format_prompt(case.instruction, condition, args.policy)
-            lines.append(json.dumps({**row, "prompt": condition, "prompt_text": prompt}, sort_keys=True, ensure_ascii=False))
+            lines.append(
+                json.dumps({**row, "prompt": condition, "prompt_text": prompt}, sort_keys=True, ensure_ascii=False)
+            )
     _write(Path(args.out), "\n".join(lines) + ("\n" if lines else ""))
     print(f"wrote {len(lines)} lines to {args.out}", file=sys.stderr)
     return 0
@@ -146,11 +175,19 @@ def _build(argv: Sequence[str], plugins: Plugins) -> int:
     parser = Parser(prog="conflictbench suite build", description="Generate the suite from the base tasks.")
     parser.add_argument("--seed", type=int, default=None, help="generation seed (default: 0, the shipped suite's)")
     parser.add_argument("--out", help="where to write (default: the shipped suite file)")
-    parser.add_argument("--facts", action="store_true",
-                        help="first re-derive the scene facts from the simulator (minutes; needs LIBERO)")
-    parser.add_argument("--reviews", help="review decisions file (default: the shipped one, which applies to seed 0 only)")
-    parser.add_argument("--check", action="store_true",
-                        help="write nothing; exit 1 if the build differs from the file (determinism check)")
+    parser.add_argument(
+        "--facts",
+        action="store_true",
+        help="first re-derive the scene facts from the simulator (minutes; needs LIBERO)",
+    )
+    parser.add_argument(
+        "--reviews", help="review decisions file (default: the shipped one, which applies to seed 0 only)"
+    )
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="write nothing; exit 1 if the build differs from the file (determinism check)",
+    )
     args = parser.parse_args(argv)
     from conflictbench.tasks.build import DEFAULT_SEED, build_suite_text
     from conflictbench.tasks.libero_tasks import all_base_tasks
@@ -167,8 +204,10 @@ def _build(argv: Sequence[str], plugins: Plugins) -> int:
     text = build_suite_text(seed=seed, plugins=plugins, reviews_path=args.reviews, progress=progress)
     if args.check:
         same = target.exists() and target.read_text(encoding="utf-8") == text
-        print(f"{target}: {'identical to a fresh build' if same else 'differs from a fresh build'} (seed {seed})",
-              file=sys.stderr)
+        print(
+            f"{target}: {'identical to a fresh build' if same else 'differs from a fresh build'} (seed {seed})",
+            file=sys.stderr,
+        )
         return 0 if same else 1
     _write(target, text)
     print(f"wrote {text.count(chr(10)) - 1} cases to {target} (seed {seed})", file=sys.stderr)

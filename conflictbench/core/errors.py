@@ -62,5 +62,7 @@ class ServerUnavailable(ConflictbenchError):
 
     def __str__(self) -> str:
         why = f" ({self.reason})" if self.reason else ""
-        return (f"the policy server at {self.url} cannot be reached{why}; check that it is running and "
-                f"that the URL is right, then run the same command again to resume")
+        return (
+            f"the policy server at {self.url} cannot be reached{why}; check that it is running and "
+            f"that the URL is right, then run the same command again to resume"
+        )

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable, Generic, Mapping, Protocol, Sequence, TypeVar, runtime_checkable
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -83,7 +84,9 @@ def as_action_chunk(raw: Any) -> np.ndarray:
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != ACTION_DIM or arr.shape[0] == 0:
-        raise PolicyError(f"policy returned shape {np.shape(raw)}, expected ({ACTION_DIM},) or (k, {ACTION_DIM}) with k >= 1")
+        raise PolicyError(
+            f"policy returned shape {np.shape(raw)}, expected ({ACTION_DIM},) or (k, {ACTION_DIM}) with k >= 1"
+        )
     if not np.all(np.isfinite(arr)):
         raise PolicyError("policy returned a non-finite action (NaN or inf)")
     return arr

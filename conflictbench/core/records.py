@@ -6,8 +6,9 @@ Only numpy is needed here: these are the types a plugin sees. Arrays follow LIBE
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from .errors import PluginError, UserError
 from .records import FAMILIES, LEVELS
@@ -111,9 +112,16 @@ class ConflictOperatorSpec:
 
 
 # -- building specs from register(...) calls: each checks its arguments -------------------------
-def policy_spec(where: str, src: PluginSource, name: str, load: Callable[[Any], Any],
-                config: type | None = None, *, format_prompt: PromptFormatter | None = None,
-                postprocess: ActionPostprocessor | None = None) -> PolicySpec:
+def policy_spec(
+    where: str,
+    src: PluginSource,
+    name: str,
+    load: Callable[[Any], Any],
+    config: type | None = None,
+    *,
+    format_prompt: PromptFormatter | None = None,
+    postprocess: ActionPostprocessor | None = None,
+) -> PolicySpec:
     if not callable(load):
         raise PluginError(f"{where}: load must be callable")
     if config is not None and not (isinstance(config, type) and dataclasses.is_dataclass(config)):
@@ -124,10 +132,18 @@ def policy_spec(where: str, src: PluginSource, name: str, load: Callable[[Any], 
     return PolicySpec(name, load, config, src.distribution, src.version, format_prompt, postprocess)
 
 
-def metric_spec(where: str, src: PluginSource, name: str, compute: Callable[[Any], float | None] | None = None,
-                description: str = "", *, label: str | None = None, unit: str = "",
-                higher_is_better: bool | None = None,
-                compute_many: Callable[..., Sequence[float | None]] | None = None) -> MetricSpec:
+def metric_spec(
+    where: str,
+    src: PluginSource,
+    name: str,
+    compute: Callable[[Any], float | None] | None = None,
+    description: str = "",
+    *,
+    label: str | None = None,
+    unit: str = "",
+    higher_is_better: bool | None = None,
+    compute_many: Callable[..., Sequence[float | None]] | None = None,
+) -> MetricSpec:
     if compute is None and compute_many is None:
         raise PluginError(f"{where}: give compute(pair) or compute_many(references, conflicts)")
     if (compute is not None and not callable(compute)) or (compute_many is not None and not callable(compute_many)):
@@ -136,13 +152,22 @@ def metric_spec(where: str, src: PluginSource, name: str, compute: Callable[[Any
         raise PluginError(f"{where}: higher_is_better must be True, False or None")
     if not isinstance(unit, str) or (label is not None and not isinstance(label, str)):
         raise PluginError(f"{where}: label and unit must be strings")
-    return MetricSpec(name, compute, description, src.distribution, src.version, label or name, unit,
-                      higher_is_better, compute_many)
+    return MetricSpec(
+        name, compute, description, src.distribution, src.version, label or name, unit, higher_is_better, compute_many
+    )
 
 
-def operator_spec(where: str, src: PluginSource, name: str, family: str, generate: Callable[..., Any],
-                  levels: Sequence[str] = LEVELS, witness_type: str | None = None,
-                  check: Callable[..., Any] | None = None, description: str = "") -> ConflictOperatorSpec:
+def operator_spec(
+    where: str,
+    src: PluginSource,
+    name: str,
+    family: str,
+    generate: Callable[..., Any],
+    levels: Sequence[str] = LEVELS,
+    witness_type: str | None = None,
+    check: Callable[..., Any] | None = None,
+    description: str = "",
+) -> ConflictOperatorSpec:
     if not callable(generate) or (check is not None and not callable(check)):
         raise PluginError(f"{where}: generate and check must be callable")
     if not isinstance(family, str) or not _NAME.match(family):
@@ -151,8 +176,9 @@ def operator_spec(where: str, src: PluginSource, name: str, family: str, generat
         raise PluginError(f"{where}: the new family {family!r} needs a witness_type and a check")
     if not levels or any(level not in LEVELS for level in levels):
         raise PluginError(f"{where}: levels must be among {', '.join(LEVELS)}, got {list(levels)}")
-    return ConflictOperatorSpec(name, family, generate, tuple(levels), witness_type, check, description,
-                                src.distribution, src.version)
+    return ConflictOperatorSpec(
+        name, family, generate, tuple(levels), witness_type, check, description, src.distribution, src.version
+    )
 
 
 def check_name(kind: str, name: Any, plugin_name: str) -> None:

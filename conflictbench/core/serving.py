@@ -60,9 +60,10 @@ import threading
 import time
 import urllib.parse
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -91,7 +92,7 @@ class Transport(ABC):
     def exchange(self, request: Any, timeout: float) -> Any:
         """Send one request on the open connection and return the server's reply."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (optional to override: a transport may hold nothing to close)
         """Close the connection; must not raise, also when it was never opened."""
 
 
@@ -134,13 +135,16 @@ class HttpJsonTransport(Transport):
         except http.client.HTTPException as exc:  # a cut or garbled reply: this connection is done
             raise ConnectionError(f"{type(exc).__name__}: {exc}") from exc
         if response.status >= 400:
-            raise InfrastructureError(f"{self.url} answered HTTP {response.status} {response.reason}: "
-                                      f"{_one_line(data.decode(errors='replace'))}")
+            raise InfrastructureError(
+                f"{self.url} answered HTTP {response.status} {response.reason}: "
+                f"{_one_line(data.decode(errors='replace'))}"
+            )
         try:
             reply = json.loads(data)
         except ValueError:
-            raise InfrastructureError(f"{self.url} answered something that is not JSON: "
-                                      f"{_one_line(data.decode(errors='replace'))}") from None
+            raise InfrastructureError(
+                f"{self.url} answered something that is not JSON: {_one_line(data.decode(errors='replace'))}"
+            ) from None
         if isinstance(reply, dict) and list(reply) == ["error"]:
             raise InfrastructureError(f"{self.url} answered an error: {_one_line(str(reply['error']))}")
         return reply
@@ -160,8 +164,15 @@ class ServingConfig:
     the same run. Name the model itself (its checkpoint) in a setting of the plugin's own.
     """
 
-    identity_exempt: ClassVar[tuple[str, ...]] = ("server", "connect_timeout_s", "request_timeout_s",
-                                                  "connect_retries", "backoff_s", "max_backoff_s", "resends")
+    identity_exempt: ClassVar[tuple[str, ...]] = (
+        "server",
+        "connect_timeout_s",
+        "request_timeout_s",
+        "connect_retries",
+        "backoff_s",
+        "max_backoff_s",
+        "resends",
+    )
 
     server: str = "http://127.0.0.1:8000/act"
     """Where the policy server listens."""
@@ -181,9 +192,18 @@ class ServingConfig:
 class PolicyClient:
     """Requests to one policy server: a connection per stream, retries, reconnects, failure classes."""
 
-    def __init__(self, url: str, transport: Callable[[str], Transport] = HttpJsonTransport, *,
-                 connect_timeout_s: float = 10.0, request_timeout_s: float = 120.0, connect_retries: int = 5,
-                 backoff_s: float = 0.5, max_backoff_s: float = 8.0, resends: int = 2):
+    def __init__(
+        self,
+        url: str,
+        transport: Callable[[str], Transport] = HttpJsonTransport,
+        *,
+        connect_timeout_s: float = 10.0,
+        request_timeout_s: float = 120.0,
+        connect_retries: int = 5,
+        backoff_s: float = 0.5,
+        max_backoff_s: float = 8.0,
+        resends: int = 2,
+    ):
         if connect_retries < 0 or resends < 0:
             raise UserError("connect_retries and resends must be >= 0")
         self.url, self._make_transport = url, transport
@@ -197,13 +217,20 @@ class PolicyClient:
 
     @classmethod
     def from_config(cls, cfg: ServingConfig, transport: Callable[[str], Transport] = HttpJsonTransport) -> PolicyClient:
-        return cls(cfg.server, transport, connect_timeout_s=cfg.connect_timeout_s,
-                   request_timeout_s=cfg.request_timeout_s, connect_retries=cfg.connect_retries,
-                   backoff_s=cfg.backoff_s, max_backoff_s=cfg.max_backoff_s, resends=cfg.resends)
+        return cls(
+            cfg.server,
+            transport,
+            connect_timeout_s=cfg.connect_timeout_s,
+            request_timeout_s=cfg.request_timeout_s,
+            connect_retries=cfg.connect_retries,
+            backoff_s=cfg.backoff_s,
+            max_backoff_s=cfg.max_backoff_s,
+            resends=cfg.resends,
+        )
 
     def backoff_delays(self) -> list[float]:
         """The waits between connection attempts."""
-        return [min(self.backoff_s * 2 ** i, self.max_backoff_s) for i in range(self.connect_retries)]
+        return [min(self.backoff_s * 2**i, self.max_backoff_s) for i in range(self.connect_retries)]
 
     def _stream(self, stream: int) -> _Stream:
         with self._lock:
@@ -275,8 +302,9 @@ class _Stream:
                 reason = _describe(exc, client.connect_timeout_s)
                 if attempt < len(delays):
                     time.sleep(delays[attempt])
-        raise ServerUnavailable(client.url, f"{reason}; {len(delays) + 1} attempt(s) over "
-                                            f"{time.monotonic() - started:.1f} s")
+        raise ServerUnavailable(
+            client.url, f"{reason}; {len(delays) + 1} attempt(s) over {time.monotonic() - started:.1f} s"
+        )
 
     def _drop(self) -> None:
         self.transport.close()
@@ -291,12 +319,16 @@ class _Stream:
                     return self.transport.exchange(request, client.request_timeout_s)
                 except TimeoutError:
                     self._drop()  # the server may still be working on it: never resend a slow request
-                    raise InfrastructureError(f"no reply from {client.url} within {client.request_timeout_s:g} s") from None
+                    raise InfrastructureError(
+                        f"no reply from {client.url} within {client.request_timeout_s:g} s"
+                    ) from None
                 except OSError as exc:
                     self._drop()  # lost mid-request: reconnect (or stop the run) and send it again
                     reason = _describe(exc, client.request_timeout_s)
-        raise InfrastructureError(f"the connection to {client.url} broke {client.resends + 1} times on one request "
-                                  f"(last: {reason}); did the server run out of memory or crash on it?")
+        raise InfrastructureError(
+            f"the connection to {client.url} broke {client.resends + 1} times on one request "
+            f"(last: {reason}); did the server run out of memory or crash on it?"
+        )
 
 
 class ServedPolicy:
@@ -348,8 +380,9 @@ class ServedPolicy:
         except (InfrastructureError, PolicyError):
             raise
         except Exception as exc:  # the reply is not what this client expects: not the model's behaviour
-            raise InfrastructureError(f"could not read the reply of {self.client.url}: "
-                                      f"{type(exc).__name__}: {_one_line(str(exc))}") from exc
+            raise InfrastructureError(
+                f"could not read the reply of {self.client.url}: {type(exc).__name__}: {_one_line(str(exc))}"
+            ) from exc
 
     def close(self) -> None:
         self.client.close()

@@ -23,7 +23,29 @@ def conflictbench_register_metrics(register):
     register_builtins(register)
 
 
-__all__ = ["BUILTIN_METRICS", "EARLY_STEPS", "EPS", "GROUPINGS", "Rate", "SIGMA", "aggregate", "delta_sr", "dtw",
-           "evaluate_pairs", "failure_rate", "make_pairs", "metric_specs", "pair_metrics", "pcsr", "prompt_couples",
-           "prompt_differences", "qualified", "qualified_failure_mask", "qualified_failures", "reference_key", "rgsr",
-           "with_model"]
+__all__ = [
+    "BUILTIN_METRICS",
+    "DESCRIPTIONS",
+    "EARLY_STEPS",
+    "EPS",
+    "GROUPINGS",
+    "Rate",
+    "SIGMA",
+    "aggregate",
+    "delta_sr",
+    "dtw",
+    "evaluate_pairs",
+    "failure_rate",
+    "make_pairs",
+    "metric_specs",
+    "pair_metrics",
+    "pcsr",
+    "prompt_couples",
+    "prompt_differences",
+    "qualified",
+    "qualified_failure_mask",
+    "qualified_failures",
+    "reference_key",
+    "rgsr",
+    "with_model",
+]

@@ -10,7 +10,7 @@ over the pairs where it is defined (``m``, ``m_n``) and over the qualified failu
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
@@ -41,8 +41,11 @@ def with_model(frame: pd.DataFrame) -> pd.DataFrame:
         return out
     hashes = frame.groupby("policy")["config_hash"].nunique(dropna=False)
     several = frame["policy"].map(hashes) > 1
-    out["model"] = np.where(several, frame["policy"].astype(str) + "[" + frame["config_hash"].astype(str).str[:6] + "]",
-                            frame["policy"].astype(str))
+    out["model"] = np.where(
+        several,
+        frame["policy"].astype(str) + "[" + frame["config_hash"].astype(str).str[:6] + "]",
+        frame["policy"].astype(str),
+    )
     return out
 
 
@@ -92,15 +95,28 @@ def aggregate(frame: pd.DataFrame, by: Sequence[str], metrics: Sequence[str]) ->
         work[m] = frame[m].astype(np.float64)
         work[f"{m}_qf"] = work[m].where(qf)
     gb = _grouped(work, by)
-    parts = {"pairs": gb.size(), "PCSR_k": gb["_ref"].sum(), "RGSR_k": gb["_con"].sum(),
-             "FR_k": gb["_qf"].sum(), "FR_n": gb["_ref"].sum()}
+    parts = {
+        "pairs": gb.size(),
+        "PCSR_k": gb["_ref"].sum(),
+        "RGSR_k": gb["_con"].sum(),
+        "FR_k": gb["_qf"].sum(),
+        "FR_n": gb["_ref"].sum(),
+    }
     for m in metrics:
         parts[m] = gb[m].mean()
         parts[f"{m}_n"] = gb[m].count()
         parts[f"{m}_qf"] = gb[f"{m}_qf"].mean()
         parts[f"{m}_qf_n"] = gb[f"{m}_qf"].count()
     out = _with_keys(parts, by)
-    for c in ("pairs", "PCSR_k", "RGSR_k", "FR_k", "FR_n", *(f"{m}_n" for m in metrics), *(f"{m}_qf_n" for m in metrics)):
+    for c in (
+        "pairs",
+        "PCSR_k",
+        "RGSR_k",
+        "FR_k",
+        "FR_n",
+        *(f"{m}_n" for m in metrics),
+        *(f"{m}_qf_n" for m in metrics),
+    ):
         out[c] = out[c].astype(np.int64)
     out["PCSR"] = out["PCSR_k"] / out["pairs"]
     out["RGSR"] = out["RGSR_k"] / out["pairs"]
@@ -120,8 +136,13 @@ def prompt_couples(frame: pd.DataFrame, metrics: Sequence[str]) -> pd.DataFrame:
     measures = ["PCSR", "RGSR", *metrics]
     columns = [*PROMPT_PAIR_KEYS, "model", "family", "level"]
     columns += [f"{x}_{s}" for x in measures for s in ("p0", "p1", "diff")]
-    values = frame.assign(PCSR=frame["reference_success"].astype(np.float64),
-                          RGSR=frame["conflict_success"].astype(np.float64)) if len(frame) else frame
+    values = (
+        frame.assign(
+            PCSR=frame["reference_success"].astype(np.float64), RGSR=frame["conflict_success"].astype(np.float64)
+        )
+        if len(frame)
+        else frame
+    )
     p0 = values[values["prompt"] == "p0"] if len(frame) else frame
     p1 = values[values["prompt"] == "p1"] if len(frame) else frame
     if p0.empty or p1.empty:

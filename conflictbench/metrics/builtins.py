@@ -8,24 +8,36 @@ the compiled kernels per chunk (:func:`~conflictbench.metrics.process.builtin_co
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from .plain import EARLY_STEPS, SIGMA
 from .process import BUILTIN_METRICS, builtin_compute_many
 
 #: name -> (label, higher_is_better, description), in the paper's column order
 BUILTINS = {
-    "tar": ("TAR", False,
-            "Target Approach Ratio: how far the conflict rollout still closed in on the original targets, "
-            "relative to the reference (A-/A+, clipped to [0,1]); lower = stopped pursuing the invalid goal"),
-    "early20_ts": ("Early20 TS", False,
-                   f"TS over the initial position and the first min({EARLY_STEPS}, H) steps of each rollout"),
-    "ts": ("TS", False,
-           f"Trajectory Similarity: exp(-DTW/(sigma*L)) of the end-effector paths, sigma={SIGMA} m; "
-           "lower = the conflict rollout left the reference path"),
-    "ams": ("AMS", True,
-            "Action Magnitude Suppression: 1 - I(tau-)/I(tau+) over the first six action dims, scaled by the "
-            "reference's RMS per dim; higher = moved less than in the reference"),
+    "tar": (
+        "TAR",
+        False,
+        "Target Approach Ratio: how far the conflict rollout still closed in on the original targets, "
+        "relative to the reference (A-/A+, clipped to [0,1]); lower = stopped pursuing the invalid goal",
+    ),
+    "early20_ts": (
+        "Early20 TS",
+        False,
+        f"TS over the initial position and the first min({EARLY_STEPS}, H) steps of each rollout",
+    ),
+    "ts": (
+        "TS",
+        False,
+        f"Trajectory Similarity: exp(-DTW/(sigma*L)) of the end-effector paths, sigma={SIGMA} m; "
+        "lower = the conflict rollout left the reference path",
+    ),
+    "ams": (
+        "AMS",
+        True,
+        "Action Magnitude Suppression: 1 - I(tau-)/I(tau+) over the first six action dims, scaled by the "
+        "reference's RMS per dim; higher = moved less than in the reference",
+    ),
 }
 assert tuple(BUILTINS) == BUILTIN_METRICS
 DESCRIPTIONS = {name: description for name, (_, _, description) in BUILTINS.items()}
@@ -33,5 +45,11 @@ DESCRIPTIONS = {name: description for name, (_, _, description) in BUILTINS.item
 
 def register_builtins(register: Callable[..., None]) -> None:
     for name, (label, higher_is_better, description) in BUILTINS.items():
-        register(name, description=description, label=label, unit="%", higher_is_better=higher_is_better,
-                 compute_many=builtin_compute_many(name))
+        register(
+            name,
+            description=description,
+            label=label,
+            unit="%",
+            higher_is_better=higher_is_better,
+            compute_many=builtin_compute_many(name),
+        )

@@ -73,9 +73,9 @@ if numba is not None:
                 dy = ay[i] - byr[t]
                 dz = az[i] - bzr[t]
                 c = np.sqrt(dx * dx + dy * dy + dz * dz)
-                up = d1[i]          # (i-1, j)
+                up = d1[i]  # (i-1, j)
                 left = d1[i + one]  # (i, j-1)
-                diag = d2[i]        # (i-1, j-1)
+                diag = d2[i]  # (i-1, j-1)
                 lup = l1[i]
                 lleft = l1[i + one]
                 ldiag = l2[i]
@@ -125,7 +125,7 @@ if numba is not None:
             acc[s] = INF
             acc[s + hi - lo + 2] = INF
             lo1 = max(0, k - m)
-            base_up = _U(start[k - 1] + lo - lo1)        # (i-1, j) at base_up + q, (i, j-1) one further
+            base_up = _U(start[k - 1] + lo - lo1)  # (i-1, j) at base_up + q, (i, j-1) one further
             base_diag = _U(start[k - 2] + lo - max(0, k - m - 1)) if k >= 2 else _U(lo)
             base_out = _U(s + 1)
             ulo = _U(lo)
@@ -202,5 +202,9 @@ if numba is not None:
 
 def workspace(max_cells: int, max_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Buffers for ``dtw_matrix`` up to n*m = max_cells and n+m = max_points."""
-    return (np.empty(max_cells + 2 * max_points + 2), np.empty(max_points, dtype=np.int64),
-            np.zeros(max_cells, dtype=np.int32), np.empty((2, max_cells), dtype=np.int32))
+    return (
+        np.empty(max_cells + 2 * max_points + 2),
+        np.empty(max_points, dtype=np.int64),
+        np.zeros(max_cells, dtype=np.int32),
+        np.empty((2, max_cells), dtype=np.int32),
+    )

@@ -106,8 +106,19 @@ if numba is not None:
             r0, rn = eoff[r], eoff[r + 1] - eoff[r]
             c0, cn = eoff[c], eoff[c + 1] - eoff[c]
             ts[p] = _ts(eef, c0, cn, r0, rn, sigma, acc[w], start[w], seen[w], queue[w], 2 * p + 1)
-            early[p] = _ts(eef, c0, min(cn, early_points), r0, min(rn, early_points), sigma,
-                           acc[w], start[w], seen[w], queue[w], 2 * p + 2)
+            early[p] = _ts(
+                eef,
+                c0,
+                min(cn, early_points),
+                r0,
+                min(rn, early_points),
+                sigma,
+                acc[w],
+                start[w],
+                seen[w],
+                queue[w],
+                2 * p + 2,
+            )
             ams[p] = _ams(act, aoff[r], aoff[r + 1], aoff[c], aoff[c + 1], eps)
         return ts, early, ams
 

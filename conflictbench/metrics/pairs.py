@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 from conflictbench.core import EpisodeRecord, Pair
 
 
 def reference_key(record: EpisodeRecord) -> tuple:
     """Same policy (and settings), base task, initial state, prompt condition and seed."""
-    return (record.policy, record.config_hash, record.suite, record.task_id, record.init_state,
-            record.prompt, record.seed)
+    return (
+        record.policy,
+        record.config_hash,
+        record.suite,
+        record.task_id,
+        record.init_state,
+        record.prompt,
+        record.seed,
+    )
 
 
 def make_pairs(records: Iterable[EpisodeRecord]) -> tuple[list[Pair], list[EpisodeRecord]]:

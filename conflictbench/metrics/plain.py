@@ -103,7 +103,7 @@ def ams(reference: EpisodeRecord, conflict: EpisodeRecord) -> float | None:
     con = np.asarray(conflict.actions, dtype=np.float64).reshape(-1, np.shape(conflict.actions)[-1])[:, :6]
     if len(ref) == 0 or len(con) == 0:
         return None
-    gamma = np.sqrt(np.maximum(np.mean(ref ** 2, axis=0), EPS))
+    gamma = np.sqrt(np.maximum(np.mean(ref**2, axis=0), EPS))
     i_ref = float(np.mean(np.linalg.norm(ref / gamma, axis=1)))
     i_con = float(np.mean(np.linalg.norm(con / gamma, axis=1)))
     if not (math.isfinite(i_ref) and math.isfinite(i_con)) or i_ref <= EPS:
@@ -112,5 +112,9 @@ def ams(reference: EpisodeRecord, conflict: EpisodeRecord) -> float | None:
 
 
 def pair_metrics(reference: EpisodeRecord, conflict: EpisodeRecord) -> dict[str, float | None]:
-    return {"tar": tar(reference, conflict), "ts": ts(reference, conflict),
-            "early20_ts": early20_ts(reference, conflict), "ams": ams(reference, conflict)}
+    return {
+        "tar": tar(reference, conflict),
+        "ts": ts(reference, conflict),
+        "early20_ts": early20_ts(reference, conflict),
+        "ams": ams(reference, conflict),
+    }

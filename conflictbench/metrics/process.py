@@ -16,8 +16,9 @@ import math
 import threading
 import warnings
 import weakref
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from itertools import islice
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -31,8 +32,18 @@ from .plain import EARLY_STEPS, EPS, SIGMA
 
 BUILTIN_METRICS = ("tar", "early20_ts", "ts", "ams")  # the paper's column order
 #: Identifies each pair in :func:`evaluate_pairs`'s frame (taken from the conflict episode).
-KEY_COLUMNS = ("policy", "config_hash", "suite", "task_id", "init_state", "prompt", "seed", "case_id",
-               "family", "level")
+KEY_COLUMNS = (
+    "policy",
+    "config_hash",
+    "suite",
+    "task_id",
+    "init_state",
+    "prompt",
+    "seed",
+    "case_id",
+    "family",
+    "level",
+)
 CHUNK_PAIRS = 2048
 
 
@@ -96,8 +107,10 @@ def _builtin_batch(references: Sequence[EpisodeRecord], conflicts: Sequence[Epis
     """TAR, TS, Early20 TS and AMS of aligned pairs; nan where undefined."""
     if not kernels.available():  # pragma: no cover - installs without numba
         rows = [plain.pair_metrics(r, c) for r, c in zip(references, conflicts)]
-        return {name: np.array([math.nan if row[name] is None else row[name] for row in rows], dtype=np.float64)
-                for name in BUILTIN_METRICS}
+        return {
+            name: np.array([math.nan if row[name] is None else row[name] for row in rows], dtype=np.float64)
+            for name in BUILTIN_METRICS
+        }
     index: dict[int, int] = {}
     rollouts: list[EpisodeRecord] = []
     for record in (*references, *conflicts):
@@ -119,12 +132,12 @@ def _builtin_batch(references: Sequence[EpisodeRecord], conflicts: Sequence[Epis
     k = np.array([kk for _, kk in targets], dtype=np.int64)
 
     with kernels.dynamic_schedule():
-        ts, early, ams = kernels.pair_kernel(eef, eoff, act, aoff, ref_idx, con_idx, SIGMA, EARLY_STEPS + 1, EPS,
-                                             kernels.threads())
+        ts, early, ams = kernels.pair_kernel(
+            eef, eoff, act, aoff, ref_idx, con_idx, SIGMA, EARLY_STEPS + 1, EPS, kernels.threads()
+        )
     approach = kernels.approach_kernel(eef, eoff, tgt, toff, k)
     names = [frozenset(r.target_names) for r in rollouts]
-    same_targets = np.fromiter((names[r] == names[c] for r, c in zip(ref_idx, con_idx)), dtype=bool,
-                               count=len(ref_idx))
+    same_targets = np.fromiter((names[r] == names[c] for r, c in zip(ref_idx, con_idx)), dtype=bool, count=len(ref_idx))
     a_ref, a_con = approach[ref_idx], approach[con_idx]
     with np.errstate(invalid="ignore", divide="ignore"):
         tar = np.clip(a_con / np.maximum(a_ref, EPS), 0.0, 1.0)
@@ -198,8 +211,9 @@ def metric_specs(plugins=None, names: Sequence[str] | None = None) -> list[Metri
     return [registered[n] for n in names]
 
 
-def _chunks(references: Iterable[EpisodeRecord], conflicts: Iterable[EpisodeRecord],
-            size: int) -> Iterator[tuple[list[EpisodeRecord], list[EpisodeRecord]]]:
+def _chunks(
+    references: Iterable[EpisodeRecord], conflicts: Iterable[EpisodeRecord], size: int
+) -> Iterator[tuple[list[EpisodeRecord], list[EpisodeRecord]]]:
     pairs = zip(references, conflicts, strict=True)
     while chunk := list(islice(pairs, size)):
         yield [r for r, _ in chunk], [c for _, c in chunk]
@@ -211,15 +225,18 @@ def _warn_once(spec: MetricSpec, failed: set[str], problem: str) -> None:
         warnings.warn(f"metric {spec.name!r} ({spec.plugin}) {problem}; counted as undefined", stacklevel=4)
 
 
-def _column(spec: MetricSpec, references: list[EpisodeRecord], conflicts: list[EpisodeRecord],
-            failed: set[str]) -> np.ndarray:
+def _column(
+    spec: MetricSpec, references: list[EpisodeRecord], conflicts: list[EpisodeRecord], failed: set[str]
+) -> np.ndarray:
     """One metric over a chunk, float64 with NaN where undefined (None, NaN, infinite or raised)."""
     n = len(references)
     if spec.compute_many is not None:
         try:
             values = spec.compute_many(references, conflicts)
-            out = np.array([math.nan if v is None else v for v in values] if not isinstance(values, np.ndarray)
-                           else values, dtype=np.float64)
+            out = np.array(
+                [math.nan if v is None else v for v in values] if not isinstance(values, np.ndarray) else values,
+                dtype=np.float64,
+            )
         except Exception as exc:
             _warn_once(spec, failed, f"raised {type(exc).__name__}: {exc}")
             return np.full(n, math.nan)
@@ -239,9 +256,14 @@ def _column(spec: MetricSpec, references: list[EpisodeRecord], conflicts: list[E
     return out
 
 
-def evaluate_pairs(references: Iterable[EpisodeRecord], conflicts: Iterable[EpisodeRecord], *,
-                   plugins=None, metrics: Sequence[str] | None = None,
-                   chunk_size: int = CHUNK_PAIRS) -> pd.DataFrame:
+def evaluate_pairs(
+    references: Iterable[EpisodeRecord],
+    conflicts: Iterable[EpisodeRecord],
+    *,
+    plugins=None,
+    metrics: Sequence[str] | None = None,
+    chunk_size: int = CHUNK_PAIRS,
+) -> pd.DataFrame:
     """One row per aligned (reference, conflict) pair: the pair's keys, both outcomes, every metric.
 
     Columns: :data:`KEY_COLUMNS` (from the conflict episode), ``reference_success``,
@@ -263,9 +285,14 @@ def evaluate_pairs(references: Iterable[EpisodeRecord], conflicts: Iterable[Epis
         frames.append(pd.DataFrame(columns))
     if not frames:
         empty = {key: pd.Series([], dtype=object) for key in KEY_COLUMNS}
-        empty.update({"reference_success": pd.Series([], dtype=bool), "conflict_success": pd.Series([], dtype=bool),
-                      "reference_episode": pd.Series([], dtype=object),
-                      "conflict_episode": pd.Series([], dtype=object)})
+        empty.update(
+            {
+                "reference_success": pd.Series([], dtype=bool),
+                "conflict_success": pd.Series([], dtype=bool),
+                "reference_episode": pd.Series([], dtype=object),
+                "conflict_episode": pd.Series([], dtype=object),
+            }
+        )
         empty.update({s.name: pd.Series([], dtype=np.float64) for s in specs})
         return pd.DataFrame(empty)
     return pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]

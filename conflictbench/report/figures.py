@@ -8,8 +8,8 @@ label, and percentages where the unit is "%" (else the values as measured, unit 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -69,13 +69,21 @@ def qualified_failure_distributions(frame: pd.DataFrame, path: Path, metrics: Se
                 if len(values) == 0:
                     ax.text(0.02, pos, "n/a (n=0)", va="center", fontsize=7, color="0.4", transform=label_at)
                     continue
-                box = ax.boxplot([values], positions=[pos], widths=width * 0.85, orientation="horizontal", patch_artist=True,
-                                 showfliers=True, flierprops={"markersize": 2, "alpha": 0.5},
-                                 medianprops={"color": "black"})
+                box = ax.boxplot(
+                    [values],
+                    positions=[pos],
+                    widths=width * 0.85,
+                    orientation="horizontal",
+                    patch_artist=True,
+                    showfliers=True,
+                    flierprops={"markersize": 2, "alpha": 0.5},
+                    medianprops={"color": "black"},
+                )
                 box["boxes"][0].set_facecolor(PROMPT_COLOURS.get(prompt, "0.7"))
                 box["boxes"][0].set_alpha(0.8)
-                ax.text(0.99, pos, f"n={len(values)}", va="center", ha="right", fontsize=6, color="0.3",
-                        transform=label_at)
+                ax.text(
+                    0.99, pos, f"n={len(values)}", va="center", ha="right", fontsize=6, color="0.3", transform=label_at
+                )
                 drawn = True
         ax.set_yticks(range(len(models)), models, fontsize=8)
         if metric.percent:
@@ -86,8 +94,9 @@ def qualified_failure_distributions(frame: pd.DataFrame, path: Path, metrics: Se
         ax.set_ylim(len(models) - 0.5, -0.5)
         ax.grid(axis="x", alpha=0.3)
         if not drawn:
-            ax.text(0.5, -0.45, "no qualified failures", ha="center", va="top", fontsize=8, color="0.4",
-                    transform=label_at)
+            ax.text(
+                0.5, -0.45, "no qualified failures", ha="center", va="top", fontsize=8, color="0.4", transform=label_at
+            )
     if len(prompts) > 1:
         handles = [_patch(PROMPT_COLOURS[p], p.upper()) for p in prompts]
         fig.legend(handles=handles, loc="outside lower center", ncol=len(prompts), fontsize=8, frameon=False)
@@ -100,8 +109,9 @@ def _patch(colour: str, label: str):
     return Patch(facecolor=colour, label=label, alpha=0.8)
 
 
-def prompt_difference_figure(summary: pd.DataFrame, path: Path, metrics: Sequence[MetricSpec],
-                             outcomes: Sequence[str] = ("RGSR",)) -> Path:
+def prompt_difference_figure(
+    summary: pd.DataFrame, path: Path, metrics: Sequence[MetricSpec], outcomes: Sequence[str] = ("RGSR",)
+) -> Path:
     """Mean paired P0 - P1 difference per model with 95% intervals: the outcome rates, then each
     metric (percentage points for rates and "%" metrics, else in the metric's unit)."""
     measures = [(name, name, 100.0, "pp") for name in outcomes]
@@ -119,8 +129,14 @@ def prompt_difference_figure(summary: pd.DataFrame, path: Path, metrics: Sequenc
         n = summary[f"{measure}_n"].astype(int).to_numpy()
         y = np.arange(len(models))
         shown = np.nan_to_num(diff)
-        ax.barh(y, shown, color="#4C72B0", alpha=0.85, xerr=np.where(np.isnan(ci), 0, ci),
-                error_kw={"elinewidth": 1, "capsize": 2})
+        ax.barh(
+            y,
+            shown,
+            color="#4C72B0",
+            alpha=0.85,
+            xerr=np.where(np.isnan(ci), 0, ci),
+            error_kw={"elinewidth": 1, "capsize": 2},
+        )
         ax.axvline(0, color="black", linewidth=0.8)
         span = float(np.nanmax(np.abs(diff) + np.nan_to_num(ci))) if np.isfinite(diff).any() else 0.0
         span = max(5.0, span) if unit == "pp" else (span or 1.0)  # at least +-5 pp around zero
@@ -131,15 +147,19 @@ def prompt_difference_figure(summary: pd.DataFrame, path: Path, metrics: Sequenc
         ax.set_yticks(y, models, fontsize=8)
         ax.set_ylim(len(models) - 0.5, -0.5)
         ax.grid(axis="x", alpha=0.3)
-    fig.suptitle("Mean paired difference P0 − P1 per model (bar; > 0: higher under P0), 95% interval (whiskers)",
-                 fontsize=9)
+    fig.suptitle(
+        "Mean paired difference P0 − P1 per model (bar; > 0: higher under P0), 95% interval (whiskers)", fontsize=9
+    )
     return _save(fig, path)
 
 
 def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
     """dSR (%) per conflict family x level, one panel per model and prompt condition."""
-    panels = (family_level[["model", "prompt"]].drop_duplicates().itertuples(index=False, name=None)
-              if len(family_level) else [])
+    panels = (
+        family_level[["model", "prompt"]].drop_duplicates().itertuples(index=False, name=None)
+        if len(family_level)
+        else []
+    )
     panels = list(panels) or [("n/a", "")]
     ncols = min(4, len(panels))
     nrows = -(-len(panels) // ncols)
@@ -149,8 +169,11 @@ def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
     axes = fig.subplots(nrows, ncols, squeeze=False)
     image = None
     for ax, (model, prompt) in zip(axes.flat, panels):
-        sub = family_level[(family_level["model"] == model) & (family_level["prompt"] == prompt)] \
-            if len(family_level) else family_level
+        sub = (
+            family_level[(family_level["model"] == model) & (family_level["prompt"] == prompt)]
+            if len(family_level)
+            else family_level
+        )
         grid = np.full((len(families), len(LEVELS)), np.nan)
         counts = np.zeros_like(grid, dtype=int)
         for row in sub.itertuples(index=False):
@@ -168,7 +191,7 @@ def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
         ax.set_xticks(range(len(LEVELS)), LEVELS, fontsize=8)
         ax.set_yticks(range(len(families)), families, fontsize=8)
         ax.set_title(f"{model} {prompt.upper()}".strip() + ": dSR (%)", fontsize=9)
-    for ax in list(axes.flat)[len(panels):]:
+    for ax in list(axes.flat)[len(panels) :]:
         ax.set_visible(False)
     if image is not None:
         fig.colorbar(image, ax=axes, shrink=0.8, label="dSR = PCSR − RGSR (%)")

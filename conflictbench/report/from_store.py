@@ -8,8 +8,8 @@ loaded once and kept.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator, Sequence
 from itertools import tee
-from typing import Iterable, Iterator, Sequence
 
 import pandas as pd
 
@@ -33,14 +33,17 @@ def light_records(store: EpisodeStore, episode_ids: Iterable[str] | None = None)
     return [EpisodeRecord(**row) for row in rows]
 
 
-def loaded_pairs(store: EpisodeStore, pairs: Sequence[Pair], chunk: int = CHUNK_PAIRS) -> Iterator[tuple[EpisodeRecord, EpisodeRecord]]:
+def loaded_pairs(
+    store: EpisodeStore, pairs: Sequence[Pair], chunk: int = CHUNK_PAIRS
+) -> Iterator[tuple[EpisodeRecord, EpisodeRecord]]:
     """The pairs again, with arrays, ``chunk`` conflict episodes at a time."""
     references: dict[str, EpisodeRecord] = {}
     for start in range(0, len(pairs), chunk):
-        part = pairs[start:start + chunk]
+        part = pairs[start : start + chunk]
         wanted = {p.conflict.episode_id: p.conflict.policy for p in part}
-        wanted.update({p.reference.episode_id: p.reference.policy for p in part
-                       if p.reference.episode_id not in references})
+        wanted.update(
+            {p.reference.episode_id: p.reference.policy for p in part if p.reference.episode_id not in references}
+        )
         loaded = {r.episode_id: r for r in store.load(wanted.items())}
         for pair in part:
             references.setdefault(pair.reference.episode_id, loaded.get(pair.reference.episode_id))
@@ -48,12 +51,24 @@ def loaded_pairs(store: EpisodeStore, pairs: Sequence[Pair], chunk: int = CHUNK_
             yield references[pair.reference.episode_id], loaded[pair.conflict.episode_id]
 
 
-def report_store(store: EpisodeStore, plugins: Plugins, *, episode_ids: Iterable[str] | None = None,
-                 metrics: Sequence[str] | None = None, chunk: int = CHUNK_PAIRS, **options) -> dict[str, pd.DataFrame]:
+def report_store(
+    store: EpisodeStore,
+    plugins: Plugins,
+    *,
+    episode_ids: Iterable[str] | None = None,
+    metrics: Sequence[str] | None = None,
+    chunk: int = CHUNK_PAIRS,
+    **options,
+) -> dict[str, pd.DataFrame]:
     """:func:`~conflictbench.report.summary.report_records` for the episodes of a store (or some of them)."""
     chosen = select_metrics(plugins, metrics)
     pairs, counts = pair_up(light_records(store, episode_ids))
     first, second = tee(loaded_pairs(store, pairs, chunk))
-    frame = evaluate_pairs((r for r, _ in first), (c for _, c in second), plugins=plugins,
-                           metrics=[m.name for m in chosen], chunk_size=chunk)
+    frame = evaluate_pairs(
+        (r for r, _ in first),
+        (c for _, c in second),
+        plugins=plugins,
+        metrics=[m.name for m in chosen],
+        chunk_size=chunk,
+    )
     return report_frame(frame, counts, chosen, **options)

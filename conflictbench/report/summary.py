@@ -15,25 +15,45 @@ the paper's three tables, paired P0 - P1 differences, and with ``out_dir`` the f
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence, TextIO
+from typing import TextIO
 
 import pandas as pd
+from tabulate import tabulate
 
 from conflictbench.core import EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
-from tabulate import tabulate
+from conflictbench.metrics import (
+    GROUPINGS,
+    aggregate,
+    evaluate_pairs,
+    make_pairs,
+    metric_specs,
+    prompt_couples,
+    prompt_differences,
+    with_model,
+)
 
-from conflictbench.metrics import (GROUPINGS, aggregate, evaluate_pairs, make_pairs, metric_specs, prompt_couples,
-                                   prompt_differences, with_model)
-
-from .tables import (PAPER_METRICS, TableSpec, csv_frame, paper_order, paper_tables, render_latex, render_markdown,
-                     render_text)
+from .tables import (
+    PAPER_METRICS,
+    TableSpec,
+    csv_frame,
+    paper_order,
+    paper_tables,
+    render_latex,
+    render_markdown,
+    render_text,
+)
 
 #: The outcome rates compared between P0 and P1 (this report's own columns, fractions shown in %).
 OUTCOME_DIFFERENCES = ("PCSR", "RGSR")
-TABLE_KEYS = {"table1_overall": "overall", "table2_by_family": "family", "table3_qualified_failures": "qualified_failures"}
+TABLE_KEYS = {
+    "table1_overall": "overall",
+    "table2_by_family": "family",
+    "table3_qualified_failures": "qualified_failures",
+}
 
 
 def select_metrics(plugins: Plugins, names: Sequence[str] | None) -> list[MetricSpec]:
@@ -54,11 +74,17 @@ def render_differences(summary: pd.DataFrame, metrics: Sequence[MetricSpec]) -> 
     """Mean paired P0 - P1 differences per model (percentage points where the unit is "%"), ±95% half-widths."""
     measures = [(m, m, "%") for m in OUTCOME_DIFFERENCES] + [(m.name, m.label, m.unit) for m in metrics]
     header = ["model", "couples", *(label for _, label, _ in measures)]
-    rows = [[str(r["model"]), str(int(r["couples"]))]
-            + [_signed(r[f"{name}_diff"], r[f"{name}_ci95"], int(r[f"{name}_n"]), unit) for name, _, unit in measures]
-            for _, r in summary.iterrows()]
-    return "\n".join(["== Paired P0 - P1 differences (same case, init state and settings; percentage points, ±95%) ==",
-                      tabulate(rows, header, tablefmt="simple", disable_numparse=True)])
+    rows = [
+        [str(r["model"]), str(int(r["couples"]))]
+        + [_signed(r[f"{name}_diff"], r[f"{name}_ci95"], int(r[f"{name}_n"]), unit) for name, _, unit in measures]
+        for _, r in summary.iterrows()
+    ]
+    return "\n".join(
+        [
+            "== Paired P0 - P1 differences (same case, init state and settings; percentage points, ±95%) ==",
+            tabulate(rows, header, tablefmt="simple", disable_numparse=True),
+        ]
+    )
 
 
 @dataclass
@@ -79,18 +105,28 @@ def pair_up(records: Iterable[EpisodeRecord]) -> tuple[list[Pair], EpisodeCounts
     """Pairs for the report. A policy error ends an episode as a failure (it stays in); a simulator or
     serving-infrastructure failure says nothing about the policy, so such episodes are left out with their pairs."""
     records = list(records)
-    counts = EpisodeCounts(episodes=len(records), references=sum(r.is_reference for r in records),
-                           policy_errors=[r for r in records if r.error is not None and not r.infrastructure_failed],
-                           crashed=[r for r in records if r.simulator_failed],
-                           unserved=[r for r in records if r.infrastructure_failed and not r.simulator_failed])
+    counts = EpisodeCounts(
+        episodes=len(records),
+        references=sum(r.is_reference for r in records),
+        policy_errors=[r for r in records if r.error is not None and not r.infrastructure_failed],
+        crashed=[r for r in records if r.simulator_failed],
+        unserved=[r for r in records if r.infrastructure_failed and not r.simulator_failed],
+    )
     pairs, orphans = make_pairs(r for r in records if not r.infrastructure_failed)
     counts.pairs, counts.orphans = len(pairs), len(orphans)
     return pairs, counts
 
 
-def report_records(records: Iterable[EpisodeRecord], plugins: Plugins, *, out_dir: str | Path | None = None,
-                   metrics: Sequence[str] | None = None, stream: TextIO | None = None, figures: bool = True,
-                   directions: Mapping[str, str] | None = None) -> dict[str, pd.DataFrame]:
+def report_records(
+    records: Iterable[EpisodeRecord],
+    plugins: Plugins,
+    *,
+    out_dir: str | Path | None = None,
+    metrics: Sequence[str] | None = None,
+    stream: TextIO | None = None,
+    figures: bool = True,
+    directions: Mapping[str, str] | None = None,
+) -> dict[str, pd.DataFrame]:
     """Print the tables for these episodes and, with ``out_dir``, write them and the figures.
 
     ``metrics`` restricts the columns (default: every registered metric); ``directions`` maps a
@@ -101,14 +137,22 @@ def report_records(records: Iterable[EpisodeRecord], plugins: Plugins, *, out_di
     """
     chosen = select_metrics(plugins, metrics)
     pairs, counts = pair_up(records)
-    frame = evaluate_pairs([p.reference for p in pairs], [p.conflict for p in pairs], plugins=plugins,
-                           metrics=[m.name for m in chosen])
+    frame = evaluate_pairs(
+        [p.reference for p in pairs], [p.conflict for p in pairs], plugins=plugins, metrics=[m.name for m in chosen]
+    )
     return report_frame(frame, counts, chosen, out_dir=out_dir, stream=stream, figures=figures, directions=directions)
 
 
-def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, metrics: Sequence[MetricSpec], *,
-                 out_dir: str | Path | None = None, stream: TextIO | None = None, figures: bool = True,
-                 directions: Mapping[str, str] | None = None) -> dict[str, pd.DataFrame]:
+def report_frame(
+    frame: pd.DataFrame,
+    counts: EpisodeCounts,
+    metrics: Sequence[MetricSpec],
+    *,
+    out_dir: str | Path | None = None,
+    stream: TextIO | None = None,
+    figures: bool = True,
+    directions: Mapping[str, str] | None = None,
+) -> dict[str, pd.DataFrame]:
     """Everything after the per-pair frame: aggregates, tables, differences, files and figures.
     Each metric is shown as its registration says (label, unit, direction)."""
     stream = stream or sys.stdout
@@ -124,26 +168,42 @@ def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, metrics: Sequence[M
         print("\n" + render_text(aggregates[spec.grouping], spec), file=stream)
     if len(differences):
         print("\n" + render_differences(differences, metrics), file=stream)
-    print(f"\n{counts.episodes} episodes ({counts.references} reference, {counts.episodes - counts.references} "
-          f"conflict), {counts.pairs} pairs", file=stream)
+    print(
+        f"\n{counts.episodes} episodes ({counts.references} reference, {counts.episodes - counts.references} "
+        f"conflict), {counts.pairs} pairs",
+        file=stream,
+    )
     if counts.policy_errors:
         first = counts.policy_errors[0]
-        print(f"{len(counts.policy_errors)} episode(s) ended with a policy error and count as failed "
-              f"(e.g. {first.episode_id}: {first.error})", file=stream)
+        print(
+            f"{len(counts.policy_errors)} episode(s) ended with a policy error and count as failed "
+            f"(e.g. {first.episode_id}: {first.error})",
+            file=stream,
+        )
     if counts.crashed:
         first = counts.crashed[0]
-        print(f"{len(counts.crashed)} episode(s) ended with a simulator failure and are left out, with their pairs "
-              f"(e.g. {first.episode_id}: {first.error})", file=stream)
+        print(
+            f"{len(counts.crashed)} episode(s) ended with a simulator failure and are left out, with their pairs "
+            f"(e.g. {first.episode_id}: {first.error})",
+            file=stream,
+        )
     if counts.unserved:
         first = counts.unserved[0]
-        print(f"{len(counts.unserved)} episode(s) ended with an infrastructure failure and are left out, with their "
-              f"pairs; the next run plays them again (e.g. {first.episode_id}: {first.error})", file=stream)
+        print(
+            f"{len(counts.unserved)} episode(s) ended with an infrastructure failure and are left out, with their "
+            f"pairs; the next run plays them again (e.g. {first.episode_id}: {first.error})",
+            file=stream,
+        )
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
 
-    result = {"pairs": frame, **{TABLE_KEYS[s.name]: aggregates[s.grouping] for s in specs},
-              **{f"aggregates_{g}": a for g, a in aggregates.items()},
-              "prompt_couples": couples, "prompt_differences": differences}
+    result = {
+        "pairs": frame,
+        **{TABLE_KEYS[s.name]: aggregates[s.grouping] for s in specs},
+        **{f"aggregates_{g}": a for g, a in aggregates.items()},
+        "prompt_couples": couples,
+        "prompt_differences": differences,
+    }
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -152,9 +212,17 @@ def report_frame(frame: pd.DataFrame, counts: EpisodeCounts, metrics: Sequence[M
     return result
 
 
-def write_files(out: Path, frame: pd.DataFrame, aggregates: dict[str, pd.DataFrame], specs: Sequence[TableSpec],
-                couples: pd.DataFrame, differences: pd.DataFrame, metrics: Sequence[MetricSpec], *,
-                figures: bool = True) -> list[Path]:
+def write_files(
+    out: Path,
+    frame: pd.DataFrame,
+    aggregates: dict[str, pd.DataFrame],
+    specs: Sequence[TableSpec],
+    couples: pd.DataFrame,
+    differences: pd.DataFrame,
+    metrics: Sequence[MetricSpec],
+    *,
+    figures: bool = True,
+) -> list[Path]:
     written = []
     report = ["# conflictbench report", ""]
     for spec in specs:
@@ -169,8 +237,14 @@ def write_files(out: Path, frame: pd.DataFrame, aggregates: dict[str, pd.DataFra
         written.append(path)
         report.append(markdown)
     if len(differences):
-        report += ["### Paired P0 - P1 differences (percentage points, ±95%)", "", "```",
-                   render_differences(differences, metrics), "```", ""]
+        report += [
+            "### Paired P0 - P1 differences (percentage points, ±95%)",
+            "",
+            "```",
+            render_differences(differences, metrics),
+            "```",
+            "",
+        ]
     for grouping, table in aggregates.items():
         path = out / f"aggregates_{grouping}.csv"
         table.to_csv(path, index=False, na_rep="n/a")

@@ -19,8 +19,8 @@ under the conflict, it left the original goal undone when it was able to do it).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import pandas as pd
 from tabulate import LATEX_ESCAPE_RULES, tabulate
@@ -63,8 +63,14 @@ class TableSpec:
 
 def _metric_column(spec: MetricSpec, qualified_failures: bool, directions: Mapping[str, str]) -> Column:
     suffix = "_qf" if qualified_failures else ""
-    return Column(spec.label, "mean", f"{spec.name}{suffix}", n=f"{spec.name}{suffix}_n",
-                  direction=directions.get(spec.name, spec.direction), unit=spec.unit)
+    return Column(
+        spec.label,
+        "mean",
+        f"{spec.name}{suffix}",
+        n=f"{spec.name}{suffix}_n",
+        direction=directions.get(spec.name, spec.direction),
+        unit=spec.unit,
+    )
 
 
 def paper_order(metrics: Sequence[MetricSpec]) -> list[MetricSpec]:
@@ -78,9 +84,11 @@ def paper_tables(metrics: Sequence[MetricSpec], directions: Mapping[str, str] | 
     with every other selected metric appended. ``directions`` (name -> "higher"/"lower") overrides."""
     directions = directions or {}
     d = {**OUTCOME_DIRECTIONS, **directions}
-    outcome = (Column("PCSR", "rate", "PCSR", k="PCSR_k", direction=d["PCSR"]),
-               Column("RGSR", "rate", "RGSR", k="RGSR_k", direction=d["RGSR"]),
-               Column("dSR", "diff", "dSR", direction=d["dSR"]))
+    outcome = (
+        Column("PCSR", "rate", "PCSR", k="PCSR_k", direction=d["PCSR"]),
+        Column("RGSR", "rate", "RGSR", k="RGSR_k", direction=d["RGSR"]),
+        Column("dSR", "diff", "dSR", direction=d["dSR"]),
+    )
     by_name = {m.name: m for m in metrics}
     extra = [m for m in metrics if m.name not in PAPER_METRICS]
 
@@ -90,13 +98,30 @@ def paper_tables(metrics: Sequence[MetricSpec], directions: Mapping[str, str] | 
 
     failures = (Column("FR", "rate", "FR", k="FR_k", n="FR_n", direction=d["FR"]),)
     return [
-        TableSpec("table1_overall", "Table 1: overall outcome and process measures", "model",
-                  ("model", "prompt"), ("prompt",), outcome + columns(PAPER_METRICS)),
-        TableSpec("table2_by_family", "Table 2: by conflict family", "family",
-                  ("model", "prompt", "family"), ("prompt", "family"), outcome + columns(FAMILY_TABLE_METRICS)),
-        TableSpec("table3_qualified_failures", "Table 3: failure rate among qualified pairs (FR) and process "
-                  "measures over the qualified failures D_QF", "model", ("model", "prompt"), ("prompt",),
-                  failures + columns(PAPER_METRICS, qualified_failures=True)),
+        TableSpec(
+            "table1_overall",
+            "Table 1: overall outcome and process measures",
+            "model",
+            ("model", "prompt"),
+            ("prompt",),
+            outcome + columns(PAPER_METRICS),
+        ),
+        TableSpec(
+            "table2_by_family",
+            "Table 2: by conflict family",
+            "family",
+            ("model", "prompt", "family"),
+            ("prompt", "family"),
+            outcome + columns(FAMILY_TABLE_METRICS),
+        ),
+        TableSpec(
+            "table3_qualified_failures",
+            "Table 3: failure rate among qualified pairs (FR) and process measures over the qualified failures D_QF",
+            "model",
+            ("model", "prompt"),
+            ("prompt",),
+            failures + columns(PAPER_METRICS, qualified_failures=True),
+        ),
     ]
 
 
@@ -114,8 +139,11 @@ def marks(aggregates: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
     out = pd.DataFrame(False, index=aggregates.index, columns=range(len(spec.columns)))
     if aggregates.empty:
         return out
-    blocks = ([sub.index for _, sub in aggregates.groupby(list(spec.block), dropna=False, sort=False)]
-              if spec.block else [aggregates.index])
+    blocks = (
+        [sub.index for _, sub in aggregates.groupby(list(spec.block), dropna=False, sort=False)]
+        if spec.block
+        else [aggregates.index]
+    )
     for j, column in enumerate(spec.columns):
         if column.direction not in ("higher", "lower"):
             continue
@@ -155,9 +183,13 @@ def _key_text(value) -> str:
 def _body(aggregates: pd.DataFrame, spec: TableSpec) -> list[tuple[list[str], list[tuple[str, str, bool]]]]:
     """Per row: the key texts, and per column (value, counts, is it the most favourable)."""
     best = marks(aggregates, spec)
-    return [([_key_text(row[k]) for k in spec.keys],
-             [(*cell_parts(row, c), bool(flag)) for c, flag in zip(spec.columns, flags)])
-            for (_, row), flags in zip(aggregates.iterrows(), best.itertuples(index=False))]
+    return [
+        (
+            [_key_text(row[k]) for k in spec.keys],
+            [(*cell_parts(row, c), bool(flag)) for c, flag in zip(spec.columns, flags)],
+        )
+        for (_, row), flags in zip(aggregates.iterrows(), best.itertuples(index=False))
+    ]
 
 
 def _header(spec: TableSpec) -> list[str]:
@@ -185,15 +217,19 @@ def legend(spec: TableSpec, mark: str = "*") -> str:
 def render_text(aggregates: pd.DataFrame, spec: TableSpec) -> str:
     if aggregates.empty:
         return f"== {spec.title} ==\nn/a: no pairs (0 pairs with both a conflict episode and its reference)"
-    rows = [keys + [f"{value} {counts}{'*' if best else ''}" for value, counts, best in cells]
-            for keys, cells in _body(aggregates, spec)]
+    rows = [
+        keys + [f"{value} {counts}{'*' if best else ''}" for value, counts, best in cells]
+        for keys, cells in _body(aggregates, spec)
+    ]
     table = tabulate(rows, _header(spec), tablefmt="simple", disable_numparse=True)
     return "\n".join([f"== {spec.title} ==", table, legend(spec)])
 
 
 def render_markdown(aggregates: pd.DataFrame, spec: TableSpec) -> str:
-    rows = [keys + [f"**{value} {counts}**" if best else f"{value} {counts}" for value, counts, best in cells]
-            for keys, cells in _body(aggregates, spec)] or [_placeholder(spec)]
+    rows = [
+        keys + [f"**{value} {counts}**" if best else f"{value} {counts}" for value, counts, best in cells]
+        for keys, cells in _body(aggregates, spec)
+    ] or [_placeholder(spec)]
     rows = [[text.replace("|", r"\|") for text in row] for row in rows]  # a "|" would end the cell
     table = tabulate(rows, _header(spec), tablefmt="pipe", colalign=_alignment(spec), disable_numparse=True)
     return "\n".join([f"### {spec.title}", "", table, "", legend(spec, "bold:"), ""])
@@ -216,19 +252,26 @@ def _tex_cell(value: str, counts: str, best: bool) -> str:
 
 
 def render_latex(aggregates: pd.DataFrame, spec: TableSpec) -> str:
-    rows = [keys + [_tex_cell(*parts) for parts in cells]
-            for keys, cells in _body(aggregates, spec)] or [_placeholder(spec)]
-    tabular = tabulate(rows, _header(spec), tablefmt="latex_booktabs", colalign=_alignment(spec),
-                       disable_numparse=True).translate(_MARKUP)
+    rows = [keys + [_tex_cell(*parts) for parts in cells] for keys, cells in _body(aggregates, spec)] or [
+        _placeholder(spec)
+    ]
+    tabular = tabulate(
+        rows, _header(spec), tablefmt="latex_booktabs", colalign=_alignment(spec), disable_numparse=True
+    ).translate(_MARKUP)
     caption = tex_escape(f"{spec.title}. {legend(spec, 'Bold:')}.")
-    return "\n".join([r"\begin{table}[t]", r"\centering", r"\small", rf"\caption{{{caption}}}", tabular,
-                      r"\end{table}", ""])
+    return "\n".join(
+        [r"\begin{table}[t]", r"\centering", r"\small", rf"\caption{{{caption}}}", tabular, r"\end{table}", ""]
+    )
 
 
 def csv_frame(aggregates: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
     """Keys, then each column (in % where its unit is "%", else as measured) with its counts
     (``X_k``/``X_n`` for rates, ``X_n`` otherwise)."""
-    out = pd.DataFrame({k: aggregates[k] for k in spec.keys}) if len(aggregates) else pd.DataFrame(columns=list(spec.keys))
+    out = (
+        pd.DataFrame({k: aggregates[k] for k in spec.keys})
+        if len(aggregates)
+        else pd.DataFrame(columns=list(spec.keys))
+    )
     for column in spec.columns:
         values = aggregates[column.value].astype(float) if len(aggregates) else pd.Series([], dtype=float)
         out[column.label] = 100 * values if column.percent else values

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import mujoco
 import numpy as np
@@ -21,8 +21,9 @@ from .libero_env import CAMERAS
 
 Resolver = Callable[[], np.ndarray]
 
-_FREE, _SLIDE, _HINGE = (int(k) for k in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_SLIDE,
-                                          mujoco.mjtJoint.mjJNT_HINGE))
+_FREE, _SLIDE, _HINGE = (
+    int(k) for k in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE)
+)
 _Geom = mujoco.mjtGeom
 
 
@@ -92,7 +93,9 @@ class _SceneStatic:
             name = model.joint_id2name(j) or ""
             if model.jnt_type[j] in (_SLIDE, _HINGE) and not name.startswith(("robot0_", "gripper0_")):
                 body = int(model.jnt_bodyid[j])
-                self.joints.append((name, j, body, int(model.jnt_qposadr[j]), np.array(model.jnt_range[j], dtype=float)))
+                self.joints.append(
+                    (name, j, body, int(model.jnt_qposadr[j]), np.array(model.jnt_range[j], dtype=float))
+                )
                 self.joint_kind[name] = int(model.jnt_type[j])
                 moving.add(body)
         movers = set(moving)
@@ -123,7 +126,7 @@ class _SceneStatic:
                 half = np.array([size[0], size[0], size[1]])
             elif kind == _Geom.mjGEOM_MESH:  # its vertices' extent in the geom frame
                 adr, num = model.mesh_vertadr[model.geom_dataid[g]], model.mesh_vertnum[model.geom_dataid[g]]
-                half = np.abs(np.asarray(model.mesh_vert[adr:adr + num])).max(axis=0)
+                half = np.abs(np.asarray(model.mesh_vert[adr : adr + num])).max(axis=0)
             else:
                 continue
             geoms.append((g, b))
@@ -185,13 +188,27 @@ def _geometry(env, st: _SceneStatic, goal) -> SceneGeometry:
         sel = st.geom_body == body
         if sel.any():
             add(st.body_names[body], sel)
-    joints = {name: JointInfo(qpos=float(data.qpos[adr]), axis=np.array(data.xaxis[j]), anchor=np.array(data.xanchor[j]),
-                              range=rng.copy(), body=st.body_names[body],
-                              kind="slide" if st.joint_kind[name] == _SLIDE else "hinge")
-              for name, j, body, adr, rng in st.joints}
-    sites = {name: SiteInfo(pos=np.array(data.site_xpos[sid]), xmat=np.array(data.site_xmat[sid]).reshape(3, 3),
-                            size=size.copy(), joints=sjoints, parent=parent)
-             for name, sid, size, sjoints, parent in st.sites}
+    joints = {
+        name: JointInfo(
+            qpos=float(data.qpos[adr]),
+            axis=np.array(data.xaxis[j]),
+            anchor=np.array(data.xanchor[j]),
+            range=rng.copy(),
+            body=st.body_names[body],
+            kind="slide" if st.joint_kind[name] == _SLIDE else "hinge",
+        )
+        for name, j, body, adr, rng in st.joints
+    }
+    sites = {
+        name: SiteInfo(
+            pos=np.array(data.site_xpos[sid]),
+            xmat=np.array(data.site_xmat[sid]).reshape(3, 3),
+            size=size.copy(),
+            joints=sjoints,
+            parent=parent,
+        )
+        for name, sid, size, sjoints, parent in st.sites
+    }
     touching = set()
     for i in range(data.ncon):
         c = data.contact[i]
@@ -201,9 +218,19 @@ def _geometry(env, st: _SceneStatic, goal) -> SceneGeometry:
         elif st.finger_geom[g2] and st.geom_root[g1]:
             touching.add(st.geom_root[g1])
     holds = tuple(bool(env.env._eval_predicate(tuple(p))) for p in goal)
-    return SceneGeometry(objects=st.movable, fixtures=st.fixtures, aabb=aabb, geom_boxes=geom_boxes,
-                         geom_frames=geom_frames, local_aabb=local, local_geoms=local_geoms, joints=joints,
-                         sites=sites, gripper_contacts=tuple(sorted(touching)), goal_holds=holds)
+    return SceneGeometry(
+        objects=st.movable,
+        fixtures=st.fixtures,
+        aabb=aabb,
+        geom_boxes=geom_boxes,
+        geom_frames=geom_frames,
+        local_aabb=local,
+        local_geoms=local_geoms,
+        joints=joints,
+        sites=sites,
+        gripper_contacts=tuple(sorted(touching)),
+        goal_holds=holds,
+    )
 
 
 def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase | None) -> PrivilegedState:
@@ -215,12 +242,21 @@ def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase 
     geometry = _geometry(env, st, goal)
     sites = {name: info.pos.copy() for name, info in geometry.sites.items()}
     joints = {name: info.qpos for name, info in geometry.joints.items()}
-    return PrivilegedState(body_poses=poses, site_positions=sites, joint_positions=joints, goal=goal, case=case,
-                           geometry=geometry)
+    return PrivilegedState(
+        body_poses=poses, site_positions=sites, joint_positions=joints, goal=goal, case=case, geometry=geometry
+    )
 
 
-def make_observation(raw_obs: dict, *, step: int, instruction: str, stream: int, episode_id: str, images: bool,
-                     privileged: PrivilegedState | None) -> Observation:
+def make_observation(
+    raw_obs: dict,
+    *,
+    step: int,
+    instruction: str,
+    stream: int,
+    episode_id: str,
+    images: bool,
+    privileged: PrivilegedState | None,
+) -> Observation:
     """The policy's view: robosuite's own observation values, exactly as a native client gets them."""
     eef_pos = np.asarray(raw_obs["robot0_eef_pos"], dtype=np.float64).copy()
     eef_quat = np.asarray(raw_obs["robot0_eef_quat"], dtype=np.float64).copy()

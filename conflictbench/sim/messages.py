@@ -58,8 +58,16 @@ class EpisodeOutcome:
     @classmethod
     def failed(cls, error: str, targets: int) -> EpisodeOutcome:
         """An episode that ended before any state was recorded (the policy's reset raised, the worker died)."""
-        return cls(success=False, steps=0, error=error, eef_pos=np.zeros((0, 3)), target_pos=np.zeros((0, targets, 3)),
-                   actions=np.zeros((0, ACTION_DIM)), raw_actions=np.zeros((0, ACTION_DIM)), sim_time_s=None)
+        return cls(
+            success=False,
+            steps=0,
+            error=error,
+            eef_pos=np.zeros((0, 3)),
+            target_pos=np.zeros((0, targets, 3)),
+            actions=np.zeros((0, ACTION_DIM)),
+            raw_actions=np.zeros((0, ACTION_DIM)),
+            sim_time_s=None,
+        )
 
     def record_fields(self) -> dict[str, Any]:
         """The outcome as keyword arguments of :class:`EpisodeRecord`."""
@@ -67,8 +75,9 @@ class EpisodeOutcome:
 
 
 _RECORD_FIELDS = {f.name for f in dataclasses.fields(EpisodeRecord)}
-assert {f.name for f in dataclasses.fields(EpisodeOutcome)} <= _RECORD_FIELDS, \
+assert {f.name for f in dataclasses.fields(EpisodeOutcome)} <= _RECORD_FIELDS, (
     "every EpisodeOutcome field must be an EpisodeRecord field (and so a store column)"
+)
 
 
 # -- worker -> main process ------------------------------------------------------------------

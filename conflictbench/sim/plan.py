@@ -11,8 +11,8 @@ import hashlib
 import json
 import random
 from collections import defaultdict
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 from conflictbench.core import ConflictCase, UserError
 from conflictbench.tasks.suite_file import USABLE
@@ -48,8 +48,18 @@ class EpisodeSpec:
 
 def episode_id(*, policy: str, config_hash: str, spec: EpisodeSpec, prompt_text: str, seed: int) -> str:
     """A stable name for an episode: the same inputs always map to the same stored row."""
-    key = [policy, config_hash, spec.suite, spec.task_id, spec.init_state, spec.prompt,
-           spec.case_id, spec.instruction, prompt_text, seed]
+    key = [
+        policy,
+        config_hash,
+        spec.suite,
+        spec.task_id,
+        spec.init_state,
+        spec.prompt,
+        spec.case_id,
+        spec.instruction,
+        prompt_text,
+        seed,
+    ]
     return hashlib.sha256(json.dumps(key).encode()).hexdigest()[:24]
 
 
@@ -103,8 +113,15 @@ def build_plan(
     if cases_per_cell is not None and cases_per_cell < 0:
         raise UserError(f"run.cases_per_cell must be >= 0 or 'all', got {cases_per_cell}")
     suites = set(libero_suites) if libero_suites else {s for s, _ in base_instructions}
-    eligible = [c for c in cases if c.status in USABLE and c.family in families and c.level in levels
-                and c.suite in suites and (c.suite, c.task_id) in base_instructions]
+    eligible = [
+        c
+        for c in cases
+        if c.status in USABLE
+        and c.family in families
+        and c.level in levels
+        and c.suite in suites
+        and (c.suite, c.task_id) in base_instructions
+    ]
     chosen = [] if cases_per_cell == 0 else sample_cases(eligible, cases_per_cell, sample_seed)
 
     conflicts: list[EpisodeSpec] = []
@@ -118,9 +135,12 @@ def build_plan(
                 conflicts.append(spec)
                 reference_keys.add(spec.reference_key)
     if cases_per_cell == 0:
-        reference_keys = {(s, t, i, p) for (s, t) in base_instructions if s in suites
-                          for i in init_states for p in prompts}
+        reference_keys = {
+            (s, t, i, p) for (s, t) in base_instructions if s in suites for i in init_states for p in prompts
+        }
     references = [EpisodeSpec(s, t, i, p, base_instructions[(s, t)]) for (s, t, i, p) in reference_keys]
     # Group by base task (a worker keeps its env between episodes of one task), references first.
-    return sorted(references + conflicts,
-                  key=lambda e: (e.suite, e.task_id, e.case is not None, e.case_id or "", e.init_state, e.prompt))
+    return sorted(
+        references + conflicts,
+        key=lambda e: (e.suite, e.task_id, e.case is not None, e.case_id or "", e.init_state, e.prompt),
+    )

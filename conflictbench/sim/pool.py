@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import multiprocessing as mp
 from collections import OrderedDict, deque
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any
 
 from conflictbench.core import SimulatorUnavailable
 
@@ -56,8 +57,11 @@ class EpisodeQueue:
         """The next episode: of ``current`` if any, else of a task no worker is busy with, else any."""
         if not self._groups:
             return None
-        key = current if current in self._groups else next((k for k in self._groups if k not in busy),
-                                                           next(iter(self._groups)))
+        key = (
+            current
+            if current in self._groups
+            else next((k for k in self._groups if k not in busy), next(iter(self._groups)))
+        )
         group = self._groups[key]
         item = group.popleft()
         if not group:
@@ -76,8 +80,9 @@ class WorkerPool:
 
     def start(self, slot: Slot) -> None:
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=worker_main, args=(child, self.settings), daemon=True,
-                                 name=f"conflictbench-worker-{slot.index}")
+        proc = self._ctx.Process(
+            target=worker_main, args=(child, self.settings), daemon=True, name=f"conflictbench-worker-{slot.index}"
+        )
         proc.start()
         child.close()
         slot.process, slot.conn, slot.item, slot.task_key = proc, parent, None, None
@@ -91,7 +96,8 @@ class WorkerPool:
                 msg = slot.conn.recv()
             except EOFError:
                 raise SimulatorUnavailable(
-                    f"a simulator worker died while starting (exit code {slot.process.exitcode})") from None
+                    f"a simulator worker died while starting (exit code {slot.process.exitcode})"
+                ) from None
             if isinstance(msg, Fatal):
                 raise SimulatorUnavailable(msg.message)
             if not isinstance(msg, Ready):

@@ -14,21 +14,22 @@ import datetime as _dt
 import hashlib
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from conflictbench.core import (
+    INFRASTRUCTURE_ERROR_PREFIX,
+    SIMULATOR_ERROR_PREFIX,
     ActionContext,
     EpisodeRecord,
-    INFRASTRUCTURE_ERROR_PREFIX,
     InfrastructureError,
     PolicyError,
     PolicySpec,
     PolicyTraits,
-    SIMULATOR_ERROR_PREFIX,
     ServerUnavailable,
     UserError,
     as_action_chunk,
@@ -59,9 +60,18 @@ class RunResult:
 class Runner:
     """Plays episodes for one policy and writes each finished one to the store."""
 
-    def __init__(self, plugins: Plugins, spec: PolicySpec, config: Any, *,
-                 store: EpisodeStore, workers: int = 1, seed: int = 7, progress: bool = True,
-                 on_episode: Callable[[EpisodeRecord], None] | None = None):
+    def __init__(
+        self,
+        plugins: Plugins,
+        spec: PolicySpec,
+        config: Any,
+        *,
+        store: EpisodeStore,
+        workers: int = 1,
+        seed: int = 7,
+        progress: bool = True,
+        on_episode: Callable[[EpisodeRecord], None] | None = None,
+    ):
         if workers < 1:
             raise UserError(f"run.workers must be >= 1, got {workers}")
         self.plugins, self.spec, self.config = plugins, spec, config
@@ -96,13 +106,22 @@ class Runner:
         for spec in plan:
             task = base_task(spec.suite, spec.task_id)
             text = self.plugins.format_prompt(spec.instruction, spec.prompt, self.spec.name)
-            eid = episode_id(policy=self.spec.name, config_hash=self.config_hash, spec=spec,
-                             prompt_text=text, seed=self.seed)
+            eid = episode_id(
+                policy=self.spec.name, config_hash=self.config_hash, spec=spec, prompt_text=text, seed=self.seed
+            )
             job = EpisodeJob(
-                episode_id=eid, suite=spec.suite, task_id=spec.task_id, bddl_path=task.bddl_path,
-                init_state=spec.init_state, seed=self.seed, instruction=text, goal=task.goal,
-                targets=task.targets, warmup_steps=traits.warmup_steps,
-                max_steps=traits.max_steps[spec.suite], needs_privileged=traits.needs_privileged,
+                episode_id=eid,
+                suite=spec.suite,
+                task_id=spec.task_id,
+                bddl_path=task.bddl_path,
+                init_state=spec.init_state,
+                seed=self.seed,
+                instruction=text,
+                goal=task.goal,
+                targets=task.targets,
+                warmup_steps=traits.warmup_steps,
+                max_steps=traits.max_steps[spec.suite],
+                needs_privileged=traits.needs_privileged,
                 case=spec.case,
             )
             items.append(Item(spec, job))
@@ -147,8 +166,9 @@ class Runner:
                 close()
         return result
 
-    def _next_item(self, slot: Slot, queue: EpisodeQueue, deferred: list[Item], stored: set[str],
-                   busy: set, result: RunResult) -> Item | None:
+    def _next_item(
+        self, slot: Slot, queue: EpisodeQueue, deferred: list[Item], stored: set[str], busy: set, result: RunResult
+    ) -> Item | None:
         """The next episode this slot can claim (see EpisodeQueue.pop_for for the order)."""
         while (item := queue.pop_for(slot.task_key, busy)) is not None:
             eid = item.job.episode_id
@@ -273,7 +293,7 @@ class Runner:
                 outputs = [_as_error(exc)] * len(waiting)
         else:
             outputs = []
-            for slot, obs in waiting:
+            for _, obs in waiting:
                 try:
                     outputs.append(self._policy.act(obs))
                 except ServerUnavailable:
@@ -289,12 +309,23 @@ class Runner:
                     raise _as_error(raw)
                 chunk = as_action_chunk(raw)
                 job = slot.item.job
-                executed = np.stack([
-                    self.plugins.postprocess_action(action.copy(), ActionContext(
-                        policy=self.spec.name, suite=job.suite, task_id=job.task_id,
-                        prompt=slot.item.spec.prompt, case_id=slot.item.spec.case_id,
-                        step=obs.step + i, chunk_index=i))
-                    for i, action in enumerate(chunk)])
+                executed = np.stack(
+                    [
+                        self.plugins.postprocess_action(
+                            action.copy(),
+                            ActionContext(
+                                policy=self.spec.name,
+                                suite=job.suite,
+                                task_id=job.task_id,
+                                prompt=slot.item.spec.prompt,
+                                case_id=slot.item.spec.case_id,
+                                step=obs.step + i,
+                                chunk_index=i,
+                            ),
+                        )
+                        for i, action in enumerate(chunk)
+                    ]
+                )
                 if not np.all(np.isfinite(executed)):
                     raise PolicyError("post-processing produced a non-finite action")
             except PolicyError as exc:
@@ -324,15 +355,30 @@ class Runner:
         spec, job = item.spec, item.job
         case = spec.case
         return EpisodeRecord(
-            policy=self.spec.name, suite=spec.suite, task_id=spec.task_id, init_state=spec.init_state,
-            prompt=spec.prompt, instruction=spec.instruction, seed=job.seed,
-            case_id=spec.case_id, family=case.family if case else None, level=case.level if case else None,
-            episode_id=job.episode_id, base_instruction=spec.base_instruction, prompt_text=job.instruction,
-            max_steps=job.max_steps, target_names=job.targets,
-            conflictbench_version=_own_version(), plugin=self.spec.plugin, plugin_version=self.spec.plugin_version,
+            policy=self.spec.name,
+            suite=spec.suite,
+            task_id=spec.task_id,
+            init_state=spec.init_state,
+            prompt=spec.prompt,
+            instruction=spec.instruction,
+            seed=job.seed,
+            case_id=spec.case_id,
+            family=case.family if case else None,
+            level=case.level if case else None,
+            episode_id=job.episode_id,
+            base_instruction=spec.base_instruction,
+            prompt_text=job.instruction,
+            max_steps=job.max_steps,
+            target_names=job.targets,
+            conflictbench_version=_own_version(),
+            plugin=self.spec.plugin,
+            plugin_version=self.spec.plugin_version,
             code_versions=self.code_versions,
-            config_hash=self.config_hash, created_at=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            wall_time_s=wall_time_s, **self._pool.versions, **outcome.record_fields(),
+            config_hash=self.config_hash,
+            created_at=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            wall_time_s=wall_time_s,
+            **self._pool.versions,
+            **outcome.record_fields(),
         )
 
     def _finish(self, slot: Slot, outcome: EpisodeOutcome, result: RunResult) -> None:
@@ -362,8 +408,17 @@ def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str,
     settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
     for name in getattr(config, "identity_exempt", ()):  # a served policy's address and timeouts (ServingConfig)
         settings.pop(name, None)
-    blob = json.dumps({"policy": policy, "config": settings, "traits": traits.as_dict(), "code": list(code),
-                       "simulator": simulator_versions()}, sort_keys=True, default=repr)
+    blob = json.dumps(
+        {
+            "policy": policy,
+            "config": settings,
+            "traits": traits.as_dict(),
+            "code": list(code),
+            "simulator": simulator_versions(),
+        },
+        sort_keys=True,
+        default=repr,
+    )
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 

@@ -38,7 +38,9 @@ class _Recording:
 
     def outcome(self, elapsed_s: float) -> EpisodeOutcome:
         return EpisodeOutcome(
-            success=self.success, steps=self.steps, error=self.error,
+            success=self.success,
+            steps=self.steps,
+            error=self.error,
             eef_pos=np.array(self.eef_pos, dtype=np.float64).reshape(-1, 3),
             target_pos=np.array(self.target_pos, dtype=np.float64).reshape(-1, self.targets, 3),
             actions=np.array(self.actions, dtype=np.float64).reshape(-1, ACTION_DIM),
@@ -113,8 +115,19 @@ class EpisodePlayer:
             out.success = bool(env.check_success())
             while not out.success and out.steps < job.max_steps:
                 priv = privileged_state(env, job.goal, job.case) if job.needs_privileged else None
-                conn.send(Query(make_observation(raw, step=out.steps, instruction=job.instruction, stream=job.stream,
-                                                 episode_id=job.episode_id, images=gate is not None, privileged=priv)))
+                conn.send(
+                    Query(
+                        make_observation(
+                            raw,
+                            step=out.steps,
+                            instruction=job.instruction,
+                            stream=job.stream,
+                            episode_id=job.episode_id,
+                            images=gate is not None,
+                            privileged=priv,
+                        )
+                    )
+                )
                 asked = time.perf_counter()
                 reply = conn.recv()
                 out.waiting_s += time.perf_counter() - asked

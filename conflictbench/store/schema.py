@@ -8,7 +8,8 @@ them without any conflictbench code.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -126,7 +127,7 @@ def _column_arrays(column: pa.ChunkedArray, inner: tuple[int, ...]) -> list[np.n
             d = inner[0]
             for i in range(len(chunk)):
                 a, b = outer_offsets[i], outer_offsets[i + 1]
-                out.append(flat[a * d: b * d].reshape(b - a, d))
+                out.append(flat[a * d : b * d].reshape(b - a, d))
     return out
 
 

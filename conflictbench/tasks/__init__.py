@@ -21,5 +21,10 @@ def conflictbench_register_conflict_operators(register):
     from .validate import WITNESS_TYPES
 
     for name, family, generate in builtin_operators():
-        register(name, family=family, generate=generate, witness_type=WITNESS_TYPES[family],
-                 description=_DESCRIPTIONS[family])
+        register(
+            name,
+            family=family,
+            generate=generate,
+            witness_type=WITNESS_TYPES[family],
+            description=_DESCRIPTIONS[family],
+        )

@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import functools
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Mapping
 
 from conflictbench.core import UserError
 
@@ -88,15 +88,23 @@ def parse_table(text: str, source: str) -> dict[str, CategoryInfo]:
         if row["size"] not in SIZES:
             raise AffordanceTableError(f"{where}, field 'size': expected one of {sorted(SIZES)}, got {row['size']!r}")
         for key in ("names", "synonyms", "hypernyms"):
-            if not isinstance(row[key], list) or not all(isinstance(w, str) and w == w.lower() and w.strip() for w in row[key]):
+            if not isinstance(row[key], list) or not all(
+                isinstance(w, str) and w == w.lower() and w.strip() for w in row[key]
+            ):
                 raise AffordanceTableError(f"{where}, field {key!r}: expected a list of lower-case phrases")
         if not row["names"]:
             raise AffordanceTableError(f"{where}, field 'names': needs at least one name")
         if row["category"] in out:
             raise AffordanceTableError(f"{where}, field 'category': {row['category']!r} repeats")
         out[row["category"]] = CategoryInfo(
-            row["category"], tuple(row["names"]), tuple(row["synonyms"]), tuple(row["hypernyms"]),
-            {k: row[k] for k in AFFORDANCES}, int(row["size"]), str(row["note"]))
+            row["category"],
+            tuple(row["names"]),
+            tuple(row["synonyms"]),
+            tuple(row["hypernyms"]),
+            {k: row[k] for k in AFFORDANCES},
+            int(row["size"]),
+            str(row["note"]),
+        )
     return out
 
 
@@ -104,7 +112,7 @@ def table_path() -> Path:
     return Path(str(resources.files("conflictbench.tasks") / "data" / TABLE))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def load_table(path: str | None = None) -> dict[str, CategoryInfo]:
     p = Path(path) if path else table_path()
     return parse_table(p.read_text(encoding="utf-8"), str(p))

@@ -10,9 +10,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Union
 
-SExpr = Union[str, list["SExpr"]]
+SExpr = str | list["SExpr"]
 _TOKEN = re.compile(r"\(|\)|[^\s()]+")
 
 

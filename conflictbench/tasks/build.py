@@ -10,8 +10,9 @@ from __future__ import annotations
 import hashlib
 import random
 from collections import defaultdict
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, ConflictCase, PluginError
 
@@ -61,11 +62,16 @@ def _as_draft(obj: Any, entry: OperatorEntry, level: str) -> Draft:
         return obj
     if isinstance(obj, dict):
         try:
-            return Draft(family=obj.get("family", entry.family), level=obj.get("level", level),
-                         instruction=obj["instruction"], factors=tuple(obj.get("factors", ())),
-                         premise=obj.get("premise", ""), witness=dict(obj["witness"]),
-                         init_states=None if obj.get("init_states") is None else tuple(obj["init_states"]),
-                         operator=entry.name)
+            return Draft(
+                family=obj.get("family", entry.family),
+                level=obj.get("level", level),
+                instruction=obj["instruction"],
+                factors=tuple(obj.get("factors", ())),
+                premise=obj.get("premise", ""),
+                witness=dict(obj["witness"]),
+                init_states=None if obj.get("init_states") is None else tuple(obj["init_states"]),
+                operator=entry.name,
+            )
         except KeyError as exc:
             raise PluginError(f"conflict operator {entry.name!r} yielded a draft without {exc}") from None
     raise PluginError(f"conflict operator {entry.name!r} yielded {type(obj).__name__}, expected a dict or Draft")
@@ -99,8 +105,14 @@ def _select(drafts: list[Draft], k: int, rng: random.Random, accept: Callable[[D
     return chosen
 
 
-def generate_task_cases(model: TaskModel, entries: Sequence[OperatorEntry], seed: int, ctx: Context,
-                        per_cell: dict[str, int] | None = None, taken: set[str] | None = None) -> list[ConflictCase]:
+def generate_task_cases(
+    model: TaskModel,
+    entries: Sequence[OperatorEntry],
+    seed: int,
+    ctx: Context,
+    per_cell: dict[str, int] | None = None,
+    taken: set[str] | None = None,
+) -> list[ConflictCase]:
     task = model.task
     per_cell = per_cell or PER_CELL
     taken = taken if taken is not None else set()
@@ -118,14 +130,20 @@ def generate_task_cases(model: TaskModel, entries: Sequence[OperatorEntry], seed
                     if i >= MAX_CANDIDATES:
                         break
                     d = _as_draft(obj, entry, level)
-                    if d.family == family and d.level == level and normalise(d.instruction) != base \
-                            and normalise(d.instruction) not in taken:
+                    if (
+                        d.family == family
+                        and d.level == level
+                        and normalise(d.instruction) != base
+                        and normalise(d.instruction) not in taken
+                    ):
                         drafts.append(d)
 
             def accept(d: Draft) -> bool:
                 return not validate_case(_to_case(task, d), ctx)
 
-            picked = _select(drafts, per_cell.get(family, 3), _rng(seed, task.suite, task.task_id, family, level), accept)
+            picked = _select(
+                drafts, per_cell.get(family, 3), _rng(seed, task.suite, task.task_id, family, level), accept
+            )
             for d in picked:
                 taken.add(normalise(d.instruction))
                 out.append(_to_case(task, d))
@@ -134,10 +152,19 @@ def generate_task_cases(model: TaskModel, entries: Sequence[OperatorEntry], seed
 
 def _to_case(task, d: Draft) -> ConflictCase:
     return ConflictCase(
-        case_id=case_id(task.suite, task.task_id, d.family, d.level, d.instruction), suite=task.suite,
-        task_id=task.task_id, base_instruction=task.language, instruction=d.instruction, family=d.family,
-        level=d.level, factors=tuple(d.factors), premise=d.premise, witness=d.witness, status="accepted",
-        init_states=d.init_states)
+        case_id=case_id(task.suite, task.task_id, d.family, d.level, d.instruction),
+        suite=task.suite,
+        task_id=task.task_id,
+        base_instruction=task.language,
+        instruction=d.instruction,
+        family=d.family,
+        level=d.level,
+        factors=tuple(d.factors),
+        premise=d.premise,
+        witness=d.witness,
+        status="accepted",
+        init_states=d.init_states,
+    )
 
 
 def _sort_key(case: ConflictCase):
@@ -145,8 +172,15 @@ def _sort_key(case: ConflictCase):
     return (LIBERO_SUITES.index(case.suite), case.task_id, fam, case.family, case.level, case.case_id)
 
 
-def build_cases(*, seed: int = DEFAULT_SEED, plugins=None, facts_path=None, reviews_path=None,
-                per_cell: dict[str, int] | None = None, progress: Callable[[str], None] | None = None) -> list[ConflictCase]:
+def build_cases(
+    *,
+    seed: int = DEFAULT_SEED,
+    plugins=None,
+    facts_path=None,
+    reviews_path=None,
+    per_cell: dict[str, int] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[ConflictCase]:
     entries = operator_entries(plugins)
     ctx = new_context(facts_path, plugins.conflict_operators().values() if plugins is not None else ())
     facts = load_scene_facts(facts_path)

@@ -172,11 +172,17 @@ def _dest_phrases(model: TaskModel) -> None:
                 continue
             except KeyError:
                 pass
-        short = region.name[len(region.target) + 1:]
+        short = region.name[len(region.target) + 1 :]
         m = _TABLE_REGION.match(short)
         if m:
-            landmark = next((e for e in model.names if model.category_of(e).endswith(m.group("landmark"))
-                             or m.group("landmark") in model.category_of(e)), None)
+            landmark = next(
+                (
+                    e
+                    for e in model.names
+                    if model.category_of(e).endswith(m.group("landmark")) or m.group("landmark") in model.category_of(e)
+                ),
+                None,
+            )
             if landmark:
                 model.dest_phrases[region.name] = ("", f"{_SIDES[m.group('side')]} {model.names[landmark]}")
 
@@ -211,8 +217,13 @@ def _steps(model: TaskModel) -> None:
         kind = "push" if language.startswith("push") else "place"
         steps.append(Step(kind, tuple(objs), dest, prep, tuple((head, o, dest) for o in objs)))
         region = model.facts.entities.get(dest)
-        if region is not None and region.kind == "region" and model.facts.predicate("open", dest) != model.facts.states() \
-                and not {("open", dest), ("close", dest)} & set(problem.goal) and _is_drawer(dest, model):
+        if (
+            region is not None
+            and region.kind == "region"
+            and model.facts.predicate("open", dest) != model.facts.states()
+            and not {("open", dest), ("close", dest)} & set(problem.goal)
+            and _is_drawer(dest, model)
+        ):
             steps.append(Step("open", (dest,), goal=(("open", dest),)))
     model.steps = sorted(steps, key=lambda s: _anchor(language, model, s))
 

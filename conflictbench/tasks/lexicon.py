@@ -13,18 +13,39 @@ from __future__ import annotations
 import functools
 import json
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Iterable
 
 from .affordances import AffordanceTableError, category, load_table
 from .bddl import BDDLProblem
 
 ABSENT_TABLE = "absent_referents.jsonl"
 ROLES = ("object", "support", "container", "appliance", "openable", "landmark")
-SCENE_WORDS = ("robot", "robot arm", "arm", "gripper", "hand", "table", "floor", "wall", "scene", "object",
-               "item", "thing", "drawer", "door", "handle", "knob", "lid", "top", "compartment", "region", "side")
+SCENE_WORDS = (
+    "robot",
+    "robot arm",
+    "arm",
+    "gripper",
+    "hand",
+    "table",
+    "floor",
+    "wall",
+    "scene",
+    "object",
+    "item",
+    "thing",
+    "drawer",
+    "door",
+    "handle",
+    "knob",
+    "lid",
+    "top",
+    "compartment",
+    "region",
+    "side",
+)
 STOPWORDS = {"the", "a", "an", "of", "and", "pair", "set", "piece", "with", "small", "big", "large"}
 _WORD = re.compile(r"[a-z]+")
 
@@ -45,7 +66,7 @@ def content_words(text: str) -> set[str]:
     return {w for w in words(text) if w not in STOPWORDS}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def absent_concepts(path: str | None = None) -> tuple[AbsentConcept, ...]:
     p = Path(path) if path else Path(str(resources.files("conflictbench.tasks") / "data" / ABSENT_TABLE))
     out = []
@@ -54,10 +75,14 @@ def absent_concepts(path: str | None = None) -> tuple[AbsentConcept, ...]:
             row = json.loads(line)
             concept = AbsentConcept(row["concept"], row["phrase"], tuple(row["synonyms"]), tuple(row["roles"]))
         except (json.JSONDecodeError, KeyError, TypeError) as exc:
-            raise AffordanceTableError(f"{p} line {number}: malformed absent referent ({type(exc).__name__}: {exc})") from None
+            raise AffordanceTableError(
+                f"{p} line {number}: malformed absent referent ({type(exc).__name__}: {exc})"
+            ) from None
         unknown = set(concept.roles) - set(ROLES)
         if unknown:
-            raise AffordanceTableError(f"{p} line {number}, field 'roles': unknown {sorted(unknown)}; valid: {', '.join(ROLES)}")
+            raise AffordanceTableError(
+                f"{p} line {number}, field 'roles': unknown {sorted(unknown)}; valid: {', '.join(ROLES)}"
+            )
         out.append(concept)
     return tuple(out)
 

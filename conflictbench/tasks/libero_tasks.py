@@ -67,7 +67,7 @@ def prepare_libero_import() -> None:
     os.environ.setdefault("LIBERO_CONFIG_PATH", str(Path.home() / ".cache" / "conflictbench" / "libero-config"))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _benchmark_suite(suite: str):
     prepare_libero_import()
     from libero.libero import benchmark
@@ -76,7 +76,7 @@ def _benchmark_suite(suite: str):
         return benchmark.get_benchmark_dict()[suite]()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def load_base_tasks(suite: str) -> tuple[BaseTask, ...]:
     if suite not in LIBERO_SUITES:
         raise UserError(f"unknown LIBERO suite {suite!r}; valid choices: {', '.join(LIBERO_SUITES)}")
@@ -108,6 +108,6 @@ def load_init_states(suite: str, task_id: int):
     return _benchmark_suite(suite).get_task_init_states(task_id)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def init_state_count(suite: str, task_id: int) -> int:
     return int(load_init_states(suite, task_id).shape[0])

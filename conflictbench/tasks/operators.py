@@ -20,8 +20,9 @@ any plugin's (:mod:`conflictbench.tasks` holds the implementation).
 from __future__ import annotations
 
 import random
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from .affordances import category
 from .frames import Step, TaskModel
@@ -79,8 +80,12 @@ def aux_steps(model: TaskModel) -> list[Slot]:
     out: list[Slot] = []
     targets = model.targets() | {model.parent(t) for t in model.targets()}
     for name, entity in sorted(model.facts.entities.items()):
-        if entity.kind == "region" and "drawer" in model.dest_phrases.get(name, ("", ""))[1] \
-                and name not in targets and model.parent(name) in model.names:
+        if (
+            entity.kind == "region"
+            and "drawer" in model.dest_phrases.get(name, ("", ""))[1]
+            and name not in targets
+            and model.parent(name) in model.names
+        ):
             if model.never("open", name):
                 out.append(Slot("open", Step("open", (name,), goal=(("open", name),)), (name,), aux=True))
     for name in model.fixtures():
@@ -104,9 +109,12 @@ def multi_frames(model: TaskModel) -> list[list[Slot]]:
         frames.append([slot_of(s) for s in model.steps])
     for i, step in enumerate(model.steps):
         rest_before = [slot_of(s) for s in model.steps[:i]]
-        rest_after = [slot_of(s) for s in model.steps[i + 1:]]
+        rest_after = [slot_of(s) for s in model.steps[i + 1 :]]
         if step.kind == "place" and len(step.objects) == 1:
-            split = [Slot("pick", step, step.objects), Slot("place_it", step, step.objects, step.dest, step.prep, pronoun=True)]
+            split = [
+                Slot("pick", step, step.objects),
+                Slot("place_it", step, step.objects, step.dest, step.prep, pronoun=True),
+            ]
             frames.append(rest_before + split + rest_after)
         elif step.kind == "place" and len(step.objects) == 2:
             one = [Slot("place", step, (o,), step.dest, step.prep) for o in step.objects]
@@ -126,19 +134,30 @@ def frames_for_level(model: TaskModel, level: str) -> list[list[Slot]]:
 AUX_FRAMES = {"move_aside": ("move {o} out of the way", "push {o} aside", "slide {o} to one side")}
 
 
-def realise(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], rng: random.Random) -> tuple[str, list[str], list[Clause]]:
+def realise(
+    model: TaskModel, frame: list[Slot], mods: dict[int, Mods], rng: random.Random
+) -> tuple[str, list[str], list[Clause]]:
     """Write a frame as one instruction; returns (instruction, step bodies, clauses)."""
     clauses: list[Clause] = []
     for i, slot in enumerate(frame):
         m = mods.get(i, Mods())
-        obj = m.obj or coordinate([model.name(o) if o in model.names else model.dest_phrases[o][1] for o in slot.objects])
+        obj = m.obj or coordinate(
+            [model.name(o) if o in model.names else model.dest_phrases[o][1] for o in slot.objects]
+        )
         dest = m.dest if m.dest is not None else (model.dest_text(slot.dest, slot.prep) if slot.dest else None)
         frame_text = m.frame
         if frame_text is None and slot.kind in AUX_FRAMES:
             frame_text = AUX_FRAMES[slot.kind][rng.randrange(len(AUX_FRAMES[slot.kind]))]
-        clause = Clause(slot.kind, obj, dest, plural=len(slot.objects) > 1, frame=frame_text,
-                        pronoun=slot.pronoun and m.obj is None, extras=list(m.extras),
-                        locating=m.locating or (m.obj is None and bool(set(slot.objects) & model.goal_twins())))
+        clause = Clause(
+            slot.kind,
+            obj,
+            dest,
+            plural=len(slot.objects) > 1,
+            frame=frame_text,
+            pronoun=slot.pronoun and m.obj is None,
+            extras=list(m.extras),
+            locating=m.locating or (m.obj is None and bool(set(slot.objects) & model.goal_twins())),
+        )
         clause.render(rng, prep=slot.prep)
         clauses.append(clause)
     # The witness's steps are the clause bodies: a reviewer may re-punctuate the constraints

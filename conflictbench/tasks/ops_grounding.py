@@ -35,8 +35,14 @@ def _roles(slot: Slot) -> list[str]:
     return []
 
 
-_POOL = {"object": "object", "destination": "support", "receptacle": "container", "landmark": "landmark",
-         "openable": "openable", "appliance": "appliance"}
+_POOL = {
+    "object": "object",
+    "destination": "support",
+    "receptacle": "container",
+    "landmark": "landmark",
+    "openable": "openable",
+    "appliance": "appliance",
+}
 
 
 def _apply(model: TaskModel, slot: Slot, role: str, concept: AbsentConcept, mods: Mods, rng: random.Random) -> str:
@@ -112,7 +118,9 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, pools, rng: r
     instruction, steps, _ = realise(model, frame, mods, rng)
     referents = [{"step": i + 1, "role": role, "text": span, "concept": c.concept} for i, role, c, span in chosen]
     return Draft(
-        family="grounding", level=level, instruction=instruction,
+        family="grounding",
+        level=level,
+        instruction=instruction,
         factors=tuple(step_label(level, i, role) for i, role, _, _ in chosen),
         premise=_premise([c for _, _, c, _ in chosen]),
         witness={"type": "absent_referent", "steps": steps, "referents": referents},

@@ -16,19 +16,32 @@ from .frames import TaskModel
 from .operators import Draft, Mods, Slot, frames_for_level, realise, step_label
 from .phrasing import bare, choose
 
-STILL = ("without moving {x}", "while keeping {x} exactly where it is", "but leave {x} exactly where it is",
-         "without letting {x} leave its spot")
+STILL = (
+    "without moving {x}",
+    "while keeping {x} exactly where it is",
+    "but leave {x} exactly where it is",
+    "without letting {x} leave its spot",
+)
 UNTOUCHED = ("without touching {x}", "without making any contact with {x}", "but never touch {x}")
-AVOID = ("but make sure {x} does not end up {d}", "making sure {x} is not {d} at the end",
-         "so that {x} ends up anywhere but {d}")
+AVOID = (
+    "but make sure {x} does not end up {d}",
+    "making sure {x} is not {d} at the end",
+    "so that {x} ends up anywhere but {d}",
+)
 ROBOT = ("without moving the robot arm", "while keeping the arm completely still", "without moving the gripper at all")
 UNGRASPED = ("without grasping {x}", "without ever closing the gripper on {x}")
-KEEP = {"close": ("but keep {t} shut", "while leaving {t} closed", "but keep {t} closed the whole time"),
-        "open": ("but keep {t} open", "while leaving {t} open the whole time"),
-        "turnoff": ("but keep {t} switched off", "while leaving {t} off"),
-        "turnon": ("but keep {t} running", "while leaving {t} on")}
-END = {"close": "and make sure {t} is closed when you finish", "open": "and make sure {t} is open when you finish",
-       "turnoff": "and make sure {t} is off at the end", "turnon": "and make sure {t} is on at the end"}
+KEEP = {
+    "close": ("but keep {t} shut", "while leaving {t} closed", "but keep {t} closed the whole time"),
+    "open": ("but keep {t} open", "while leaving {t} open the whole time"),
+    "turnoff": ("but keep {t} switched off", "while leaving {t} off"),
+    "turnon": ("but keep {t} running", "while leaving {t} on"),
+}
+END = {
+    "close": "and make sure {t} is closed when you finish",
+    "open": "and make sure {t} is open when you finish",
+    "turnoff": "and make sure {t} is off at the end",
+    "turnon": "and make sure {t} is on at the end",
+}
 GRASP_FRAME = "pick up {o} and place {it} {d}"
 KINDS = ("still", "untouched", "avoid", "robot", "ungrasped", "keep", "end")
 
@@ -68,23 +81,45 @@ def _constraint(model: TaskModel, slot: Slot, kind: str, mods: Mods, rng: random
         where = model.dest_text(slot.dest, slot.prep) if slot.dest else ""
         must = {"pick": "be picked up", "move_aside": "be moved out of the way"}.get(slot.kind, f"go {where}")
         if kind == "still":
-            return choose(rng, STILL).format(x=x), ["keep", "still", obj], goal, f"the {noun} must {must} yet must not move"
+            return (
+                choose(rng, STILL).format(x=x),
+                ["keep", "still", obj],
+                goal,
+                f"the {noun} must {must} yet must not move",
+            )
         if kind == "untouched":
-            return (choose(rng, UNTOUCHED).format(x=x), ["keep", "untouched", obj], goal,
-                    f"the {noun} must {must} without ever being touched")
+            return (
+                choose(rng, UNTOUCHED).format(x=x),
+                ["keep", "untouched", obj],
+                goal,
+                f"the {noun} must {must} without ever being touched",
+            )
         if kind == "robot":
-            return choose(rng, ROBOT), ["keep", "still", "robot"], goal, f"moving the {noun} needs the arm to move, yet the arm must stay still"
+            return (
+                choose(rng, ROBOT),
+                ["keep", "still", "robot"],
+                goal,
+                f"moving the {noun} needs the arm to move, yet the arm must stay still",
+            )
         if kind == "avoid" and goal[0] == "goal" and slot.dest:
-            return (choose(rng, AVOID).format(x=x, d=where), ["avoid", *goal[1:]], goal,
-                    f"the {noun} must end up {where} and must not")
+            return (
+                choose(rng, AVOID).format(x=x, d=where),
+                ["avoid", *goal[1:]],
+                goal,
+                f"the {noun} must end up {where} and must not",
+            )
         if kind == "ungrasped":
             if slot.kind == "place":
                 if len(slot.objects) > 1:
                     return None
                 mods.frame = GRASP_FRAME
                 goal = ["do", "lift", obj]
-            return (choose(rng, UNGRASPED).format(x=x), ["keep", "ungrasped", obj], goal,
-                    f"the {noun} must be picked up without being grasped")
+            return (
+                choose(rng, UNGRASPED).format(x=x),
+                ["keep", "ungrasped", obj],
+                goal,
+                f"the {noun} must be picked up without being grasped",
+            )
         return None
     target = slot.objects[0]
     goal = goals[0]
@@ -93,17 +128,34 @@ def _constraint(model: TaskModel, slot: Slot, kind: str, mods: Mods, rng: random
     done = {"open": "opened", "close": "closed", "turnon": "switched on", "turnoff": "switched off"}
     state = {"open": "open", "close": "closed", "turnon": "on", "turnoff": "off"}
     if kind == "keep":
-        return (choose(rng, KEEP[EXCLUSIVE[pred]]).format(t="it"), ["keep", EXCLUSIVE[pred], target], goal,
-                f"the {thing} must be {done[pred]} yet stay {state[EXCLUSIVE[pred]]}")
+        return (
+            choose(rng, KEEP[EXCLUSIVE[pred]]).format(t="it"),
+            ["keep", EXCLUSIVE[pred], target],
+            goal,
+            f"the {thing} must be {done[pred]} yet stay {state[EXCLUSIVE[pred]]}",
+        )
     if kind == "end":
-        return (END[EXCLUSIVE[pred]].format(t="it"), ["goal", EXCLUSIVE[pred], target], goal,
-                f"the {thing} must be {done[pred]} yet end up {state[EXCLUSIVE[pred]]}")
+        return (
+            END[EXCLUSIVE[pred]].format(t="it"),
+            ["goal", EXCLUSIVE[pred], target],
+            goal,
+            f"the {thing} must be {done[pred]} yet end up {state[EXCLUSIVE[pred]]}",
+        )
     if kind == "untouched":
         parent = model.parent(target)
-        return (choose(rng, UNTOUCHED).format(x=model.name(parent)), ["keep", "untouched", parent], goal,
-                f"the {thing} must be {done[pred]} without touching the {bare(model.name(parent))}")
+        return (
+            choose(rng, UNTOUCHED).format(x=model.name(parent)),
+            ["keep", "untouched", parent],
+            goal,
+            f"the {thing} must be {done[pred]} without touching the {bare(model.name(parent))}",
+        )
     if kind == "robot":
-        return choose(rng, ROBOT), ["keep", "still", "robot"], goal, f"the {thing} must be {done[pred]}, yet the arm must stay still"
+        return (
+            choose(rng, ROBOT),
+            ["keep", "still", "robot"],
+            goal,
+            f"the {thing} must be {done[pred]}, yet the arm must stay still",
+        )
     return None
 
 
@@ -139,7 +191,8 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
         made.sort(key=lambda m: m[0].startswith("but "))
         texts = [made[0][0]]
         for text, *_ in made[1:]:
-            # one "but" per step reads naturally ("anywhere but" counts); a second joins with "and": ", and never touch it"
+            # one "but" per step reads naturally ("anywhere but" counts); a second joins with "and":
+            # ", and never touch it"
             if not text.startswith("but ") or any(" but " in f" {t}" for t in texts):
                 text = text.removeprefix("but ").removeprefix("while ").removeprefix("and ")
             texts.append(text)
@@ -160,11 +213,19 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
         rid = f"r{len(requirements) + 1}"
         requirements.append({"id": rid, "step": index + 1, "text": text, "literal": literal})
         conflicts.append([goal_ids[key], rid])
-    words = {"still": "goal vs. keeping it still", "untouched": "goal vs. not touching", "avoid": "goal vs. its negation",
-             "robot": "goal vs. a still arm", "ungrasped": "picking up vs. not grasping", "keep": "state vs. its opposite",
-             "end": "state vs. its opposite at the end"}
+    words = {
+        "still": "goal vs. keeping it still",
+        "untouched": "goal vs. not touching",
+        "avoid": "goal vs. its negation",
+        "robot": "goal vs. a still arm",
+        "ungrasped": "picking up vs. not grasping",
+        "keep": "state vs. its opposite",
+        "end": "state vs. its opposite at the end",
+    }
     return Draft(
-        family="instruction", level=level, instruction=instruction,
+        family="instruction",
+        level=level,
+        instruction=instruction,
         factors=tuple(step_label(level, i, words[k]) for i, k in combo),
         premise="; ".join(conflict for *_, conflict in picked),
         witness={"type": "contradiction", "steps": steps, "requirements": requirements, "conflicts": conflicts},

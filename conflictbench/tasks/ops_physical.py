@@ -30,7 +30,11 @@ PREMISES = {
     "pourable": "{E} holds nothing that can be poured",
 }
 VERB_SWAPS = {  # needs -> frames per slot kind
-    "foldable": {"place": "fold {o} in half and put {it} {d}", "pick": "fold {o} in half", "move_aside": "fold {o} in half"},
+    "foldable": {
+        "place": "fold {o} in half and put {it} {d}",
+        "pick": "fold {o} in half",
+        "move_aside": "fold {o} in half",
+    },
     "turnable": {"pick": "turn on {o}", "move_aside": "switch on {o}"},
     "openable": {"pick": "open {o}", "move_aside": "open {o}"},
     "pourable": {"place": "pour {o} {d}"},
@@ -96,7 +100,9 @@ def _apply(model, slot: Slot, option, mods: Mods, rng: random.Random, busy: set[
     part, needs, frame = option
     dest = slot.dest or slot.step.dest  # a pick step keeps its place step's destination out too
     dest_text = model.dest_text(dest, slot.step.prep) if dest else ""
-    exclude = busy | set(slot.step.objects) | _mentioned(model, dest_text) | ({dest, model.parent(dest)} if dest else set())
+    exclude = (
+        busy | set(slot.step.objects) | _mentioned(model, dest_text) | ({dest, model.parent(dest)} if dest else set())
+    )
     if part == "verb":
         entity = slot.objects[0]
         mods.frame = frame
@@ -123,15 +129,24 @@ def _apply(model, slot: Slot, option, mods: Mods, rng: random.Random, busy: set[
     # the destination
     item = mods.entity or slot.objects[0]
     if needs == "fits_in":
-        pool = [e for e in _named(model) if e not in exclude and e != item
-                and fits_inside(model.category_of(item), model.category_of(e)) is False
-                and category(model.category_of(e)).has("container")]
+        pool = [
+            e
+            for e in _named(model)
+            if e not in exclude
+            and e != item
+            and fits_inside(model.category_of(item), model.category_of(e)) is False
+            and category(model.category_of(e)).has("container")
+        ]
     else:
         pool = _lacking(model, needs, exclude | {item})
     if not pool:
         return None
     entity = choose(rng, pool)
-    prep = ("into" if (mods.frame or "").startswith("pour") else "inside") if needs in ("container", "fits_in") else "on top of"
+    prep = (
+        ("into" if (mods.frame or "").startswith("pour") else "inside")
+        if needs in ("container", "fits_in")
+        else "on top of"
+    )
     mods.dest = f"{prep} {short_name(model, entity)}"
     if needs == "fits_in":
         return {"entity": item, "needs": "fits_in", "holder": entity, "text": short_name(model, entity)}
@@ -151,9 +166,15 @@ def generate(model: TaskModel, level: str, rng: random.Random):
         if level in ("L1", "L3"):
             combos = [[o] for o in options]
         elif level == "L2":  # two parts of one step; a swapped object keeps its own verb
-            combos = [list(c) for c in itertools.combinations(options, 2)
-                      if c[0][0] == c[1][0] and c[0][1][0] != c[1][1][0] and "verb" not in (c[0][1][0], c[1][1][0])
-                      or c[0][0] == c[1][0] and {c[0][1][0], c[1][1][0]} == {"verb", "dest"}]
+            combos = [
+                list(c)
+                for c in itertools.combinations(options, 2)
+                if c[0][0] == c[1][0]
+                and c[0][1][0] != c[1][1][0]
+                and "verb" not in (c[0][1][0], c[1][1][0])
+                or c[0][0] == c[1][0]
+                and {c[0][1][0], c[1][1][0]} == {"verb", "dest"}
+            ]
         else:
             combos = [list(c) for c in itertools.combinations(options, 2) if c[0][0] != c[1][0]]
         for combo in combos:
@@ -178,10 +199,19 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
     if any(v["text"] not in instruction for v in violations):
         return None
     return Draft(
-        family="physical", level=level, instruction=instruction,
-        factors=tuple(step_label(level, v["step"] - 1, f"{bare(short_name(model, v['entity']))} not {v['needs']}"
-                                 if v["needs"] != "fits_in" else f"{bare(short_name(model, v['entity']))} does not fit")
-                      for v in violations),
+        family="physical",
+        level=level,
+        instruction=instruction,
+        factors=tuple(
+            step_label(
+                level,
+                v["step"] - 1,
+                f"{bare(short_name(model, v['entity']))} not {v['needs']}"
+                if v["needs"] != "fits_in"
+                else f"{bare(short_name(model, v['entity']))} does not fit",
+            )
+            for v in violations
+        ),
         premise="; ".join(_premise(model, v) for v in violations),
         witness={"type": "affordance_violation", "steps": steps, "violations": violations},
         operator="physical.affordance_violation",

@@ -30,8 +30,16 @@ PHRASES = {
     "in": ("in", "inside"),
     "between": ("between",),
 }
-NEGATED = {"left_of": "to the left of", "right_of": "to the right of", "in_front_of": "in front of",
-           "behind": "behind", "next_to": "next to", "on": "on", "in": "in", "between": "between"}
+NEGATED = {
+    "left_of": "to the left of",
+    "right_of": "to the right of",
+    "in_front_of": "in front of",
+    "behind": "behind",
+    "next_to": "next to",
+    "on": "on",
+    "in": "in",
+    "between": "between",
+}
 
 
 def subject_noun(model: TaskModel, entity: str) -> tuple[str, list[str]]:
@@ -71,8 +79,9 @@ def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str])
             holder = category(model.category_of(holder_name))
             if holder.size < size:
                 continue
-            if (relation == "on" and prep == "on" and holder.has("support") is True and ent not in model.fixtures()) \
-                    or (relation == "in" and prep == "in" and holder.has("container")):
+            if (
+                relation == "on" and prep == "on" and holder.has("support") is True and ent not in model.fixtures()
+            ) or (relation == "in" and prep == "in" and holder.has("container")):
                 out.append((ent, _short(model, ent) if ent in model.names else np_))
         return out
     for ent in model.names:
@@ -93,11 +102,17 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset()) -> li
     for relation in PHRASES:
         if relation in ("on", "in") and not movable:
             continue
-        exclude = set(candidates) | {model.parent(c) for c in candidates} | set(avoid) | {model.parent(a) for a in avoid}
-        marks = [np_ for _, np_ in _landmarks(model, "next_to" if relation == "between" else relation, subject, exclude)]
+        exclude = (
+            set(candidates) | {model.parent(c) for c in candidates} | set(avoid) | {model.parent(a) for a in avoid}
+        )
+        marks = [
+            np_ for _, np_ in _landmarks(model, "next_to" if relation == "between" else relation, subject, exclude)
+        ]
         options = [list(p) for p in itertools.combinations(marks, 2)] if relation == "between" else [[m] for m in marks]
         for phrases in options:
-            if relation in ("left_of", "right_of") and any(w in f" {p} " for p in (noun, *phrases) for w in (" left ", " right ")):
+            if relation in ("left_of", "right_of") and any(
+                w in f" {p} " for p in (noun, *phrases) for w in (" left ", " right ")
+            ):
                 continue  # "the left plate to the right of ..." reads as a contradiction in words, not a false relation
             groups = [sorted(model.candidates(p)) for p in phrases]
             if not all(groups) or any(set(g) & set(candidates) for g in groups):
@@ -108,14 +123,24 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset()) -> li
                     if len(set(combo)) == len(combo):
                         false = false & model.facts.false_states(relation, cand, *combo)
             if len(false) >= MIN_STATES:
-                out.append({"relation": relation, "subject": noun, "candidates": candidates, "landmark_phrases": phrases,
-                            "landmark_text": " and ".join(phrases), "false_states": false})
+                out.append(
+                    {
+                        "relation": relation,
+                        "subject": noun,
+                        "candidates": candidates,
+                        "landmark_phrases": phrases,
+                        "landmark_text": " and ".join(phrases),
+                        "false_states": false,
+                    }
+                )
     return out
 
 
 def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
     if part == "object":
-        return slot.objects[0] if len(slot.objects) == 1 and slot.kind in ("place", "push", "pick", "move_aside") else None
+        return (
+            slot.objects[0] if len(slot.objects) == 1 and slot.kind in ("place", "push", "pick", "move_aside") else None
+        )
     if part == "dest" and slot.dest and slot.kind in ("place", "place_it", "push"):
         holder = model.parent(slot.dest)
         return holder if holder in model.names and holder in model.facts.entities else None
@@ -126,7 +151,7 @@ def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
 
 
 def _phrase(claim: dict, rng: random.Random, clause: bool = False) -> str:
-    """"the bowl behind the stove"; with ``clause`` always a relative clause ("the bowl that is
+    """ "the bowl behind the stove"; with ``clause`` always a relative clause ("the bowl that is
     behind the stove"), where a bare modifier could be read as a destination (push X behind Y)."""
     rel = choose(rng, PHRASES[claim["relation"]])
     if rel.startswith(("sitting", "resting")):
@@ -136,8 +161,9 @@ def _phrase(claim: dict, rng: random.Random, clause: bool = False) -> str:
     return form.format(s=claim["subject"], r=rel, l=claim["landmark_text"])
 
 
-def _apply(model: TaskModel, slot: Slot, part: str, claim: dict, mods: Mods, rng: random.Random,
-           earlier: str | None = None) -> str:
+def _apply(
+    model: TaskModel, slot: Slot, part: str, claim: dict, mods: Mods, rng: random.Random, earlier: str | None = None
+) -> str:
     if earlier:  # a second claim about the same thing: "the plate behind the stove and next to the rack"
         text = f"{earlier} and {choose(rng, PHRASES[claim['relation']])} {claim['landmark_text']}"
         if part in ("object", "target"):
@@ -181,7 +207,9 @@ def generate(model: TaskModel, level: str, rng: random.Random):
         return cache[(entity, avoid)]
 
     for frame in frames_for_level(model, level):
-        parts = [(i, p) for i, slot in enumerate(frame) for p in ("object", "dest", "target") if _subject_of(model, slot, p)]
+        parts = [
+            (i, p) for i, slot in enumerate(frame) for p in ("object", "dest", "target") if _subject_of(model, slot, p)
+        ]
         if level in ("L1", "L3"):
             combos = [[p] for p in parts]
         elif level == "L2":  # two parts of one step, or two claims about one part
@@ -209,8 +237,14 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
         earlier = next((t for i, p, c, t in chosen if (i, p) == (index, part)), None)
         if earlier:
             first = next(c for i, p, c, t in chosen if (i, p) == (index, part))
-            pool = [c for c in pool if c["relation"] != first["relation"] and c["landmark_text"] != first["landmark_text"]
-                    and c["relation"] not in ("between", "on", "in") and first["relation"] != "between"]
+            pool = [
+                c
+                for c in pool
+                if c["relation"] != first["relation"]
+                and c["landmark_text"] != first["landmark_text"]
+                and c["relation"] not in ("between", "on", "in")
+                and first["relation"] != "between"
+            ]
             if not pool:
                 return None
         full = [c for c in pool if c["false_states"] == model.facts.states()]
@@ -221,13 +255,23 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
     instruction, steps, _ = realise(model, frame, mods, rng)
     if any(text not in instruction for *_, text in chosen):
         return None
-    relations = [{"step": i + 1, "text": text, "relation": c["relation"],
-                  "subject": {"phrase": bare(c["subject"]), "entities": sorted(c["candidates"])},
-                  "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in c["landmark_phrases"]]}
-                 for i, part, c, text in chosen]
+    relations = [
+        {
+            "step": i + 1,
+            "text": text,
+            "relation": c["relation"],
+            "subject": {"phrase": bare(c["subject"]), "entities": sorted(c["candidates"])},
+            "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in c["landmark_phrases"]],
+        }
+        for i, part, c, text in chosen
+    ]
     return Draft(
-        family="spatial", level=level, instruction=instruction,
-        factors=tuple(step_label(level, i, f"{part} relation ({c['relation'].replace('_', ' ')})") for i, part, c, _ in chosen),
+        family="spatial",
+        level=level,
+        instruction=instruction,
+        factors=tuple(
+            step_label(level, i, f"{part} relation ({c['relation'].replace('_', ' ')})") for i, part, c, _ in chosen
+        ),
         premise="; ".join(_premise(model, c) for _, _, c, _ in chosen),
         witness={"type": "false_relation", "steps": steps, "relations": relations},
         init_states=None if states == model.facts.states() else tuple(sorted(states)),

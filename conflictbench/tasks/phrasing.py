@@ -12,8 +12,15 @@ import random
 from dataclasses import dataclass, field
 
 # Frames per step kind; {o} object noun phrase, {d} destination prepositional phrase, {it} it/them.
-PLACE = ("put {o} {d}", "place {o} {d}", "pick up {o} and place {it} {d}", "pick up {o} and put {it} {d}",
-         "move {o} {d}", "take {o} and put {it} {d}", "grab {o} and set {it} down {d}")
+PLACE = (
+    "put {o} {d}",
+    "place {o} {d}",
+    "pick up {o} and place {it} {d}",
+    "pick up {o} and put {it} {d}",
+    "move {o} {d}",
+    "take {o} and put {it} {d}",
+    "grab {o} and set {it} down {d}",
+)
 PLACE_ON = ("set {o} {d}",)
 PLACE_IN = ("drop {o} {d}", "stow {o} {d}")
 PUSH = ("push {o} {d}", "slide {o} {d}", "shove {o} {d}")
@@ -27,8 +34,14 @@ TURN_OFF = ("turn off {o}", "switch off {o}", "turn {o} off")
 GRASPING = ("pick up", "grab", "lift", "take")
 """Frames that need the gripper to close on the object."""
 
-TWO = ("{a}, then {b}", "{a} and then {b}", "first {a}, then {b}", "{a}; after that, {b}",
-       "{a}, and once that is done, {b}", "{a}, and afterwards {b}")
+TWO = (
+    "{a}, then {b}",
+    "{a} and then {b}",
+    "first {a}, then {b}",
+    "{a}; after that, {b}",
+    "{a}, and once that is done, {b}",
+    "{a}, and afterwards {b}",
+)
 THREE = ("{a}, then {b}, and finally {c}", "first {a}, next {b}, then {c}", "{a}, then {b}, then {c}")
 
 
@@ -113,7 +126,7 @@ def join(texts: list[str], rng: random.Random) -> str:
 
 
 def coordinate(names: list[str]) -> str:
-    """"the soup" / "both the soup and the sauce" / "the soup, the sauce and the milk"."""
+    """ "the soup" / "both the soup and the sauce" / "the soup, the sauce and the milk"."""
     if len(names) == 1:
         return names[0]
     if len(names) == 2:

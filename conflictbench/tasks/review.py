@@ -18,10 +18,10 @@ from __future__ import annotations
 import json
 import random
 from collections import defaultdict
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from conflictbench.core import ConflictCase, UserError
 
@@ -71,10 +71,21 @@ def parse_reviews(text: str, source: str) -> list[Decision]:
         if row.get("witness") is not None and not isinstance(row["witness"], dict):
             raise ReviewError(f"{where}, field 'witness': expected a JSON object")
         if row["case_id"] in seen:
-            raise ReviewError(f"{where}, field 'case_id': {row['case_id']!r} was decided on line {seen[row['case_id']]}")
+            raise ReviewError(
+                f"{where}, field 'case_id': {row['case_id']!r} was decided on line {seen[row['case_id']]}"
+            )
         seen[row["case_id"]] = number
-        out.append(Decision(row["case_id"], row["decision"], row["note"], row.get("instruction"), row.get("premise"),
-                            row.get("witness"), number))
+        out.append(
+            Decision(
+                row["case_id"],
+                row["decision"],
+                row["note"],
+                row.get("instruction"),
+                row.get("premise"),
+                row.get("witness"),
+                number,
+            )
+        )
     return out
 
 
@@ -94,15 +105,22 @@ def apply_reviews(cases: Sequence[ConflictCase], decisions: Iterable[Decision], 
     out = list(cases)
     for d in decisions:
         if d.case_id not in by_id:
-            raise ReviewError(f"review line {d.line}: case {d.case_id!r} is not produced by the generator any more; "
-                              "review the new sample and update the decision")
+            raise ReviewError(
+                f"review line {d.line}: case {d.case_id!r} is not produced by the generator any more; "
+                "review the new sample and update the decision"
+            )
         i = by_id[d.case_id]
         case = out[i]
         if d.decision == "removed":
             out[i] = replace(case, status="removed")
         elif d.decision == "revised":
-            out[i] = replace(case, instruction=d.instruction, premise=d.premise or case.premise,
-                             witness=d.witness or case.witness, status="revised")
+            out[i] = replace(
+                case,
+                instruction=d.instruction,
+                premise=d.premise or case.premise,
+                witness=d.witness or case.witness,
+                status="revised",
+            )
             if ctx is not None:
                 problems = validate_case(out[i], ctx)
                 if problems:
@@ -147,6 +165,16 @@ def sample_for_review(cases: Sequence[ConflictCase], per_cell: int, seed: int = 
 
 def review_template(case: ConflictCase) -> dict:
     """One line of a review sheet: the case as a reviewer needs it, with the decision left blank."""
-    return {"case_id": case.case_id, "family": case.family, "level": case.level, "suite": case.suite,
-            "task_id": case.task_id, "base_instruction": case.base_instruction, "instruction": case.instruction,
-            "premise": case.premise, "factors": list(case.factors), "decision": "", "note": ""}
+    return {
+        "case_id": case.case_id,
+        "family": case.family,
+        "level": case.level,
+        "suite": case.suite,
+        "task_id": case.task_id,
+        "base_instruction": case.base_instruction,
+        "instruction": case.instruction,
+        "premise": case.premise,
+        "factors": list(case.factors),
+        "decision": "",
+        "note": "",
+    }

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import numpy as np
 
@@ -133,10 +133,14 @@ class TaskFacts:
     def _between(self, a: str, b: str, c: str) -> frozenset:
         pa, pb, pc = (self.positions[n][:, :2] for n in (a, b, c))
         seg = pc - pb
-        length2 = np.maximum((seg ** 2).sum(axis=1), 1e-9)
+        length2 = np.maximum((seg**2).sum(axis=1), 1e-9)
         t = ((pa - pb) * seg).sum(axis=1) / length2
         off = np.abs(seg[:, 0] * (pa - pb)[:, 1] - seg[:, 1] * (pa - pb)[:, 0]) / np.sqrt(length2)
-        ok = (t > -BETWEEN_OVERSHOOT) & (t < 1 + BETWEEN_OVERSHOOT) & (off <= BETWEEN_OFFSET + (self.entities[a].radius or 0.0))
+        ok = (
+            (t > -BETWEEN_OVERSHOOT)
+            & (t < 1 + BETWEEN_OVERSHOOT)
+            & (off <= BETWEEN_OFFSET + (self.entities[a].radius or 0.0))
+        )
         return frozenset(int(i) for i in np.flatnonzero(ok))
 
     def _support(self, relation: str, a: str, b: str) -> frozenset:
@@ -168,14 +172,27 @@ def task_facts_to_json(facts: TaskFacts) -> dict:
         mm = np.rint(np.asarray(arr) * 1000).astype(int)
         positions[name] = [mm[0].tolist()] if (mm == mm[0]).all() else mm.tolist()
     return {
-        "suite": facts.suite, "task_id": facts.task_id, "bddl_sha256": facts.bddl_sha256,
-        "init_states_sha256": facts.init_states_sha256, "states": facts.n_states,
-        "entities": {n: {"category": e.category, "kind": e.kind, "parent": e.parent,
-                         "radius_mm": None if e.radius is None else round(e.radius * 1000),
-                         "height_mm": None if e.height is None else round(e.height * 1000)}
-                     for n, e in sorted(facts.entities.items())},
+        "suite": facts.suite,
+        "task_id": facts.task_id,
+        "bddl_sha256": facts.bddl_sha256,
+        "init_states_sha256": facts.init_states_sha256,
+        "states": facts.n_states,
+        "entities": {
+            n: {
+                "category": e.category,
+                "kind": e.kind,
+                "parent": e.parent,
+                "radius_mm": None if e.radius is None else round(e.radius * 1000),
+                "height_mm": None if e.height is None else round(e.height * 1000),
+            }
+            for n, e in sorted(facts.entities.items())
+        },
         "positions_mm": dict(sorted(positions.items())),
-        "contacts": {" ".join(sorted(k)): _states_out(v) for k, v in sorted(facts.contacts.items(), key=lambda kv: sorted(kv[0])) if v},
+        "contacts": {
+            " ".join(sorted(k)): _states_out(v)
+            for k, v in sorted(facts.contacts.items(), key=lambda kv: sorted(kv[0]))
+            if v
+        },
         "predicates": {" ".join(k): _states_out(v) for k, v in sorted(facts.predicates.items()) if v},
     }
 
@@ -183,10 +200,17 @@ def task_facts_to_json(facts: TaskFacts) -> dict:
 def task_facts_from_json(obj: dict, where: str) -> TaskFacts:
     try:
         n = int(obj["states"])
-        entities = {name: Entity(name, e["category"], e["kind"], e.get("parent"),
-                                 None if e.get("radius_mm") is None else e["radius_mm"] / 1000,
-                                 None if e.get("height_mm") is None else e["height_mm"] / 1000)
-                    for name, e in obj["entities"].items()}
+        entities = {
+            name: Entity(
+                name,
+                e["category"],
+                e["kind"],
+                e.get("parent"),
+                None if e.get("radius_mm") is None else e["radius_mm"] / 1000,
+                None if e.get("height_mm") is None else e["height_mm"] / 1000,
+            )
+            for name, e in obj["entities"].items()
+        }
         positions = {}
         for name, rows in obj["positions_mm"].items():
             arr = np.asarray(rows, dtype=float) / 1000
@@ -195,8 +219,18 @@ def task_facts_from_json(obj: dict, where: str) -> TaskFacts:
                 raise ValueError(f"positions of {name} have shape {positions[name].shape}")
         contacts = {frozenset(k.split()): frozenset(v) for k, v in obj["contacts"].items()}
         predicates = {tuple(k.split()): frozenset(v) for k, v in obj["predicates"].items()}
-        return TaskFacts(obj["suite"], int(obj["task_id"]), obj["bddl_sha256"], obj["init_states_sha256"], n,
-                         entities, positions, contacts, predicates, frozenset(range(n)))
+        return TaskFacts(
+            obj["suite"],
+            int(obj["task_id"]),
+            obj["bddl_sha256"],
+            obj["init_states_sha256"],
+            n,
+            entities,
+            positions,
+            contacts,
+            predicates,
+            frozenset(range(n)),
+        )
     except (KeyError, TypeError, ValueError) as exc:
         raise SceneFactsError(f"{where}: malformed scene facts ({type(exc).__name__}: {exc})") from None
 
@@ -209,10 +243,17 @@ def _checksum(lines: list[str]) -> str:
 
 
 def format_scene_facts(all_facts: Iterable[TaskFacts], provenance: Mapping[str, str]) -> str:
-    lines = [json.dumps(task_facts_to_json(f), sort_keys=True, separators=(",", ":"))
-             for f in sorted(all_facts, key=lambda f: f.key)]
-    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "tasks": len(lines),
-              "sha256": _checksum(lines), **dict(provenance)}
+    lines = [
+        json.dumps(task_facts_to_json(f), sort_keys=True, separators=(",", ":"))
+        for f in sorted(all_facts, key=lambda f: f.key)
+    ]
+    header = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "tasks": len(lines),
+        "sha256": _checksum(lines),
+        **dict(provenance),
+    }
     return "\n".join([json.dumps(header, sort_keys=True)] + lines) + "\n"
 
 
@@ -225,10 +266,14 @@ def parse_scene_facts(text: str, source: str) -> dict[tuple[str, int], TaskFacts
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise SceneFactsError(f"{source} line 1: missing the '{FORMAT}' header")
     if header.get("format_version") != FORMAT_VERSION:
-        raise SceneFactsError(f"{source} line 1, field 'format_version': {header.get('format_version')!r}; expected {FORMAT_VERSION}")
+        raise SceneFactsError(
+            f"{source} line 1, field 'format_version': {header.get('format_version')!r}; expected {FORMAT_VERSION}"
+        )
     body = lines[1:]
     if header.get("sha256") != _checksum(body):
-        raise SceneFactsError(f"{source} line 1, field 'sha256': checksum mismatch; rebuild with `conflictbench suite build --facts`")
+        raise SceneFactsError(
+            f"{source} line 1, field 'sha256': checksum mismatch; rebuild with `conflictbench suite build --facts`"
+        )
     out: dict[tuple[str, int], TaskFacts] = {}
     for number, line in enumerate(body, start=2):
         try:
@@ -254,6 +299,8 @@ def load_scene_facts(path: str | Path | None = None) -> dict[tuple[str, int], Ta
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
-            raise SceneFactsError(f"scene facts not found: {path}; build them with `conflictbench suite build --facts`") from None
+            raise SceneFactsError(
+                f"scene facts not found: {path}; build them with `conflictbench suite build --facts`"
+            ) from None
         _CACHE[key] = parse_scene_facts(text, str(path))
     return _CACHE[key]

@@ -10,8 +10,8 @@ LIBERO's stored states hold objects a little above their supports (a bowl in an 
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 import numpy as np
 
@@ -136,8 +136,9 @@ def derive_task_facts(task: BaseTask, *, states: Iterable[int] | None = None) ->
                 env.step(NOOP_ACTION)
             data = env.env.sim.data
             for name, entity in entities.items():
-                positions[name][row] = (data.get_site_xpos(name) if entity.kind == "region"
-                                        else data.body_xpos[env.env.obj_body_id[name]])
+                positions[name][row] = (
+                    data.get_site_xpos(name) if entity.kind == "region" else data.body_xpos[env.env.obj_body_id[name]]
+                )
             for pair in _contacts(env, geoms):
                 contacts.setdefault(pair, set()).add(index)
             for a in objects:
@@ -164,9 +165,16 @@ def derive_task_facts(task: BaseTask, *, states: Iterable[int] | None = None) ->
     finally:
         env.close()
     return TaskFacts(
-        task.suite, task.task_id, file_sha256(task.bddl_path), states_sha256(init_states), len(chosen),
-        entities, positions, {k: frozenset(v) for k, v in contacts.items()},
-        {k: frozenset(v) for k, v in predicates.items()}, frozenset(chosen),
+        task.suite,
+        task.task_id,
+        file_sha256(task.bddl_path),
+        states_sha256(init_states),
+        len(chosen),
+        entities,
+        positions,
+        {k: frozenset(v) for k, v in contacts.items()},
+        {k: frozenset(v) for k, v in predicates.items()},
+        frozenset(chosen),
     )
 
 
@@ -189,8 +197,9 @@ def _derive_job(suite: str, task_id: int, states: tuple[int, ...] | None) -> Tas
     return derive_task_facts(base_task(suite, task_id), states=states)
 
 
-def build_scene_facts(tasks: Iterable[BaseTask], path: str | Path,
-                      progress: Callable[[str], None] | None = None) -> Path:
+def build_scene_facts(
+    tasks: Iterable[BaseTask], path: str | Path, progress: Callable[[str], None] | None = None
+) -> Path:
     """Derive every task's facts (one simulator at a time) and write the shipped facts file."""
     from conflictbench.sim.libero_env import EnvSettings, configure_process, simulator_versions
 

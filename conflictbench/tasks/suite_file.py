@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, ConflictCase, UserError
 
@@ -47,11 +48,19 @@ class Suite:
 
 
 _REQUIRED: dict[str, type | tuple[type, ...]] = {
-    "case_id": str, "suite": str, "task_id": int, "base_instruction": str, "instruction": str,
-    "family": str, "level": str,
+    "case_id": str,
+    "suite": str,
+    "task_id": int,
+    "base_instruction": str,
+    "instruction": str,
+    "family": str,
+    "level": str,
 }
 _OPTIONAL: dict[str, Any] = {
-    "factors": (list, []), "premise": (str, ""), "witness": (dict, {}), "status": (str, "accepted"),
+    "factors": (list, []),
+    "premise": (str, ""),
+    "witness": (dict, {}),
+    "status": (str, "accepted"),
     "init_states": ((list, type(None)), None),
 }
 
@@ -94,8 +103,9 @@ def checksum(lines: Iterable[str]) -> str:
     return digest.hexdigest()
 
 
-def parse_suite(text: str, *, source: str = "<suite>", require_header: bool = False,
-                families: tuple[str, ...] = FAMILIES) -> Suite:
+def parse_suite(
+    text: str, *, source: str = "<suite>", require_header: bool = False, families: tuple[str, ...] = FAMILIES
+) -> Suite:
     """Read a suite file's text; ``families`` widens the accepted families (plugins may add some)."""
     lines = text.splitlines()
     header: dict[str, Any] | None = None
@@ -110,8 +120,10 @@ def parse_suite(text: str, *, source: str = "<suite>", require_header: bool = Fa
     if header is None and require_header:
         raise SuiteFormatError(f"{source} line 1: missing the '{FORMAT}' header")
     if header is not None and header.get("format_version") != FORMAT_VERSION:
-        raise SuiteFormatError(f"{source} line 1, field 'format_version': {header.get('format_version')!r}; "
-                               f"this conflictbench reads version {FORMAT_VERSION}")
+        raise SuiteFormatError(
+            f"{source} line 1, field 'format_version': {header.get('format_version')!r}; "
+            f"this conflictbench reads version {FORMAT_VERSION}"
+        )
     body = [line for line in lines[first:]]
     cases: list[ConflictCase] = []
     seen: dict[str, int] = {}
@@ -125,15 +137,18 @@ def parse_suite(text: str, *, source: str = "<suite>", require_header: bool = Fa
             raise SuiteFormatError(f"{source} line {number}: not valid JSON ({exc.msg})") from None
         case = _case_from(obj, f"{source} line {number}", families)
         if case.case_id in seen:
-            raise SuiteFormatError(f"{source} line {number}, field 'case_id': {case.case_id!r} repeats line {seen[case.case_id]}")
+            raise SuiteFormatError(
+                f"{source} line {number}, field 'case_id': {case.case_id!r} repeats line {seen[case.case_id]}"
+            )
         seen[case.case_id] = number
         cases.append(case)
     if header is not None:
         if header.get("cases") != len(cases):
             raise SuiteFormatError(f"{source} line 1, field 'cases': says {header.get('cases')}, file has {len(cases)}")
         if header.get("sha256") != checksum(body):
-            raise SuiteFormatError(f"{source} line 1, field 'sha256': checksum mismatch; the cases were changed after "
-                                   "the suite was built")
+            raise SuiteFormatError(
+                f"{source} line 1, field 'sha256': checksum mismatch; the cases were changed after the suite was built"
+            )
     name = str(header.get("name", "")) if header else Path(source).stem
     version = str(header.get("version", "")) if header else ""
     return Suite(name=name, version=version, cases=tuple(cases), path=source)
@@ -153,8 +168,15 @@ def read_suite(path: str | Path, *, require_header: bool = False, families: tupl
 def format_suite(cases: Iterable[ConflictCase], *, name: str, version: str, extra: dict[str, Any] | None = None) -> str:
     """The file text; ``extra`` adds header fields (the build records its seed there)."""
     lines = [case_line(c) for c in cases]
-    header = {**(extra or {}), "format": FORMAT, "format_version": FORMAT_VERSION, "name": name, "version": version,
-              "cases": len(lines), "sha256": checksum(lines)}
+    header = {
+        **(extra or {}),
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "name": name,
+        "version": version,
+        "cases": len(lines),
+        "sha256": checksum(lines),
+    }
     return "\n".join([json.dumps(header, sort_keys=True)] + lines) + "\n"
 
 

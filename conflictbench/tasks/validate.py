@@ -12,27 +12,44 @@ family's own rule (:data:`FAMILY_CHECKS`). Scene facts come from package data, s
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Callable, Iterable
 
 from conflictbench.core import ConflictCase
 
 from .affordances import AFFORDANCES, category, fits_inside
 from .contradictions import contradiction, literal_entities
 from .frames import TaskModel, build_model
-from .lexicon import absence_problem, concept as absent_concept, words
+from .lexicon import absence_problem, words
+from .lexicon import concept as absent_concept
 from .libero_tasks import base_task
 from .scene import RELATIONS, TaskFacts, load_scene_facts
 from .scene_build import file_sha256, states_sha256
 
-WITNESS_TYPES = {"instruction": "contradiction", "grounding": "absent_referent", "spatial": "false_relation",
-                 "physical": "affordance_violation"}
-FACTOR_KEYS = {"contradiction": "conflicts", "absent_referent": "referents", "false_relation": "relations",
-               "affordance_violation": "violations"}
+WITNESS_TYPES = {
+    "instruction": "contradiction",
+    "grounding": "absent_referent",
+    "spatial": "false_relation",
+    "physical": "affordance_violation",
+}
+FACTOR_KEYS = {
+    "contradiction": "conflicts",
+    "absent_referent": "referents",
+    "false_relation": "relations",
+    "affordance_violation": "violations",
+}
 NEEDS = (*AFFORDANCES, "movable", "fits_in")
 PRONOUNS = {"it", "them", "its", "both"}
-RELATION_WORDS = {"left_of": ("left",), "right_of": ("right",), "in_front_of": ("in front of",), "behind": ("behind",),
-                  "next_to": ("next to", "beside"), "on": ("on",), "in": ("in", "inside"), "between": ("between",)}
+RELATION_WORDS = {
+    "left_of": ("left",),
+    "right_of": ("right",),
+    "in_front_of": ("in front of",),
+    "behind": ("behind",),
+    "next_to": ("next to", "beside"),
+    "on": ("on",),
+    "in": ("in", "inside"),
+    "between": ("between",),
+}
 
 
 def normalise(text: str) -> str:
@@ -135,8 +152,13 @@ def check_contradiction(case: ConflictCase, model: TaskModel, states: frozenset)
             out.append(f"conflict {pair!r} does not name two listed requirements")
             continue
         a, b = (reqs[p].get("literal") for p in pair)
-        if isinstance(a, list) and isinstance(b, list) and len(a) >= 3 and len(b) >= 3 \
-                and contradiction(a, b, model.facts, states) is None:
+        if (
+            isinstance(a, list)
+            and isinstance(b, list)
+            and len(a) >= 3
+            and len(b) >= 3
+            and contradiction(a, b, model.facts, states) is None
+        ):
             out.append(f"requirements {pair[0]} and {pair[1]} do not contradict ({a} / {b})")
     return out
 
@@ -222,7 +244,9 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
                 continue
             if fits_inside(info.category, model.category_of(holder)) is not False:
                 out.append(f"{entity} may fit inside {holder}")
-            if not names_in(text, entity_names(model, holder)) or not names_in(case.instruction, entity_names(model, entity)):
+            if not names_in(text, entity_names(model, holder)) or not names_in(
+                case.instruction, entity_names(model, entity)
+            ):
                 out.append(f"the text does not name {entity} and {holder}")
             continue
         violated = info.has("fixed") is True if needs == "movable" else info.lacks(needs)
@@ -233,8 +257,12 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
     return out
 
 
-FAMILY_CHECKS = {"contradiction": check_contradiction, "absent_referent": check_absent,
-                 "false_relation": check_relation, "affordance_violation": check_affordance}
+FAMILY_CHECKS = {
+    "contradiction": check_contradiction,
+    "absent_referent": check_absent,
+    "false_relation": check_relation,
+    "affordance_violation": check_affordance,
+}
 
 
 # -- one case, a whole suite ----------------------------------------------------------------------
@@ -261,7 +289,12 @@ def _structure(case: ConflictCase, wtype: str) -> list[str]:
     if not all(isinstance(s, int) and 1 <= s <= len(steps) for s in factor_steps):
         out.append(f"factor steps {factor_steps} do not point at the {len(steps)} step(s)")
     n, k, spread = len(steps), len(factors), len(set(factor_steps))
-    expected = {"L1": n == 1 and k == 1, "L2": n == 1 and k >= 2, "L3": n >= 2 and k == 1, "L4": n >= 2 and k >= 2 and spread >= 2}
+    expected = {
+        "L1": n == 1 and k == 1,
+        "L2": n == 1 and k >= 2,
+        "L3": n >= 2 and k == 1,
+        "L4": n >= 2 and k >= 2 and spread >= 2,
+    }
     if not expected.get(case.level, False):
         out.append(f"level {case.level} does not match the witness ({n} step(s), {k} factor(s) in {spread} step(s))")
     return out
@@ -277,18 +310,24 @@ def validate_case(case: ConflictCase, ctx: Context) -> list[str]:
     if key not in ctx.facts:
         return out
     if case.base_instruction != task.language:
-        out.append(f"base_instruction {case.base_instruction!r} is not the task's reference instruction {task.language!r}")
+        out.append(
+            f"base_instruction {case.base_instruction!r} is not the task's reference instruction {task.language!r}"
+        )
     if normalise(case.instruction) == normalise(task.language):
         out.append("the instruction equals the base instruction")
     wtype = WITNESS_TYPES.get(case.family) or ctx.extra_types.get(case.family)
     if case.witness.get("type") != wtype:
-        return out + [f"witness type {case.witness.get('type')!r} does not fit family {case.family!r} (expected {wtype!r})"]
+        return out + [
+            f"witness type {case.witness.get('type')!r} does not fit family {case.family!r} (expected {wtype!r})"
+        ]
     model = ctx.model(key)
     states = model.facts.states()
     if case.init_states is not None:
         bad = [s for s in case.init_states if s not in states]
         if bad or not case.init_states:
-            return out + [f"init_states {list(case.init_states)[:5]} are not among the task's {model.facts.n_states} states"]
+            return out + [
+                f"init_states {list(case.init_states)[:5]} are not among the task's {model.facts.n_states} states"
+            ]
         states = frozenset(case.init_states)
     try:  # a witness from a user's file may have any shape: a bad one is a finding, not a crash
         if wtype in FAMILY_CHECKS:

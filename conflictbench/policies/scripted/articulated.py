@@ -242,8 +242,9 @@ def turn(ctx: Context, name: str, on: bool) -> Skill:
         if (on and q >= target_q - 0.05) or (not on and q <= target_q + 0.02):
             break
         ctx.theta = start_theta + axis_sign * (target_q - start_q) * 1.15
-        yield from move(ctx, anchor * np.array([1, 1, 0]) + np.array([0, 0, point[2]]), tol=0.0, max_steps=1,
-                        rot_limit=0.3)
+        yield from move(
+            ctx, anchor * np.array([1, 1, 0]) + np.array([0, 0, point[2]]), tol=0.0, max_steps=1, rot_limit=0.3
+        )
     yield from set_gripper(ctx, OPEN, max_steps=10)
     yield from move(ctx, ctx.scene.eef + np.array([0.0, 0.0, 0.08]), tol=0.02, max_steps=30)
     return True

@@ -21,8 +21,16 @@ ROT_GAIN = 1.0
 """Fraction of the orientation error corrected per step (0.5 rad of rotation per unit action)."""
 
 
-def servo(scene: Scene, target: np.ndarray, orientation, grip: float, *, speed: float = 1.0,
-          gain: float = POS_GAIN, rot_limit: float = 1.0) -> np.ndarray:
+def servo(
+    scene: Scene,
+    target: np.ndarray,
+    orientation,
+    grip: float,
+    *,
+    speed: float = 1.0,
+    gain: float = POS_GAIN,
+    rot_limit: float = 1.0,
+) -> np.ndarray:
     """One action toward ``target`` (grip-site position) and ``orientation``: a finger angle for
     the gripper pointing down, or a full 3x3 end-effector frame."""
     action = np.zeros(7)

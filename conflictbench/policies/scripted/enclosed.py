@@ -198,7 +198,8 @@ def _push_in(ctx: Context, name: str, o: Opening, final: float) -> Skill:
     done = float(ctx.scene.pos(name)[:2] @ o.inward) >= final - 0.01
     yield from move(ctx, ctx.scene.eef - inward3 * 0.08, tol=0.015, max_steps=30)
     ctx.aim(None)
-    yield from move(ctx, ctx.scene.eef + np.array([0.0, 0.0, 0.06]), tol=0.02, max_steps=40, theta_tol=0.15,
-                    rot_limit=0.4)
+    yield from move(
+        ctx, ctx.scene.eef + np.array([0.0, 0.0, 0.06]), tol=0.02, max_steps=40, theta_tol=0.15, rot_limit=0.4
+    )
     yield from set_gripper(ctx, OPEN, max_steps=8, min_steps=1)
     return done

@@ -32,8 +32,12 @@ def _grid(lo, hi, n) -> np.ndarray:
 
 
 # Points of the open gripper in its own frame: (along the finger axis, across it, up from the grip site).
-_FINGERS = np.concatenate([_grid((0.040, -0.010, -TIP_BELOW), (0.062, 0.010, 0.045), (2, 3, 5)),
-                           _grid((-0.062, -0.010, -TIP_BELOW), (-0.040, 0.010, 0.045), (2, 3, 5))])
+_FINGERS = np.concatenate(
+    [
+        _grid((0.040, -0.010, -TIP_BELOW), (0.062, 0.010, 0.045), (2, 3, 5)),
+        _grid((-0.062, -0.010, -TIP_BELOW), (-0.040, 0.010, 0.045), (2, 3, 5)),
+    ]
+)
 _HAND = _grid((-0.10, -0.032, 0.035), (0.10, 0.032, 0.12), (9, 4, 4))
 _WRIST = _grid((-0.045, -0.045, 0.13), (0.045, 0.045, 0.30), (4, 4, 6))
 GRIPPER_POINTS = np.concatenate([_FINGERS, _HAND, _WRIST])
@@ -181,8 +185,9 @@ def _handle_candidates(lg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, str
     return [(np.array([xy[0], xy[1], z]), across, "handle", idx)]
 
 
-def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np.ndarray | None = None,
-               kind: str | None = None) -> Grasp | None:
+def plan_grasp(
+    scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np.ndarray | None = None, kind: str | None = None
+) -> Grasp | None:
     """The best-scoring grasp of object ``name`` (None when ``kind`` is asked for and it has none).
 
     ``then_xy``: where the object's origin will be carried; grasps that would leave the arm
@@ -225,8 +230,9 @@ def plan_grasp(scene: Scene, name: str, avoid: tuple[str, ...] = (), then_xy: np
     return best
 
 
-def clear_height(scene: Scene, start: np.ndarray, end: np.ndarray, half_width: float,
-                 exclude: tuple[str, ...] = ()) -> float:
+def clear_height(
+    scene: Scene, start: np.ndarray, end: np.ndarray, half_width: float, exclude: tuple[str, ...] = ()
+) -> float:
     """Highest top of any geometry within ``half_width`` of the segment start-end (xy)."""
     boxes = scene.obstacles(exclude=exclude)
     if len(boxes) == 0:
@@ -241,13 +247,16 @@ def clear_height(scene: Scene, start: np.ndarray, end: np.ndarray, half_width: f
     return float(boxes[near, 1, 2].max()) if near.any() else -np.inf
 
 
-def support_height(scene: Scene, xy: np.ndarray, below: float, exclude: tuple[str, ...] = (),
-                   half: float = 0.0) -> float | None:
+def support_height(
+    scene: Scene, xy: np.ndarray, below: float, exclude: tuple[str, ...] = (), half: float = 0.0
+) -> float | None:
     """Top of the highest geometry under ``xy`` (or within ``half`` of it) whose top is below ``below``."""
     boxes = scene.solids(exclude=exclude)
     if len(boxes) == 0:
         return None
-    offsets = [np.zeros(2)] + ([np.array([dx, dy]) * half for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))] if half else [])
+    offsets = [np.zeros(2)] + (
+        [np.array([dx, dy]) * half for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))] if half else []
+    )
     tops = boxes.tops
     best = None
     for off in offsets:

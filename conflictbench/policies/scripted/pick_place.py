@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .control import CLOSE, OPEN
-from .control import nearest_theta, side_frame
+from .control import CLOSE, OPEN, nearest_theta, side_frame
 from .grasp import TIP_BELOW, collisions, gripper_points, plan_grasp, reach_cost, support_height
 from .primitives import Context, Skill, hold, move, set_gripper, transit
 from .scene import Scene

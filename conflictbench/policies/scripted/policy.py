@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import numpy as np
 
 from conflictbench.core import Observation, PerEpisode
@@ -18,8 +19,9 @@ ATTEMPTS = 3
 
 @dataclass
 class ScriptedConfig:
-    max_steps: dict[str, int] = field(default_factory=lambda: {
-        "libero_spatial": 300, "libero_object": 300, "libero_goal": 600, "libero_10": 1000})
+    max_steps: dict[str, int] = field(
+        default_factory=lambda: {"libero_spatial": 300, "libero_object": 300, "libero_goal": 600, "libero_10": 1000}
+    )
     """Episode budget per LIBERO suite (longer than learned policies get: the expert moves slowly)."""
 
 

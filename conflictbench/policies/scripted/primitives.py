@@ -6,8 +6,8 @@ observation at a time through :class:`Context`, whose ``scene`` is refreshed bef
 
 from __future__ import annotations
 
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
-from typing import Callable, Generator, Union
 
 import numpy as np
 
@@ -17,7 +17,7 @@ from .scene import Scene
 
 Action = np.ndarray
 Skill = Generator[Action, None, bool]
-Target = Union[np.ndarray, Callable[[Scene], np.ndarray]]
+Target = np.ndarray | Callable[[Scene], np.ndarray]
 
 MAX_Z = 1.42
 """Highest grip-site height used for transit (the arm still reaches every table position)."""
@@ -50,8 +50,17 @@ class Context:
         self.frame = closest_frame(frame, self.scene.rot)
 
 
-def move(ctx: Context, target: Target, *, tol: float = 0.006, max_steps: int = 150, speed: float = 1.0,
-         theta_tol: float = 0.06, gain: float = 20.0, rot_limit: float = 1.0) -> Skill:
+def move(
+    ctx: Context,
+    target: Target,
+    *,
+    tol: float = 0.006,
+    max_steps: int = 150,
+    speed: float = 1.0,
+    theta_tol: float = 0.06,
+    gain: float = 20.0,
+    rot_limit: float = 1.0,
+) -> Skill:
     """Servo the grip site to ``target`` (a point, or a function of the scene); True once there."""
     for _ in range(max_steps):
         s = ctx.scene
@@ -91,8 +100,16 @@ def hang_below(ctx: Context) -> float:
     return TIP_BELOW
 
 
-def transit(ctx: Context, target: Target, *, margin: float = 0.04, max_steps: int = 250,
-            half_width: float = 0.07, approach: float = 0.0, tol: float = 0.008) -> Skill:
+def transit(
+    ctx: Context,
+    target: Target,
+    *,
+    margin: float = 0.04,
+    max_steps: int = 250,
+    half_width: float = 0.07,
+    approach: float = 0.0,
+    tol: float = 0.008,
+) -> Skill:
     """Up to a height that clears everything on the way, across, then down to ``target``.
 
     ``approach``: the last part of the descent is done straight down from this far above.
@@ -111,10 +128,12 @@ def transit(ctx: Context, target: Target, *, margin: float = 0.04, max_steps: in
     if s.eef[2] < safe - 0.015:
         lift = np.array([s.eef[0], s.eef[1], safe])
         yield from move(ctx, lift, tol=0.015, max_steps=60, theta_tol=10.0)
+
     # across, keeping the height; the target may move (re-read every step)
     def above(sc: Scene) -> np.ndarray:
         g = target(sc) if callable(target) else goal
         return np.array([g[0], g[1], max(safe, g[2])])
+
     ok = yield from move(ctx, above, tol=0.012, max_steps=max_steps, theta_tol=0.1)
     steps += 1
     ok = yield from move(ctx, target, tol=tol, max_steps=100, speed=0.6)

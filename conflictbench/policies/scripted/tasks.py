@@ -12,7 +12,6 @@ from .pick_place import is_flat, pick, place, push
 from .primitives import Context, Skill
 from .scene import Scene
 
-
 PUSH_FLAT = True
 FREE_MARGIN = 0.015
 """Clearance kept between a placed object and its neighbours (they get nudged on the way)."""
@@ -89,8 +88,11 @@ def _overlaps(scene: Scene, obj: str, xy: np.ndarray, radius: float, exclude: tu
 def _in_way(s: Scene, obj: str, sweep: np.ndarray, margin: float = 0.07) -> bool:
     """Whether the gripper, reaching for ``obj``, would meet the space a drawer opens into."""
     box = s.box(obj)
-    return bool(np.all(box[0, :2] - margin < sweep[1, :2]) and np.all(box[1, :2] + margin > sweep[0, :2])
-                and box[1, 2] < sweep[1, 2])
+    return bool(
+        np.all(box[0, :2] - margin < sweep[1, :2])
+        and np.all(box[1, :2] + margin > sweep[0, :2])
+        and box[1, 2] < sweep[1, 2]
+    )
 
 
 def _staging_spot(s: Scene, obj: str, sweep: np.ndarray) -> np.ndarray:

@@ -51,6 +51,7 @@ def conflictbench_register_policies(register):
 
 def path_length(pair) -> float:
     """Ratio of the conflict rollout's end-effector path length to the reference's."""
+
     def length(record: EpisodeRecord) -> float:
         return float(np.linalg.norm(np.diff(record.eef_pos, axis=0), axis=1).sum())
 

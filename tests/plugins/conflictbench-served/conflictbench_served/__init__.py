@@ -28,8 +28,12 @@ class ServedTestPolicy(ServedPolicy):
         self.max_steps = {suite: cfg.steps for suite in SUITES}
 
     def encode(self, observation):
-        return {"step": observation.step, "state": observation.state, "instruction": observation.instruction,
-                "stream": observation.stream}
+        return {
+            "step": observation.step,
+            "state": observation.state,
+            "instruction": observation.instruction,
+            "stream": observation.stream,
+        }
 
     def decode(self, reply, observation):
         return np.asarray(reply["action"], dtype=np.float64)
