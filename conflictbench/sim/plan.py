@@ -1,21 +1,25 @@
-"""The plan of a run: which episodes to play, references deduplicated.
+"""The plan of a run: which episodes to play, references deduplicated, and their identities.
 
 A conflict episode is (case, init state, prompt condition); every one of them needs the
 reference episode of its (base task, init state, prompt condition), which all cases of that base
-task share.
+task share. An episode is stored under :func:`episode_id`, which covers :func:`config_hash`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import random
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
-from conflictbench.core import ConflictCase, UserError
+from conflictbench.core import ConflictCase, PolicyTraits, UserError
 from conflictbench.tasks.suite_file import USABLE
+
+from .libero_env import simulator_versions
 
 
 @dataclass(frozen=True)
@@ -61,6 +65,28 @@ def episode_id(*, policy: str, config_hash: str, spec: EpisodeSpec, prompt_text:
         seed,
     ]
     return hashlib.sha256(json.dumps(key).encode()).hexdigest()[:24]
+
+
+def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str, ...] = ()) -> str:
+    """Identifies everything besides the episode itself that can change a rollout: the policy, its
+    settings and declared traits, the code behind it (``code``: ``distribution==version`` of the
+    policy's plugin and of every plugin implementing a global per-episode hook, see
+    ``Plugins.provenance``) and the simulator stack (a store never mixes MuJoCo versions)."""
+    settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
+    for name in getattr(config, "identity_exempt", ()):  # a served policy's address and timeouts (ServingConfig)
+        settings.pop(name, None)
+    blob = json.dumps(
+        {
+            "policy": policy,
+            "config": settings,
+            "traits": traits.as_dict(),
+            "code": list(code),
+            "simulator": simulator_versions(),
+        },
+        sort_keys=True,
+        default=repr,
+    )
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
 def sample_cases(cases: Sequence[ConflictCase], per_cell: int | None, seed: int) -> list[ConflictCase]:

@@ -11,37 +11,28 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
-import hashlib
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 from typing import Any
 
-import numpy as np
-
 from conflictbench.core import (
-    INFRASTRUCTURE_ERROR_PREFIX,
     SIMULATOR_ERROR_PREFIX,
-    ActionContext,
     EpisodeRecord,
-    InfrastructureError,
-    PolicyError,
     PolicySpec,
     PolicyTraits,
     ServerUnavailable,
     UserError,
-    as_action_chunk,
 )
 from conflictbench.core.plugins import Plugins
-from conflictbench.core.policy import batch_outputs
 from conflictbench.store.episodes import EpisodeStore
 from conflictbench.tasks.libero_tasks import base_task
 
-from .libero_env import EnvSettings, simulator_versions
-from .messages import Abort, Actions, Done, EpisodeJob, EpisodeOutcome, Play, Query
-from .plan import EpisodeSpec, episode_id
+from .deciding import ask_policy, reply_for, reset_error
+from .libero_env import EnvSettings
+from .messages import Abort, Done, EpisodeJob, EpisodeOutcome, Play, Query
+from .plan import EpisodeSpec, config_hash, episode_id
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
 
 
@@ -197,7 +188,7 @@ class Runner:
             except ServerUnavailable:
                 raise
             except Exception as exc:
-                self._finish(slot, EpisodeOutcome.failed(_reset_error(exc), len(job.targets)), result)
+                self._finish(slot, EpisodeOutcome.failed(reset_error(exc), len(job.targets)), result)
                 return
         slot.conn.send(Play(job))
 
@@ -217,7 +208,7 @@ class Runner:
             except ServerUnavailable:
                 raise
             except Exception as exc:
-                slot.conn.send(Abort(_reset_error(exc)))
+                slot.conn.send(Abort(reset_error(exc)))
                 continue
             self._serving = slot
             waiting.append((slot, observation))
@@ -283,58 +274,9 @@ class Runner:
             fill()
 
     def _decide(self, waiting: list[tuple[Slot, Any]], traits: PolicyTraits) -> None:
-        outputs: list[Any]
-        if traits.batched:
-            try:
-                outputs = batch_outputs(self._policy, [obs for _, obs in waiting])
-            except ServerUnavailable:
-                raise
-            except Exception as exc:
-                outputs = [_as_error(exc)] * len(waiting)
-        else:
-            outputs = []
-            for _, obs in waiting:
-                try:
-                    outputs.append(self._policy.act(obs))
-                except ServerUnavailable:
-                    raise
-                except Exception as exc:
-                    outputs.append(_as_error(exc))
+        outputs = ask_policy(self._policy, [obs for _, obs in waiting], traits.batched)
         for (slot, obs), raw in zip(waiting, outputs):
-            if isinstance(raw, InfrastructureError):  # not the model's behaviour: stored apart, replayed next run
-                slot.conn.send(Abort(f"{INFRASTRUCTURE_ERROR_PREFIX}: {raw}"))
-                continue
-            try:
-                if isinstance(raw, Exception):  # act_batch may end one episode alone by returning its error
-                    raise _as_error(raw)
-                chunk = as_action_chunk(raw)
-                job = slot.item.job
-                executed = np.stack(
-                    [
-                        self.plugins.postprocess_action(
-                            action.copy(),
-                            ActionContext(
-                                policy=self.spec.name,
-                                suite=job.suite,
-                                task_id=job.task_id,
-                                prompt=slot.item.spec.prompt,
-                                case_id=slot.item.spec.case_id,
-                                step=obs.step + i,
-                                chunk_index=i,
-                            ),
-                        )
-                        for i, action in enumerate(chunk)
-                    ]
-                )
-                if not np.all(np.isfinite(executed)):
-                    raise PolicyError("post-processing produced a non-finite action")
-            except PolicyError as exc:
-                slot.conn.send(Abort(str(exc)))
-                continue
-            except Exception as exc:
-                slot.conn.send(Abort(f"action post-processing raised {type(exc).__name__}: {exc}"))
-                continue
-            slot.conn.send(Actions(raw=chunk, executed=executed))
+            slot.conn.send(reply_for(self.plugins, self.spec.name, slot.item, obs, raw))
 
     def _end_in_flight(self, result: RunResult) -> None:
         """The policy server is gone: store the episodes whose workers already sent their end, then stop
@@ -398,40 +340,6 @@ class Runner:
         self._bar.set_postfix(success=result.succeeded, errors=result.errors)
         if self.on_episode is not None:
             self.on_episode(record)
-
-
-def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str, ...] = ()) -> str:
-    """Identifies everything besides the episode itself that can change a rollout: the policy, its
-    settings and declared traits, the code behind it (``code``: ``distribution==version`` of the
-    policy's plugin and of every plugin implementing a global per-episode hook, see
-    ``Plugins.provenance``) and the simulator stack (a store never mixes MuJoCo versions)."""
-    settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
-    for name in getattr(config, "identity_exempt", ()):  # a served policy's address and timeouts (ServingConfig)
-        settings.pop(name, None)
-    blob = json.dumps(
-        {
-            "policy": policy,
-            "config": settings,
-            "traits": traits.as_dict(),
-            "code": list(code),
-            "simulator": simulator_versions(),
-        },
-        sort_keys=True,
-        default=repr,
-    )
-    return hashlib.sha256(blob.encode()).hexdigest()[:12]
-
-
-def _reset_error(exc: Exception) -> str:
-    if isinstance(exc, InfrastructureError):
-        return f"{INFRASTRUCTURE_ERROR_PREFIX}: {exc}"
-    return f"policy reset raised {type(exc).__name__}: {exc}"
-
-
-def _as_error(exc: Exception) -> PolicyError | InfrastructureError:
-    if isinstance(exc, (PolicyError, InfrastructureError)):
-        return exc
-    return PolicyError(f"policy raised {type(exc).__name__}: {exc}")
 
 
 def _own_version() -> str:
