@@ -52,29 +52,23 @@ def play(tmp_path: Path, plugins):
 DEMO_PLUGIN = Path(__file__).parent / "plugins" / "conflictbench-demo"
 
 
-@pytest.fixture(scope="session")
-def demo_plugin_site(tmp_path_factory) -> Path:
-    """The demo plugin, pip-installed (a real distribution with a real entry point) into a directory."""
+def pip_install_into(target: Path, source: Path, upgrade: bool = False) -> Path:
+    """Install a plugin's source folder into ``target`` as a real distribution (its entry points found
+    from ``PYTHONPATH`` or ``sys.path``), without touching the test environment."""
     import subprocess
     import sys
 
+    command = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--no-compile"]
+    subprocess.run([*command, *(["--upgrade"] if upgrade else []), "--target", str(target), str(source)], check=True)
+    return target
+
+
+@pytest.fixture(scope="session")
+def demo_plugin_site(tmp_path_factory) -> Path:
+    """The demo plugin, pip-installed (a real distribution with a real entry point) into a directory."""
+
     target = tmp_path_factory.mktemp("demo-plugin-site")
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-compile",
-            "--target",
-            str(target),
-            str(DEMO_PLUGIN),
-        ],
-        check=True,
-    )
+    pip_install_into(target, DEMO_PLUGIN)
     return target
 
 

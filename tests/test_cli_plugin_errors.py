@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from conftest import pip_install_into
+
 PYPROJECT = """[build-system]
 requires = ["setuptools>=61"]
 build-backend = "setuptools.build_meta"
@@ -38,23 +40,7 @@ def install(tmp_path: Path, module: str, version: str = "1.0", site: Path | None
     (source / "pyproject.toml").write_text(PYPROJECT.replace('version = "1.0"', f'version = "{version}"'))
     (source / "conflictbench_typo" / "__init__.py").write_text(module)
     site = site or tmp_path / "site"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-compile",
-            "--upgrade",
-            "--target",
-            str(site),
-            str(source),
-        ],
-        check=True,
-    )
+    pip_install_into(site, source, upgrade=True)
     return site
 
 

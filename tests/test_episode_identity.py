@@ -4,12 +4,10 @@ that post-processes actions, plays the episodes again instead of reusing the old
 from __future__ import annotations
 
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from conftest import DEMO_PLUGIN, reference_spec
+from conftest import DEMO_PLUGIN, pip_install_into, reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import Plugins
@@ -25,22 +23,7 @@ def install_demo(version: str, target: Path) -> Path:
     shutil.copytree(DEMO_PLUGIN, source)
     project = source / "pyproject.toml"
     project.write_text(project.read_text().replace('version = "0.3.1"', f'version = "{version}"'))
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-compile",
-            "--target",
-            str(target),
-            str(source),
-        ],
-        check=True,
-    )
+    pip_install_into(target, source)
     return target
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import conflict_spec, reference_spec
+from conftest import conflict_spec, pip_install_into, reference_spec
 from policy_server import PolicyServer, served_action
 
 import conflictbench
@@ -58,22 +58,7 @@ def servers():
 def served_plugin_site(tmp_path_factory) -> Path:
     """The served test plugin, pip-installed (a real distribution with a real entry point) into a directory."""
     target = tmp_path_factory.mktemp("served-plugin-site")
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-compile",
-            "--target",
-            str(target),
-            str(SERVED_PLUGIN),
-        ],
-        check=True,
-    )
+    pip_install_into(target, SERVED_PLUGIN)
     return target
 
 
