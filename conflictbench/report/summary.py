@@ -173,27 +173,18 @@ def report_frame(
         f"conflict), {counts.pairs} pairs",
         file=stream,
     )
-    if counts.policy_errors:
-        first = counts.policy_errors[0]
-        print(
-            f"{len(counts.policy_errors)} episode(s) ended with a policy error and count as failed "
-            f"(e.g. {first.episode_id}: {first.error})",
-            file=stream,
-        )
-    if counts.crashed:
-        first = counts.crashed[0]
-        print(
-            f"{len(counts.crashed)} episode(s) ended with a simulator failure and are left out, with their pairs "
-            f"(e.g. {first.episode_id}: {first.error})",
-            file=stream,
-        )
-    if counts.unserved:
-        first = counts.unserved[0]
-        print(
-            f"{len(counts.unserved)} episode(s) ended with an infrastructure failure and are left out, with their "
-            f"pairs; the next run plays them again (e.g. {first.episode_id}: {first.error})",
-            file=stream,
-        )
+    for episodes, what in (
+        (counts.policy_errors, "ended with a policy error and count as failed"),
+        (counts.crashed, "ended with a simulator failure and are left out, with their pairs"),
+        (
+            counts.unserved,
+            "ended with an infrastructure failure and are left out, with their pairs; the next run plays them again",
+        ),
+    ):
+        if episodes:
+            print(
+                f"{len(episodes)} episode(s) {what} (e.g. {episodes[0].episode_id}: {episodes[0].error})", file=stream
+            )
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
 
