@@ -54,6 +54,7 @@ class _Handler(BaseHTTPRequestHandler):
             stats = server.stats
             stats["requests"] += 1
             number = stats["requests"]
+            stats["overlapped"] += int(stats["in_flight"] > 0)  # arrived while another was being answered
             stats["in_flight"] += 1
             stats["max_in_flight"] = max(stats["max_in_flight"], stats["in_flight"])
             stats["streams"] = sorted(set(stats["streams"]) | {request.get("stream", 0)})
@@ -92,7 +93,15 @@ def serve(argv: list[str] | None = None) -> None:
     server = ThreadingHTTPServer(("127.0.0.1", options.port), _Handler)
     server.daemon_threads = True
     server.options, server.lock = options, threading.Lock()
-    server.stats = {"requests": 0, "in_flight": 0, "max_in_flight": 0, "dropped": 0, "errors": 0, "streams": []}
+    server.stats = {
+        "requests": 0,
+        "in_flight": 0,
+        "max_in_flight": 0,
+        "overlapped": 0,
+        "dropped": 0,
+        "errors": 0,
+        "streams": [],
+    }
     print(f"PORT {server.server_address[1]}", flush=True)
     server.serve_forever()
 

@@ -196,3 +196,22 @@ def test_an_episode_the_server_fails_is_stored_left_out_and_played_again(play, s
     assert store.replay_ids() == set() and [r.error for r in store.records()] == [None, None]
     pairs, counts = pair_up(store.records())
     assert len(pairs) == 1 and counts.unserved == []
+
+
+def test_every_worker_keeps_its_request_in_flight_while_the_others_wait_for_theirs(play, servers):
+    """Two workers, a server that takes 0.2 s a request: the runner sends each query as it comes
+    (it does not wait for the other worker's answer), so nearly every request overlaps another."""
+    spec = importlib.util.spec_from_file_location(
+        "conflictbench_served", SERVED_PLUGIN / "conflictbench_served" / "__init__.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[module])
+    specs = [reference_spec("libero_goal", 1, 0), reference_spec("libero_spatial", 0, 0)]
+    slow = servers("--delay", "0.2")
+    result, store = play("served-test", specs, settings={"server": slow.url}, workers=2, plugin_set=plugins)
+    assert (result.played, result.errors) == (2, 0)
+    stats = slow.stats()
+    assert stats["requests"] == 2 * STEPS and stats["max_in_flight"] == 2
+    # Waiting for each answer before asking the next would let at most a few requests meet by chance.
+    assert stats["overlapped"] >= STEPS // 2, stats

@@ -38,7 +38,9 @@ def conflictbench_register_policies(register):
     The policy returned by ``load`` has ``reset(instruction: str) -> None`` and
     ``act(observation) -> ndarray`` of shape ``(7,)`` or a chunk ``(k, 7)`` executed open-loop.
     It may also define ``act_batch(observations) -> list[ndarray]`` (an exception in place of one
-    result ends that episode alone), ``close()``, and these
+    result ends that episode alone), ``close()``, ``concurrent_requests`` [False] (True: ``act_batch``
+    may run in several threads at once, one observation each, so every worker's query goes out as
+    soon as it comes: what a served policy declares), and these
     attributes (defaults in brackets): ``needs_images`` [True], ``needs_privileged`` [False],
     ``image_size`` [256], ``warmup_steps`` [10], ``max_steps`` [a mapping LIBERO suite -> steps;
     220/280/300/520].

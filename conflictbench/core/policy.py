@@ -38,14 +38,17 @@ class PolicyTraits:
         self.warmup_steps: int = int(getattr(policy, "warmup_steps", DEFAULT_WARMUP_STEPS))
         self.max_steps: dict[str, int] = {**DEFAULT_MAX_STEPS, **dict(getattr(policy, "max_steps", None) or {})}
         self.batched: bool = callable(getattr(policy, "act_batch", None))
+        self.concurrent: bool = self.batched and bool(getattr(policy, "concurrent_requests", False))
+        """``act_batch`` may run in several threads at once, one query each (a served policy: every
+        worker's request goes out as soon as it asks, and the server batches them)."""
 
     def as_dict(self) -> dict[str, Any]:
         """The declarations that can change a rollout (part of every episode's identity).
 
-        ``batched`` is left out: it changes how calls are scheduled, never an episode's actions
-        (sampling is seeded per episode and step, see ``rng_for``).
+        ``batched`` and ``concurrent`` are left out: they change how calls are scheduled, never an
+        episode's actions (sampling is seeded per episode and step, see ``rng_for``).
         """
-        return {k: v for k, v in vars(self).items() if k != "batched"}
+        return {k: v for k, v in vars(self).items() if k not in ("batched", "concurrent")}
 
 
 T = TypeVar("T")

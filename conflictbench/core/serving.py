@@ -256,6 +256,7 @@ class ServedPolicy:
     """
 
     needs_images = True
+    concurrent_requests = True  # act_batch is thread-safe per stream: the runner sends each query as it comes
 
     def __init__(self, client: PolicyClient):
         self.client = client

@@ -8,6 +8,8 @@ answered an error) ends the episode for a replay, left out of the measures. A
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -17,6 +19,7 @@ from conflictbench.core import (
     ActionContext,
     InfrastructureError,
     PolicyError,
+    PolicyTraits,
     ServerUnavailable,
     as_action_chunk,
 )
@@ -93,3 +96,67 @@ def as_error(exc: Exception) -> PolicyError | InfrastructureError:
     if isinstance(exc, (PolicyError, InfrastructureError)):
         return exc
     return PolicyError(f"policy raised {type(exc).__name__}: {exc}")
+
+
+Answer = tuple[Any, Any, Any]
+"""(slot, observation, the policy's raw output or error) for one query."""
+
+
+class PolicyCalls:
+    """Answers the workers' queries: in this thread, or, for a policy that declares
+    ``concurrent_requests`` (a served one), each query from a thread of its own as soon as it
+    arrives, so N workers keep N requests in flight while this thread keeps serving the workers.
+
+    A finished call wakes the runner's ``wait()`` through a pipe (:attr:`wakeup`)."""
+
+    def __init__(self, policy: Any, traits: PolicyTraits, workers: int):
+        self.policy, self.batched, self.concurrent = policy, traits.batched, traits.concurrent
+        self._pending: dict[Future, tuple[Any, Any]] = {}
+        self._executor: ThreadPoolExecutor | None = None
+        self._read = self._write = -1
+        if self.concurrent:
+            self._executor = ThreadPoolExecutor(workers, thread_name_prefix="conflictbench-policy")
+            self._read, self._write = os.pipe()
+            os.set_blocking(self._read, False)
+
+    @property
+    def wakeup(self) -> list[int]:
+        """What ``wait()`` should watch besides the workers: the pipe, while calls are pending."""
+        return [self._read] if self._pending else []
+
+    def submit(self, waiting: list[tuple[Any, Any]]) -> list[Answer]:
+        """Ask for these queries; the answers ready now (all of them, unless calls are concurrent)."""
+        if not self.concurrent:
+            outputs = ask_policy(self.policy, [obs for _, obs in waiting], self.batched)
+            return [(slot, obs, raw) for (slot, obs), raw in zip(waiting, outputs)]
+        for slot, obs in waiting:
+            future = self._executor.submit(ask_policy, self.policy, [obs], True)
+            self._pending[future] = (slot, obs)
+            future.add_done_callback(self._wake)
+        return []
+
+    def _wake(self, _: Future) -> None:
+        try:
+            os.write(self._write, b".")
+        except OSError:  # closed: the run has ended (a call outlived it)
+            pass
+
+    def collect(self) -> list[Answer]:
+        """The answers of the calls that have finished (raises ServerUnavailable: the run stops)."""
+        try:
+            while os.read(self._read, 4096):
+                pass
+        except BlockingIOError:
+            pass
+        answers = []
+        for future in [f for f in self._pending if f.done()]:
+            slot, obs = self._pending.pop(future)
+            answers.append((slot, obs, future.result()[0]))
+        return answers
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            os.close(self._read)
+            os.close(self._write)
+            self._executor = None

@@ -29,7 +29,7 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import EpisodeStore
 from conflictbench.tasks.libero_tasks import base_task
 
-from .deciding import ask_policy, reply_for, reset_error
+from .deciding import PolicyCalls, reply_for, reset_error
 from .libero_env import EnvSettings
 from .messages import Abort, Done, EpisodeJob, EpisodeOutcome, Play, Query
 from .plan import EpisodeSpec, config_hash, episode_id
@@ -73,6 +73,7 @@ class Runner:
         self._bar: Any = _progress(0, spec.name, enabled=False)
         self._pool: WorkerPool | None = None
         self._policy: Any = None
+        self._calls: PolicyCalls | None = None
         self._serving: Slot | None = None
         """The slot whose episode a policy without act_batch is serving (it serves one at a time)."""
         self._held: list[tuple[Slot, Any]] = []
@@ -139,6 +140,7 @@ class Runner:
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
         pool = self._pool = WorkerPool(settings, size=min(self.workers, len(todo)))
         self._policy, self._serving, self._held = policy, None, []
+        self._calls = PolicyCalls(policy, traits, len(pool.slots))
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
         try:
             pool.start_all()
@@ -150,6 +152,7 @@ class Runner:
             for slot in pool.slots:
                 if slot.item is not None:
                     self.store.release(slot.item.job.episode_id)
+            self._calls.close()
             pool.stop()
             self._bar.close()
             close = getattr(policy, "close", None)
@@ -248,7 +251,11 @@ class Runner:
                 fill()
                 continue
             waiting: list[tuple[Slot, Any]] = []
-            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy]):
+            answers = []
+            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy] + self._calls.wakeup):
+                if isinstance(ready, int):  # concurrent policy calls have finished
+                    answers += self._calls.collect()
+                    continue
                 slot = next((s for s in busy if ready in (s.conn, s.process.sentinel)), None)
                 if slot is None or slot.item is None or any(w[0] is slot for w in waiting):
                     continue
@@ -270,13 +277,10 @@ class Runner:
                         raise TypeError(f"a worker sent {type(msg).__name__} during an episode")
             self._serve_next(waiting)
             if waiting:
-                self._decide(waiting, traits)
+                answers += self._calls.submit(waiting)
+            for slot, obs, raw in answers:
+                slot.conn.send(reply_for(self.plugins, self.spec.name, slot.item, obs, raw))
             fill()
-
-    def _decide(self, waiting: list[tuple[Slot, Any]], traits: PolicyTraits) -> None:
-        outputs = ask_policy(self._policy, [obs for _, obs in waiting], traits.batched)
-        for (slot, obs), raw in zip(waiting, outputs):
-            slot.conn.send(reply_for(self.plugins, self.spec.name, slot.item, obs, raw))
 
     def _end_in_flight(self, result: RunResult) -> None:
         """The policy server is gone: store the episodes whose workers already sent their end, then stop
