@@ -234,6 +234,11 @@ def test_provenance_names_the_policys_plugin_and_every_global_episode_hook():
     plugins._sources["clip"] = plugins.source("clip").__class__("lab-clip", "0.2")
     assert plugins.provenance("noop") == tuple(sorted({base[0], "lab-clip==0.2"}))
 
+    # A plugin's policy: conflictbench's own rollout code is part of its identity too.
+    plugins = make(Model("model"))
+    plugins._sources["model"] = plugins.source("model").__class__("conflictbench-model", "1.4")
+    assert plugins.provenance("model-a") == tuple(sorted({base[0], "conflictbench-model==1.4"}))
+
 
 def test_registries_list_names_in_registration_order():
     class Late(Named):

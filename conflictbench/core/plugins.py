@@ -199,11 +199,13 @@ class Plugins:
         return found
 
     def provenance(self, policy: str) -> tuple[str, ...]:
-        """``distribution==version`` of all code that can change this policy's episodes: the plugin
-        that registered it (with its own prompt format and post-processing) and every plugin that
-        implements a global per-episode hook. Part of every episode's identity."""
+        """``distribution==version`` of all code that can change this policy's episodes: conflictbench
+        itself (its rollout loop and environment set-up), the plugin that registered the policy (with
+        its own prompt format and post-processing) and every plugin that implements a global
+        per-episode hook. Part of every episode's identity."""
         spec = self.policy(policy)
-        return tuple(sorted({f"{spec.plugin}=={spec.plugin_version}", *self.global_hook_plugins()}))
+        own = self.source(_CORE_PROMPTS).pin
+        return tuple(sorted({own, f"{spec.plugin}=={spec.plugin_version}", *self.global_hook_plugins()}))
 
     # -- per-episode hooks -----------------------------------------------------------------
     def format_prompt(self, instruction: str, condition: str, policy: str) -> str:
