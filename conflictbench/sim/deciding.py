@@ -9,6 +9,7 @@ answered an error) ends the episode for a replay, left out of the measures. A
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
@@ -98,8 +99,8 @@ def as_error(exc: Exception) -> PolicyError | InfrastructureError:
     return PolicyError(f"policy raised {type(exc).__name__}: {exc}")
 
 
-Answer = tuple[Any, Any, Any]
-"""(slot, observation, the policy's raw output or error) for one query."""
+Answer = tuple[Any, Any, Any, Any]
+"""(slot, the item it was playing when it asked, observation, the policy's raw output or error)."""
 
 
 class PolicyCalls:
@@ -111,9 +112,10 @@ class PolicyCalls:
 
     def __init__(self, policy: Any, traits: PolicyTraits, workers: int):
         self.policy, self.batched, self.concurrent = policy, traits.batched, traits.concurrent
-        self._pending: dict[Future, tuple[Any, Any]] = {}
+        self._pending: dict[Future, tuple[Any, Any, Any]] = {}
         self._executor: ThreadPoolExecutor | None = None
         self._read = self._write = -1
+        self._pipe_lock = threading.Lock()  # a call finishing after close() must not write to a reused fd
         if self.concurrent:
             self._executor = ThreadPoolExecutor(workers, thread_name_prefix="conflictbench-policy")
             self._read, self._write = os.pipe()
@@ -128,18 +130,17 @@ class PolicyCalls:
         """Ask for these queries; the answers ready now (all of them, unless calls are concurrent)."""
         if not self.concurrent:
             outputs = ask_policy(self.policy, [obs for _, obs in waiting], self.batched)
-            return [(slot, obs, raw) for (slot, obs), raw in zip(waiting, outputs)]
+            return [(slot, slot.item, obs, raw) for (slot, obs), raw in zip(waiting, outputs)]
         for slot, obs in waiting:
             future = self._executor.submit(ask_policy, self.policy, [obs], True)
-            self._pending[future] = (slot, obs)
+            self._pending[future] = (slot, slot.item, obs)
             future.add_done_callback(self._wake)
         return []
 
     def _wake(self, _: Future) -> None:
-        try:
-            os.write(self._write, b".")
-        except OSError:  # closed: the run has ended (a call outlived it)
-            pass
+        with self._pipe_lock:
+            if self._executor is not None:  # else closed: the run has ended and a call outlived it
+                os.write(self._write, b".")
 
     def collect(self) -> list[Answer]:
         """The answers of the calls that have finished (raises ServerUnavailable: the run stops)."""
@@ -150,13 +151,14 @@ class PolicyCalls:
             pass
         answers = []
         for future in [f for f in self._pending if f.done()]:
-            slot, obs = self._pending.pop(future)
-            answers.append((slot, obs, future.result()[0]))
+            slot, item, obs = self._pending.pop(future)
+            answers.append((slot, item, obs, future.result()[0]))
         return answers
 
     def close(self) -> None:
-        if self._executor is not None:
-            self._executor.shutdown(wait=False, cancel_futures=True)
-            os.close(self._read)
-            os.close(self._write)
-            self._executor = None
+        with self._pipe_lock:
+            if self._executor is not None:
+                self._executor.shutdown(wait=False, cancel_futures=True)
+                os.close(self._read)
+                os.close(self._write)
+                self._executor = None

@@ -252,15 +252,16 @@ class Runner:
                 continue
             waiting: list[tuple[Slot, Any]] = []
             answers = []
-            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy] + self._calls.wakeup):
-                if isinstance(ready, int):  # concurrent policy calls have finished
+            wakeup = self._calls.wakeup
+            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy] + wakeup):
+                if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
                     answers += self._calls.collect()
                     continue
-                slot = next((s for s in busy if ready in (s.conn, s.process.sentinel)), None)
+                slot = next((s for s in busy if ready == s.conn or ready == s.process.sentinel), None)
                 if slot is None or slot.item is None or any(w[0] is slot for w in waiting):
                     continue
                 try:
-                    if ready is slot.process.sentinel and not slot.conn.poll():
+                    if ready == slot.process.sentinel and not slot.conn.poll():
                         raise EOFError
                     msg = slot.conn.recv()
                 except (EOFError, ConnectionResetError):
@@ -278,8 +279,13 @@ class Runner:
             self._serve_next(waiting)
             if waiting:
                 answers += self._calls.submit(waiting)
-            for slot, obs, raw in answers:
-                slot.conn.send(reply_for(self.plugins, self.spec.name, slot.item, obs, raw))
+            for slot, item, obs, raw in answers:
+                if slot.item is not item:  # its worker died meanwhile; the slot plays another episode now
+                    continue
+                try:
+                    slot.conn.send(reply_for(self.plugins, self.spec.name, item, obs, raw))
+                except (BrokenPipeError, ConnectionResetError):
+                    pass  # the worker died after asking: the next wait() finds it and stores the episode
             fill()
 
     def _end_in_flight(self, result: RunResult) -> None:
