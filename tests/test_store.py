@@ -97,7 +97,7 @@ def test_half_written_files_of_dead_processes_are_ignored_and_cleaned(tmp_path):
     store = EpisodeStore(tmp_path)
     store.write(record("a"))
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    tmp = tmp_path / "episodes" / "noop" / f".b.parquet.{int(dead.stdout)}.tmp"
+    tmp = tmp_path / "episodes" / "noop" / f".b.parquet.{int(dead.stdout)}@{store._host}.tmp"
     tmp.write_bytes(b"PAR1 truncated")
     assert store.stored_ids() == {"a"}
     assert store.clean_stale_temporaries() == 1 and not tmp.exists()
@@ -169,3 +169,37 @@ def test_an_episode_another_job_landed_after_the_snapshot_is_not_played_twice(tm
     assert store.held_by_others([first.job.episode_id]) == set()
     assert not (tmp_path / "claims" / f"{first.job.episode_id}.claim").exists()
     assert (tmp_path / "claims" / f"{second.job.episode_id}.claim").exists()
+
+
+def _claim_all(root: str, count: int, barrier, results) -> None:
+    store = EpisodeStore(root)
+    barrier.wait()
+    results.put({i for i in range(count) if store.claim(f"ep{i:05d}")})
+
+
+def test_two_processes_claiming_the_same_episodes_at_once_never_both_win(tmp_path):
+    """Jobs of a sweep start together and claim in the same order: each episode goes to exactly one."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    count, barrier, results = 1500, ctx.Barrier(2), ctx.Queue()
+    jobs = [ctx.Process(target=_claim_all, args=(str(tmp_path), count, barrier, results)) for _ in range(2)]
+    for job in jobs:
+        job.start()
+    first, second = results.get(timeout=120), results.get(timeout=120)
+    for job in jobs:
+        job.join(timeout=30)
+    assert first & second == set() and len(first | second) == count
+    assert not list((tmp_path / "claims").glob(".*.tmp"))
+
+
+def test_temporaries_of_another_machine_are_left_alone(tmp_path):
+    store = EpisodeStore(tmp_path)
+    folder = tmp_path / "episodes" / "noop"
+    folder.mkdir(parents=True)
+    dead_here = folder / f".a.parquet.999999999@{store._host}.tmp"  # no such pid on this machine
+    elsewhere = folder / ".b.parquet.999999999@another-host.example.tmp"  # a live write, maybe
+    for tmp in (dead_here, elsewhere):
+        tmp.write_bytes(b"half")
+    assert store.clean_stale_temporaries() == 1
+    assert not dead_here.exists() and elsewhere.exists()

@@ -58,9 +58,11 @@ class HttpJsonTransport(Transport):
         self._host, self._port = parts.hostname, parts.port
         self._path = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
         self._conn: http.client.HTTPConnection | None = None
+        self._connect_timeout = 10.0
 
     def connect(self, timeout: float) -> None:
         self.close()
+        self._connect_timeout = timeout
         self._conn = self._connection_class(self._host, self._port, timeout=timeout)
         self._conn.connect()
         self._conn.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # small requests: no Nagle wait
@@ -71,7 +73,11 @@ class HttpJsonTransport(Transport):
         if conn is None:
             raise ConnectionError("not connected")
         if conn.sock is None:  # the server closed it after the last reply ("Connection: close")
-            conn.connect()
+            try:
+                self.connect(self._connect_timeout)
+            except OSError as exc:  # not a slow reply: the client reconnects with its back-off
+                raise ConnectionError(f"reconnecting after the server closed the connection: {exc}") from exc
+            conn = self._conn
         conn.sock.settimeout(timeout)
         try:
             conn.request("POST", self._path, body, {"Content-Type": "application/json"})

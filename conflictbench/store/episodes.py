@@ -14,6 +14,7 @@ once stored, removes it. Planning reads only file names, never file contents.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import socket
 import time
@@ -64,7 +65,7 @@ class EpisodeStore:
         replay = record.error is not None and record.error.startswith(INFRASTRUCTURE_ERROR_PREFIX)
         final = (self.replay_path_for if replay else self.path_for)(record.policy, record.episode_id)
         final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = final.with_name(f".{final.name}.{os.getpid()}.tmp")
+        tmp = final.with_name(f".{final.name}.{self._temporary_tag}.tmp")
         pq.write_table(records_to_table([record]), tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
@@ -137,21 +138,26 @@ class EpisodeStore:
         return int(pid) != os.getpid() and _pid_alive(int(pid))
 
     def claim(self, episode_id: str) -> bool:
-        """Mark an episode as being played by this process; False if another live process holds it."""
+        """Mark an episode as being played by this process; False if another live process holds it.
+
+        A claim appears whole (written aside, then hard-linked into place, which fails if one exists),
+        so no process ever reads a half-written claim as a dead one. Taking over a dead process's
+        claim happens under a lock, one process at a time."""
         self.claims_dir.mkdir(parents=True, exist_ok=True)
         path = self._claim_path(episode_id)
-        for _ in range(2):
-            try:
-                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
+        mine = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
+        mine.write_text(f"{self._host} {os.getpid()} {time.time():.0f}\n")
+        try:
+            if _link(mine, path):
+                return True
+            with open(self.claims_dir / ".takeover.lock", "a") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
                 if self._claimed_by_other(path):
                     return False
                 path.unlink(missing_ok=True)  # ours, or its owner died (e.g. SIGKILL): take it over
-                continue
-            with os.fdopen(fd, "w") as fh:
-                fh.write(f"{self._host} {os.getpid()} {time.time():.0f}\n")
-            return True
-        return False
+                return _link(mine, path)  # fails if a fresh claim landed meanwhile
+        finally:
+            mine.unlink(missing_ok=True)
 
     def release(self, episode_id: str) -> None:
         self._claim_path(episode_id).unlink(missing_ok=True)
@@ -160,12 +166,32 @@ class EpisodeStore:
         return {e for e in episode_ids if self._claimed_by_other(self._claim_path(e))}
 
     def clean_stale_temporaries(self) -> int:
-        """Remove half-written files left by processes that died mid-write."""
+        """Remove half-written files left by processes of this machine that died mid-write (another
+        machine's, on a shared store, cannot be checked from here and are left alone)."""
         removed = 0
-        for folder in (self.episodes_dir, self.replay_dir):
-            for tmp in folder.glob("*/.*.tmp") if folder.is_dir() else ():
-                pid = tmp.name.rsplit(".", 2)[-2]
-                if pid.isdigit() and not _pid_alive(int(pid)):
+        for pattern, folder in (
+            ("*/.*.tmp", self.episodes_dir),
+            ("*/.*.tmp", self.replay_dir),
+            (".*.tmp", self.claims_dir),
+        ):
+            for tmp in folder.glob(pattern) if folder.is_dir() else ():
+                rest, _, host = tmp.name[: -len(".tmp")].rpartition("@")
+                pid = rest.rpartition(".")[2]
+                if host == self._host and pid.isdigit() and not _pid_alive(int(pid)):
                     tmp.unlink(missing_ok=True)
                     removed += 1
         return removed
+
+    @property
+    def _temporary_tag(self) -> str:
+        """Names this process's temporary files: ``<pid>@<host>``."""
+        return f"{os.getpid()}@{self._host}"
+
+
+def _link(source: Path, target: Path) -> bool:
+    """Create ``target`` as a hard link to ``source``, atomically; False if ``target`` exists."""
+    try:
+        os.link(source, target)
+    except FileExistsError:
+        return False
+    return True
