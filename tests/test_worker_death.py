@@ -16,7 +16,10 @@ from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 
 pytestmark = pytest.mark.sim
-SPECS = [reference_spec("libero_object", 4, 0), reference_spec("libero_object", 4, 1)]
+
+
+def specs():  # built when a test runs: collecting this module must not need the simulator
+    return [reference_spec("libero_object", 4, 0), reference_spec("libero_object", 4, 1)]
 
 
 class Still:
@@ -70,7 +73,7 @@ def run_killing_the_worker(tmp_path, concurrent: bool, when) -> EpisodeStore:
         runner._pool.slots[0].process.kill()
 
     threading.Thread(target=kill, daemon=True).start()
-    result = runner.run(SPECS)
+    result = runner.run(specs())
     assert result.played == 2
     return store
 
