@@ -3,7 +3,8 @@
 Run as a script (``python policy_server.py --port 0 [options]``), it prints ``PORT <n>`` once it
 listens. ``POST /act`` with ``{"step", "state", "instruction", "stream"}`` answers ``{"action": [7]}``
 computed by :func:`served_action`; ``GET /stats`` answers what the server saw. Options make it
-misbehave the ways a model server does: drop connections, answer errors, stall, die.
+misbehave the ways a model server does: drop connections, answer errors, stall, die; ``--meet``
+makes it answer only requests that arrive together (a check that a client really overlaps them).
 
 :class:`PolicyServer` starts it in a subprocess for a test and always stops it.
 """
@@ -66,6 +67,8 @@ class _Handler(BaseHTTPRequestHandler):
             if drop:
                 self.close_connection = True  # the connection dies with the request unanswered
                 return
+            if options.meet > 1:
+                _meet(server, options)
             time.sleep(options.delay)
             if options.fail_instruction and options.fail_instruction in request.get("instruction", ""):
                 with server.lock:
@@ -81,6 +84,25 @@ class _Handler(BaseHTTPRequestHandler):
                 stats["in_flight"] -= 1
 
 
+def _meet(server, options) -> None:
+    """Hold this request until ``options.meet`` requests wait together (or ``meet_timeout_s`` passes).
+
+    A client that sends one query only after the previous one is answered never makes a meeting:
+    every request then waits out the timeout and counts as ``alone``."""
+    with server.meeting:
+        server.waiting += 1
+        group = server.group
+        if server.waiting >= options.meet:
+            server.group, server.waiting = group + 1, 0
+            server.meeting.notify_all()
+            met = True
+        else:
+            met = server.meeting.wait_for(lambda: server.group != group, timeout=options.meet_timeout_s)
+            if not met:
+                server.waiting -= 1
+        server.stats["met" if met else "alone"] += 1
+
+
 def serve(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--port", type=int, default=0)
@@ -88,11 +110,14 @@ def serve(argv: list[str] | None = None) -> None:
     parser.add_argument("--fail-instruction", default="", help="HTTP 500 when the instruction contains this")
     parser.add_argument("--error-body", action="store_true", help="answer failures with 200 {'error': ...}")
     parser.add_argument("--delay", type=float, default=0.0, help="seconds before each reply")
+    parser.add_argument("--meet", type=int, default=0, help="answer only once N requests wait together")
+    parser.add_argument("--meet-timeout-s", type=float, default=5.0, help="...or once this long has passed")
     parser.add_argument("--die-after", type=int, default=None, help="SIGKILL itself on request N+1")
     options = parser.parse_args(argv)
     server = ThreadingHTTPServer(("127.0.0.1", options.port), _Handler)
     server.daemon_threads = True
     server.options, server.lock = options, threading.Lock()
+    server.meeting, server.waiting, server.group = threading.Condition(), 0, 0
     server.stats = {
         "requests": 0,
         "in_flight": 0,
@@ -100,6 +125,8 @@ def serve(argv: list[str] | None = None) -> None:
         "overlapped": 0,
         "dropped": 0,
         "errors": 0,
+        "met": 0,
+        "alone": 0,
         "streams": [],
     }
     print(f"PORT {server.server_address[1]}", flush=True)
