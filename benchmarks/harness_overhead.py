@@ -23,7 +23,7 @@ import numpy as np
 
 def bare_loop(suite: str, task_id: int, states: list[int], steps: int) -> float:
     from conflictbench.sim.libero_env import EnvSettings, configure_process, make_env
-    from conflictbench.tasks.libero_tasks import base_task, load_init_states
+    from conflictbench.tasks.libero.base_tasks import base_task, load_init_states
 
     settings = EnvSettings(needs_images=False)
     configure_process(settings)
@@ -50,7 +50,7 @@ def harness(suite: str, task_id: int, states: list[int]) -> float:
     from conflictbench.sim.plan import EpisodeSpec
     from conflictbench.sim.runner import Runner
     from conflictbench.store import EpisodeStore
-    from conflictbench.tasks.libero_tasks import base_task
+    from conflictbench.tasks.libero.base_tasks import base_task
 
     plugins = conflictbench.plugins()
     spec = plugins.policy("noop")

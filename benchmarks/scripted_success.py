@@ -16,7 +16,7 @@ import os
 from collections import defaultdict
 
 import conflictbench
-from conflictbench.tasks.libero_tasks import LIBERO_SUITES, base_task
+from conflictbench.tasks.libero.base_tasks import LIBERO_SUITES, base_task
 
 TASKS_PER_SUITE = 10
 

@@ -71,7 +71,7 @@ def main() -> None:
     parser.add_argument("--images", action="store_true")
     args = parser.parse_args()
     from conflictbench.sim.plan import EpisodeSpec
-    from conflictbench.tasks.libero_tasks import base_task
+    from conflictbench.tasks.libero.base_tasks import base_task
 
     plan = [
         EpisodeSpec(args.suite, t, s, "p0", base_task(args.suite, t).language)

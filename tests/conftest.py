@@ -12,7 +12,7 @@ from conflictbench.core import ConflictCase
 from conflictbench.sim.plan import EpisodeSpec
 from conflictbench.sim.runner import Runner, RunResult
 from conflictbench.store import EpisodeStore
-from conflictbench.tasks.libero_tasks import base_task
+from conflictbench.tasks.libero.base_tasks import base_task
 
 
 @pytest.fixture(scope="session")

@@ -6,8 +6,7 @@ from __future__ import annotations
 import json
 
 import pytest
-
-from conflictbench.tasks.affordances import (
+from conflictbench.tasks.scene.affordances import (
     AFFORDANCES,
     AffordanceTableError,
     category,
@@ -16,9 +15,10 @@ from conflictbench.tasks.affordances import (
     parse_table,
     table_path,
 )
-from conflictbench.tasks.lexicon import absence_problem, absent_concepts, absent_for, scene_vocabulary
-from conflictbench.tasks.libero_tasks import all_base_tasks, base_task
-from conflictbench.tasks.scene import load_scene_facts
+from conflictbench.tasks.scene.lexicon import absence_problem, absent_concepts, absent_for, scene_vocabulary
+
+from conflictbench.tasks.libero.base_tasks import all_base_tasks, base_task
+from conflictbench.tasks.scene.facts import load_scene_facts
 
 
 @pytest.mark.sim  # LIBERO's base tasks

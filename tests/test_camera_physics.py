@@ -70,7 +70,7 @@ NATIVE_CLIENT = """
 import json, os, sys
 import numpy as np
 os.environ["MUJOCO_GL"] = os.environ["PYOPENGL_PLATFORM"] = "egl"
-from conflictbench.tasks.libero_tasks import base_task, load_init_states, prepare_libero_import
+from conflictbench.tasks.libero.base_tasks import base_task, load_init_states, prepare_libero_import
 prepare_libero_import()
 from libero.libero.envs import OffScreenRenderEnv
 from conflictbench.sim.capture import target_resolver  # reads positions only

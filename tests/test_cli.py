@@ -54,7 +54,7 @@ def test_report_on_a_directory_without_episodes_is_a_user_error(cli, tmp_path):
 
 
 def test_a_tampered_suite_file_names_the_line_and_field(cli, tmp_path):
-    from conflictbench.tasks.suite_file import shipped_suite_path
+    from conflictbench.tasks.suite.file import shipped_suite_path
 
     lines = shipped_suite_path().read_text().splitlines()
     lines[3] = lines[3].replace('"level": "L', '"level": "X')

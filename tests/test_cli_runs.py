@@ -38,8 +38,8 @@ SMALL_RUN_EPISODES = 12
 @pytest.fixture
 def suite_file(tmp_path) -> Path:
     from conflictbench.core import ConflictCase
-    from conflictbench.tasks.libero_tasks import base_task
-    from conflictbench.tasks.suite_file import case_line
+    from conflictbench.tasks.libero.base_tasks import base_task
+    from conflictbench.tasks.suite.file import case_line
 
     path = tmp_path / "cases.jsonl"
     path.write_text(

@@ -6,18 +6,18 @@ from __future__ import annotations
 import random
 
 import pytest
+from conflictbench.tasks.scene.affordances import category
+from conflictbench.tasks.scene.lexicon import absence_problem
+from conflictbench.tasks.scene.task_model import build_model
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LEVELS, PluginError
 from conflictbench.core.plugins import Plugins
-from conflictbench.tasks.affordances import category
-from conflictbench.tasks.build import _to_case, generate_task_cases, operator_entries
-from conflictbench.tasks.frames import build_model
-from conflictbench.tasks.lexicon import absence_problem
-from conflictbench.tasks.libero_tasks import base_task
+from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.operators import builtin_operators
-from conflictbench.tasks.scene import load_scene_facts
-from conflictbench.tasks.validate import new_context, validate_case
+from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.suite.build import _to_case, generate_task_cases, operator_entries
+from conflictbench.tasks.validation.rules import new_context, validate_case
 
 pytestmark = pytest.mark.sim  # nearly every test needs LIBERO's base tasks
 
@@ -113,7 +113,7 @@ def test_physical_violations_point_at_present_entities_lacking_the_affordance():
 
 
 def test_instruction_witness_pairs_are_real_contradictions():
-    from conflictbench.tasks.contradictions import contradiction
+    from conflictbench.tasks.operators.contradictions import contradiction
 
     key = ("libero_10", 2)
     facts = load_scene_facts()[key]

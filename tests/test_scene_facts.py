@@ -5,20 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conflictbench.tasks import scene
-from conflictbench.tasks.libero_tasks import all_base_tasks, load_init_states
-from conflictbench.tasks.scene import (
+from conflictbench.tasks.scene import facts as scene
+from conflictbench.tasks.libero.base_tasks import all_base_tasks, load_init_states
+from conflictbench.tasks.scene.facts import (
     DIRECTION_MARGIN,
     FAR_GAP,
     Entity,
     SceneFactsError,
     TaskFacts,
+    file_sha256,
     format_scene_facts,
     load_scene_facts,
     parse_scene_facts,
     shipped_facts_path,
+    states_sha256,
 )
-from conflictbench.tasks.scene_build import file_sha256, states_sha256
 
 
 def _facts(positions: dict[str, list], radius=0.05, contacts=None, predicates=None) -> TaskFacts:
@@ -133,7 +134,7 @@ SAMPLE = [(("libero_spatial", 4), (0, 17, 49)), (("libero_10", 6), (3, 30))]
 @pytest.mark.sim
 @pytest.mark.parametrize("key,states", SAMPLE, ids=[f"{k[0]}-{k[1]}" for k, _ in SAMPLE])
 def test_a_sample_of_shipped_facts_matches_a_fresh_simulator(key, states):
-    from conflictbench.tasks.scene_build import derive_in_subprocess
+    from conflictbench.sim.scene_facts import derive_in_subprocess
 
     fresh = derive_in_subprocess(*key, states=states)
     shipped = load_scene_facts()[key]

@@ -11,7 +11,7 @@ from conflictbench.core import LIBERO_SUITES
 from conflictbench.metrics import pair_metrics
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
-from conflictbench.tasks.suite_file import load_suite
+from conflictbench.tasks.suite.file import load_suite
 
 pytestmark = pytest.mark.sim
 

@@ -26,7 +26,7 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.report import report_store
 from conflictbench.report.summary import pair_up
 from conflictbench.store import EpisodeStore
-from conflictbench.tasks.libero_tasks import base_task
+from conflictbench.tasks.libero.base_tasks import base_task
 
 pytestmark = pytest.mark.sim
 
@@ -63,7 +63,7 @@ def served_plugin_site(tmp_path_factory) -> Path:
 
 
 def _cases_file(tmp_path: Path) -> Path:
-    from conflictbench.tasks.suite_file import case_line
+    from conflictbench.tasks.suite.file import case_line
 
     path = tmp_path / "cases.jsonl"
     path.write_text(

@@ -14,8 +14,8 @@ from conftest import conflict_spec, reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, P1_PREAMBLE, Plugins
-from conflictbench.tasks.libero_tasks import base_task
-from conflictbench.tasks.suite_file import load_suite
+from conflictbench.tasks.libero.base_tasks import base_task
+from conflictbench.tasks.suite.file import load_suite
 
 pytestmark = pytest.mark.sim
 SHORT = {suite: 12 for suite in LIBERO_SUITES}
@@ -216,7 +216,7 @@ def test_images_are_exactly_what_libero_renders(play, probe_plugins, tmp_path):
     script = textwrap.dedent(f"""
         import os, numpy as np
         os.environ["MUJOCO_GL"] = "egl"
-        from conflictbench.tasks.libero_tasks import base_task, load_init_states
+        from conflictbench.tasks.libero.base_tasks import base_task, load_init_states
         from libero.libero.envs import OffScreenRenderEnv
         task = base_task("libero_spatial", 1)
         env = OffScreenRenderEnv(bddl_file_name=task.bddl_path, camera_heights=256, camera_widths=256)

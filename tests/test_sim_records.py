@@ -26,7 +26,7 @@ from conflictbench.sim.messages import EpisodeOutcome
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 from conflictbench.store.schema import SCHEMA, records_to_table
-from conflictbench.tasks.libero_tasks import base_task
+from conflictbench.tasks.libero.base_tasks import base_task
 
 
 def test_every_outcome_field_lands_in_a_store_column_of_the_same_name():

@@ -9,7 +9,7 @@ import pytest
 
 from conflictbench.cli import main
 from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES
-from conflictbench.tasks.suite_file import load_suite, shipped_suite_path
+from conflictbench.tasks.suite.file import load_suite, shipped_suite_path
 
 
 def run(capsys, *argv):

@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 
 import pytest
+from conflictbench.tasks.scene.task_model import build_model
 
-from conflictbench.tasks.build import generate_task_cases, operator_entries
-from conflictbench.tasks.frames import build_model
-from conflictbench.tasks.libero_tasks import base_task
-from conflictbench.tasks.review import (
+from conflictbench.tasks.libero.base_tasks import base_task
+from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.suite.build import generate_task_cases, operator_entries
+from conflictbench.tasks.suite.file import load_suite
+from conflictbench.tasks.suite.review import (
     ReviewError,
     apply_reviews,
     load_reviews,
@@ -17,9 +19,7 @@ from conflictbench.tasks.review import (
     review_path,
     sample_for_review,
 )
-from conflictbench.tasks.scene import load_scene_facts
-from conflictbench.tasks.suite_file import load_suite
-from conflictbench.tasks.validate import new_context
+from conflictbench.tasks.validation.rules import new_context
 
 
 @pytest.fixture(scope="module")

@@ -9,10 +9,10 @@ import time
 import pytest
 
 from conflictbench.core import FAMILIES, LEVELS
-from conflictbench.tasks.libero_tasks import all_base_tasks
-from conflictbench.tasks.scene import load_scene_facts
-from conflictbench.tasks.suite_file import load_suite
-from conflictbench.tasks.validate import Context, new_context, normalise, validate_case, validate_cases
+from conflictbench.tasks.libero.base_tasks import all_base_tasks
+from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.suite.file import load_suite
+from conflictbench.tasks.validation.rules import Context, new_context, normalise, validate_case, validate_cases
 
 pytestmark = pytest.mark.sim  # nearly every test needs LIBERO's base tasks
 

@@ -7,7 +7,7 @@ import pytest
 from conflictbench.sim.libero_env import EnvSettings
 from conflictbench.sim.messages import EpisodeJob, Play, Query, Stop
 from conflictbench.sim.pool import WorkerPool
-from conflictbench.tasks.libero_tasks import base_task
+from conflictbench.tasks.libero.base_tasks import base_task
 
 pytestmark = pytest.mark.sim
 

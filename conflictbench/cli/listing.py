@@ -13,7 +13,7 @@ from conflictbench.core.plugins import Plugins
 
 def command(argv: Sequence[str], plugins: Plugins) -> int:
     Parser(prog="conflictbench list", description="What can be chosen, and where it comes from.").parse_args(argv)
-    from conflictbench.tasks.suite_file import load_suite
+    from conflictbench.tasks.suite.file import load_suite
 
     print("policies (model=...):")
     for name, spec in sorted(plugins.policies().items()):

@@ -134,8 +134,8 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     from conflictbench.sim.plan import build_plan
     from conflictbench.sim.runner import Runner
     from conflictbench.store import EpisodeStore
-    from conflictbench.tasks.libero_tasks import all_base_tasks
-    from conflictbench.tasks.suite_file import load_suite
+    from conflictbench.tasks.libero.base_tasks import all_base_tasks
+    from conflictbench.tasks.suite.file import load_suite
 
     options = run_options(cfg.run)
     families = _names(cfg.suite.families, "conflict family", FAMILIES)

@@ -39,7 +39,7 @@ def command(argv: list[str], plugins: Plugins) -> int:
 
 
 def _load(path: str | None, plugins: Plugins):
-    from conflictbench.tasks.suite_file import load_suite
+    from conflictbench.tasks.suite.file import load_suite
 
     return load_suite(path, families=plugins.families())
 
@@ -49,7 +49,7 @@ def _validate(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("file", nargs="?", help="a suite file or a headerless export (default: the shipped suite)")
     parser.add_argument("--facts", help="scene facts file (default: the shipped one)")
     args = parser.parse_args(argv)
-    from conflictbench.tasks.validate import new_context, validate_cases
+    from conflictbench.tasks.validation.rules import new_context, validate_cases
 
     start = time.perf_counter()
     suite = _load(args.file, plugins)
@@ -109,7 +109,7 @@ def _sample(argv: Sequence[str], plugins: Plugins) -> int:
     args = parser.parse_args(argv)
     if args.per_cell < 1:
         raise UserError(f"--per-cell must be at least 1, got {args.per_cell}")
-    from conflictbench.tasks.review import review_template, sample_for_review
+    from conflictbench.tasks.suite.review import review_template, sample_for_review
 
     picked = sample_for_review(_load(args.suite, plugins).cases, args.per_cell, args.seed)
     lines = [json.dumps(review_template(c), ensure_ascii=False) for c in picked]
@@ -189,15 +189,15 @@ def _build(argv: Sequence[str], plugins: Plugins) -> int:
         help="write nothing; exit 1 if the build differs from the file (determinism check)",
     )
     args = parser.parse_args(argv)
-    from conflictbench.tasks.build import DEFAULT_SEED, build_suite_text
-    from conflictbench.tasks.libero_tasks import all_base_tasks
-    from conflictbench.tasks.scene import shipped_facts_path
-    from conflictbench.tasks.suite_file import shipped_suite_path
+    from conflictbench.tasks.libero.base_tasks import all_base_tasks
+    from conflictbench.tasks.scene.facts import shipped_facts_path
+    from conflictbench.tasks.suite.build import DEFAULT_SEED, build_suite_text
+    from conflictbench.tasks.suite.file import shipped_suite_path
 
     target = Path(args.out) if args.out else shipped_suite_path()
     progress = (lambda m: print(f"  {m}", file=sys.stderr)) if sys.stderr.isatty() else None  # noqa: E731
     if args.facts:
-        from conflictbench.tasks.scene_build import build_scene_facts
+        from conflictbench.sim.scene_facts import build_scene_facts
 
         build_scene_facts(all_base_tasks(), shipped_facts_path(), progress=lambda m: print(f"  {m}", file=sys.stderr))
     seed = DEFAULT_SEED if args.seed is None else args.seed

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from conflictbench.core import SimulatorUnavailable
-from conflictbench.tasks.libero_tasks import prepare_libero_import
+from conflictbench.tasks.libero.base_tasks import prepare_libero_import
 
 EGL_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri"
 CAMERAS = ("agentview", "robot0_eye_in_hand")

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from conflictbench.core import ConflictCase, PolicyTraits, UserError
-from conflictbench.tasks.suite_file import USABLE
+from conflictbench.tasks.suite.file import USABLE
 
 from .libero_env import simulator_versions
 

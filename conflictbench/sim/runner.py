@@ -27,7 +27,7 @@ from conflictbench.core import (
 )
 from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import EpisodeStore
-from conflictbench.tasks.libero_tasks import base_task
+from conflictbench.tasks.libero.base_tasks import base_task
 
 from .deciding import PolicyCalls, reply_for, reset_error
 from .libero_env import EnvSettings

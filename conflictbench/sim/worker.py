@@ -65,7 +65,7 @@ class EpisodePlayer:
         key = (job.suite, job.task_id)
         if self._env_key != key:
             self.close()
-            from conflictbench.tasks.libero_tasks import load_init_states
+            from conflictbench.tasks.libero.base_tasks import load_init_states
 
             self._env = self._libero_env.make_env(job.bddl_path, self.settings)
             self._init_states = load_init_states(job.suite, job.task_id)

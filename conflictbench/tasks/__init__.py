@@ -17,8 +17,8 @@ _DESCRIPTIONS = {
 
 @hookimpl
 def conflictbench_register_conflict_operators(register):
-    from .operators import builtin_operators
-    from .validate import WITNESS_TYPES
+    from conflictbench.tasks.operators import builtin_operators
+    from conflictbench.tasks.validation.rules import WITNESS_TYPES
 
     for name, family, generate in builtin_operators():
         register(

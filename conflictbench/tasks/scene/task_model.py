@@ -12,10 +12,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-from .affordances import category, load_table
-from .lexicon import region_names, region_phrase
-from .libero_tasks import BaseTask
-from .scene import TaskFacts
+from conflictbench.tasks.libero.base_tasks import BaseTask
+from conflictbench.tasks.scene.affordances import category, load_table
+from conflictbench.tasks.scene.facts import TaskFacts
+from conflictbench.tasks.scene.lexicon import region_names, region_phrase
 
 STATE_KINDS = {"open": "open", "close": "close", "turnon": "turn_on", "turnoff": "turn_off"}
 _TABLE_REGION = re.compile(r"^(?P<landmark>[a-z]+(?:_[a-z]+)*?)_(?P<side>left|right|front|back)_region$")

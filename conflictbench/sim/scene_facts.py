@@ -9,30 +9,20 @@ LIBERO's stored states hold objects a little above their supports (a bowl in an 
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
 
 from conflictbench.core.policy import DEFAULT_WARMUP_STEPS
-
-from .libero_tasks import BaseTask, load_init_states
-from .scene import Entity, TaskFacts, format_scene_facts
+from conflictbench.tasks.libero.base_tasks import BaseTask, load_init_states
+from conflictbench.tasks.scene.facts import Entity, TaskFacts, file_sha256, format_scene_facts, states_sha256
 
 # Support surfaces of the scene itself: every object rests on them, so they are not entities.
 TABLES = ("main_table", "floor", "kitchen_table", "living_room_table", "study_table", "coffee_table")
 UNARY = ("open", "close", "turnon", "turnoff")
 NOOP_ACTION = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])
 """The runner's warm-up action (``conflictbench.sim.worker.NOOP_ACTION``): hold still, gripper open."""
-
-
-def file_sha256(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def states_sha256(states: np.ndarray) -> str:
-    return hashlib.sha256(np.ascontiguousarray(states, dtype=np.float64).tobytes()).hexdigest()
 
 
 def _entities(task: BaseTask, env) -> dict[str, Entity]:
@@ -190,8 +180,7 @@ def derive_in_subprocess(suite: str, task_id: int, states: Iterable[int] | None 
 
 def _derive_job(suite: str, task_id: int, states: tuple[int, ...] | None) -> TaskFacts:
     from conflictbench.sim.libero_env import EnvSettings, configure_process
-
-    from .libero_tasks import base_task
+    from conflictbench.tasks.libero.base_tasks import base_task
 
     configure_process(EnvSettings(needs_images=False))
     return derive_task_facts(base_task(suite, task_id), states=states)

@@ -19,7 +19,7 @@ still or never touches that thing.
 
 from __future__ import annotations
 
-from .scene import TaskFacts
+from conflictbench.tasks.scene.facts import TaskFacts
 
 EXCLUSIVE = {"open": "close", "close": "open", "turnon": "turnoff", "turnoff": "turnon"}
 STATE_PREDICATES = tuple(EXCLUSIVE)

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from .affordances import AffordanceTableError, category, load_table
-from .bddl import BDDLProblem
+from conflictbench.tasks.libero.bddl import BDDLProblem
+from conflictbench.tasks.scene.affordances import AffordanceTableError, category, load_table
 
 ABSENT_TABLE = "absent_referents.jsonl"
 ROLES = ("object", "support", "container", "appliance", "openable", "landmark")

@@ -13,10 +13,10 @@ from __future__ import annotations
 import itertools
 import random
 
-from .affordances import category, fits_inside
-from .frames import TaskModel
-from .operators import Draft, Mods, Slot, frames_for_level, realise, step_label
-from .phrasing import bare, choose
+from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
+from conflictbench.tasks.operators.phrasing import bare, choose
+from conflictbench.tasks.scene.affordances import category, fits_inside
+from conflictbench.tasks.scene.task_model import TaskModel
 
 PREMISES = {
     "graspable": "{E} cannot be picked up and carried: {it} is part of the scene's furniture",

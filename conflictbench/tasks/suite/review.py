@@ -99,7 +99,7 @@ def load_reviews(path: str | Path | None = None) -> list[Decision]:
 
 
 def apply_reviews(cases: Sequence[ConflictCase], decisions: Iterable[Decision], ctx=None) -> list[ConflictCase]:
-    from .validate import validate_case
+    from conflictbench.tasks.validation.rules import validate_case
 
     by_id = {c.case_id: i for i, c in enumerate(cases)}
     out = list(cases)

@@ -16,15 +16,13 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from conflictbench.core import ConflictCase
-
-from .affordances import AFFORDANCES, category, fits_inside
-from .contradictions import contradiction, literal_entities
-from .frames import TaskModel, build_model
-from .lexicon import absence_problem, words
-from .lexicon import concept as absent_concept
-from .libero_tasks import base_task
-from .scene import RELATIONS, TaskFacts, load_scene_facts
-from .scene_build import file_sha256, states_sha256
+from conflictbench.tasks.libero.base_tasks import base_task
+from conflictbench.tasks.operators.contradictions import contradiction, literal_entities
+from conflictbench.tasks.scene.affordances import AFFORDANCES, category, fits_inside
+from conflictbench.tasks.scene.facts import RELATIONS, TaskFacts, file_sha256, load_scene_facts, states_sha256
+from conflictbench.tasks.scene.lexicon import absence_problem, words
+from conflictbench.tasks.scene.lexicon import concept as absent_concept
+from conflictbench.tasks.scene.task_model import TaskModel, build_model
 
 WITNESS_TYPES = {
     "instruction": "contradiction",
@@ -87,7 +85,7 @@ def new_context(facts_path=None, operators: Iterable = ()) -> Context:
 def _task_problems(ctx: Context, key: tuple[str, int]) -> list[str]:
     if key in ctx.checked_tasks:
         return ctx.checked_tasks[key]
-    from .libero_tasks import load_init_states
+    from conflictbench.tasks.libero.base_tasks import load_init_states
 
     out: list[str] = []
     facts = ctx.facts.get(key)

@@ -20,13 +20,12 @@ any plugin's (:mod:`conflictbench.tasks` holds the implementation).
 from __future__ import annotations
 
 import random
-from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from .affordances import category
-from .frames import Step, TaskModel
-from .phrasing import Clause, coordinate, join
+from conflictbench.tasks.operators.phrasing import Clause, coordinate, join
+from conflictbench.tasks.scene.affordances import category
+from conflictbench.tasks.scene.task_model import Step, TaskModel
 
 SINGLE_LEVELS = ("L1", "L2")
 
@@ -168,14 +167,3 @@ def realise(
 def step_label(level: str, index: int, what: str) -> str:
     """Factor label: plain for single-step levels, ``step k: ...`` for multi-step ones."""
     return what if level in SINGLE_LEVELS else f"step {index + 1}: {what}"
-
-
-# -- the built-in operator table ------------------------------------------------------------------
-Generate = Callable[[TaskModel, str, random.Random], Iterable[Draft]]
-
-
-def builtin_operators() -> list[tuple[str, str, Generate]]:
-    """(name, family, generate) of every built-in operator."""
-    from . import ops_grounding, ops_instruction, ops_physical, ops_spatial
-
-    return [*ops_instruction.OPERATORS, *ops_grounding.OPERATORS, *ops_spatial.OPERATORS, *ops_physical.OPERATORS]

@@ -13,10 +13,10 @@ from __future__ import annotations
 import itertools
 import random
 
-from .affordances import category
-from .frames import TaskModel
-from .operators import Draft, Mods, Slot, frames_for_level, realise, step_label
-from .phrasing import bare, choose
+from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
+from conflictbench.tasks.operators.phrasing import bare, choose
+from conflictbench.tasks.scene.affordances import category
+from conflictbench.tasks.scene.task_model import TaskModel
 
 MIN_STATES = 25
 """A claim false in fewer of the 50 initial states is not used (the case would pair too rarely)."""

@@ -12,10 +12,10 @@ from __future__ import annotations
 import itertools
 import random
 
-from .frames import TaskModel
-from .lexicon import AbsentConcept, absent_for
-from .operators import Draft, Mods, Slot, frames_for_level, realise, step_label
-from .phrasing import bare, choose
+from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
+from conflictbench.tasks.operators.phrasing import bare, choose
+from conflictbench.tasks.scene.lexicon import AbsentConcept, absent_for
+from conflictbench.tasks.scene.task_model import TaskModel
 
 LANDMARK_RELATIONS = ("next to", "beside", "behind", "in front of", "to the left of", "to the right of")
 

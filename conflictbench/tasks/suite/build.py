@@ -15,14 +15,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, ConflictCase, PluginError
-
-from .frames import TaskModel, build_model
-from .libero_tasks import all_base_tasks
-from .operators import Draft, builtin_operators
-from .review import apply_reviews, load_reviews
-from .scene import load_scene_facts
-from .suite_file import format_suite
-from .validate import Context, new_context, normalise, validate_case
+from conflictbench.tasks.libero.base_tasks import all_base_tasks
+from conflictbench.tasks.operators import builtin_operators
+from conflictbench.tasks.operators.frames import Draft
+from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.scene.task_model import TaskModel, build_model
+from conflictbench.tasks.suite.file import format_suite
+from conflictbench.tasks.suite.review import apply_reviews, load_reviews
+from conflictbench.tasks.validation.rules import Context, new_context, normalise, validate_case
 
 SUITE_NAME = "conflictvla"
 SUITE_VERSION = "1.1.0"
