@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 
 import pytest
+
+from conflictbench.tasks.libero.base_tasks import all_base_tasks, base_task
 from conflictbench.tasks.scene.affordances import (
     AFFORDANCES,
     AffordanceTableError,
@@ -15,10 +17,8 @@ from conflictbench.tasks.scene.affordances import (
     parse_table,
     table_path,
 )
-from conflictbench.tasks.scene.lexicon import absence_problem, absent_concepts, absent_for, scene_vocabulary
-
-from conflictbench.tasks.libero.base_tasks import all_base_tasks, base_task
 from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.scene.lexicon import absence_problem, absent_concepts, absent_for, scene_vocabulary
 
 
 @pytest.mark.sim  # LIBERO's base tasks

@@ -6,16 +6,16 @@ from __future__ import annotations
 import random
 
 import pytest
-from conflictbench.tasks.scene.affordances import category
-from conflictbench.tasks.scene.lexicon import absence_problem
-from conflictbench.tasks.scene.task_model import build_model
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LEVELS, PluginError
 from conflictbench.core.plugins import Plugins
 from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.operators import builtin_operators
+from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.scene.lexicon import absence_problem
+from conflictbench.tasks.scene.task_model import build_model
 from conflictbench.tasks.suite.build import _to_case, generate_task_cases, operator_entries
 from conflictbench.tasks.validation.rules import new_context, validate_case
 

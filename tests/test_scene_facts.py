@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conflictbench.tasks.scene import facts as scene
 from conflictbench.tasks.libero.base_tasks import all_base_tasks, load_init_states
+from conflictbench.tasks.scene import facts as scene
 from conflictbench.tasks.scene.facts import (
     DIRECTION_MARGIN,
     FAR_GAP,

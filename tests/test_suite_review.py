@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 
 import pytest
-from conflictbench.tasks.scene.task_model import build_model
 
 from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.scene.task_model import build_model
 from conflictbench.tasks.suite.build import generate_task_cases, operator_entries
 from conflictbench.tasks.suite.file import load_suite
 from conflictbench.tasks.suite.review import (
