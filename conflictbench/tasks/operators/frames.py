@@ -8,10 +8,11 @@ An operator is ``generate(model, level, rng) -> iterable of Draft``: given a bas
 - L3: several ordered steps, one factor in one step, the other steps plausible;
 - L4: several steps, factors in at least two of them.
 
-A *frame* is the list of steps an instruction will have. Single-step frames take one of the base
-task's steps; multi-step frames take all base steps when there are several, split a pick-and-place
-into "pick up X" then "place it ...", or add a plausible extra step the scene allows (open a
-closed drawer, switch on a stove that is off, move a bystander object out of the way).
+A *frame* is the list of steps an instruction will have; every frame asks for the WHOLE base task.
+The single-step frame is the base task's one step (tasks of two subgoals have none); multi-step
+frames take all base steps when there are several, split a pick-and-place into "pick up X" then
+"place it ...", or put a plausible extra step the scene allows BEFORE the base task (open a closed
+drawer, switch on a stove that is off, move a bystander object out of the way).
 
 Built-in operators register through the ``conflictbench_register_conflict_operators`` hook like
 any plugin's (:mod:`conflictbench.tasks` holds the implementation).
@@ -23,9 +24,10 @@ import random
 from dataclasses import dataclass, field
 from typing import Any
 
-from conflictbench.tasks.operators.phrasing import Clause, coordinate, join
 from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.task_model import Step, TaskModel
+
+from .phrasing import Clause, coordinate, join
 
 SINGLE_LEVELS = ("L1", "L2")
 
@@ -99,10 +101,15 @@ def aux_steps(model: TaskModel) -> list[Slot]:
 
 
 def single_frames(model: TaskModel) -> list[list[Slot]]:
-    return [[slot_of(s)] for s in model.steps]
+    """One step asking for the whole base task: only a base task of one step has one (a task of two
+    subgoals cannot be asked whole in a single step, so its L1 and L2 cells stay empty)."""
+    return [[slot_of(model.steps[0])]] if len(model.steps) == 1 else []
 
 
 def multi_frames(model: TaskModel) -> list[list[Slot]]:
+    """Several steps that together ask for the whole base task. Added steps only ever come FIRST:
+    an episode ends as soon as the original goal holds, so a step after the original ones is never
+    reached and a conflict there could not be observed."""
     frames: list[list[Slot]] = []
     if len(model.steps) >= 2:
         frames.append([slot_of(s) for s in model.steps])
@@ -119,11 +126,40 @@ def multi_frames(model: TaskModel) -> list[list[Slot]]:
             one = [Slot("place", step, (o,), step.dest, step.prep) for o in step.objects]
             frames.append(rest_before + one + rest_after)
     if len(model.steps) == 1:
-        base = slot_of(model.steps[0])
-        for aux in aux_steps(model)[:4]:
-            frames.append([aux, base])
-            frames.append([slot_of(model.steps[0]), Slot(aux.kind, aux.step, aux.objects, aux=True)])
+        for aux in aux_steps(model):
+            frames.append([aux, slot_of(model.steps[0])])
     return [f for f in frames if len(f) >= 2]
+
+
+def step_goals(slot: Slot) -> list[list[str]]:
+    """The base task's goal literals a step of a frame achieves (none for a pick-up or an added step)."""
+    if slot.aux or slot.kind == "pick":
+        return []
+    return [
+        list(atom)
+        for atom in slot.step.goal
+        if slot.kind not in ("place", "push", "place_it") or atom[1] in slot.objects
+    ]
+
+
+def acted_on(model: TaskModel, slot: Slot) -> list[str]:
+    """Entities a step moves or operates (a drawer's region and its cabinet): a later step's spatial
+    premise about them may have been made true by this step."""
+    out = list(slot.objects)
+    if slot.kind in ("open", "close", "turn_on", "turn_off"):
+        out += [model.parent(o) for o in slot.objects if model.parent(o) not in out]
+    return out
+
+
+def frame_witness(model: TaskModel, frame: list[Slot], bodies: list[str]) -> dict:
+    """The witness fields every family shares: the steps as written, their roles, their goals and
+    what each acts on (checked by :mod:`conflictbench.tasks.validation.structure`)."""
+    return {
+        "steps": list(bodies),
+        "step_roles": ["added" if slot.aux else "original" for slot in frame],
+        "step_goals": [step_goals(slot) for slot in frame],
+        "step_entities": [acted_on(model, slot) for slot in frame],
+    }
 
 
 def frames_for_level(model: TaskModel, level: str) -> list[list[Slot]]:

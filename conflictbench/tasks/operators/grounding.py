@@ -12,10 +12,11 @@ from __future__ import annotations
 import itertools
 import random
 
-from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
-from conflictbench.tasks.operators.phrasing import bare, choose
 from conflictbench.tasks.scene.lexicon import AbsentConcept, absent_for
 from conflictbench.tasks.scene.task_model import TaskModel
+
+from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
+from .phrasing import bare, choose
 
 LANDMARK_RELATIONS = ("next to", "beside", "behind", "in front of", "to the left of", "to the right of")
 
@@ -123,7 +124,7 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, pools, rng: r
         instruction=instruction,
         factors=tuple(step_label(level, i, role) for i, role, _, _ in chosen),
         premise=_premise([c for _, _, c, _ in chosen]),
-        witness={"type": "absent_referent", "steps": steps, "referents": referents},
+        witness={"type": "absent_referent", **frame_witness(model, frame, steps), "referents": referents},
         operator="grounding.absent_referent",
     )
 

@@ -11,10 +11,11 @@ from __future__ import annotations
 import itertools
 import random
 
-from conflictbench.tasks.operators.contradictions import EXCLUSIVE, already
-from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
-from conflictbench.tasks.operators.phrasing import bare, choose
 from conflictbench.tasks.scene.task_model import TaskModel
+
+from .contradictions import EXCLUSIVE, already
+from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
+from .phrasing import bare, choose
 
 STILL = (
     "without moving {x}",
@@ -228,7 +229,12 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
         instruction=instruction,
         factors=tuple(step_label(level, i, words[k]) for i, k in combo),
         premise="; ".join(conflict for *_, conflict in picked),
-        witness={"type": "contradiction", "steps": steps, "requirements": requirements, "conflicts": conflicts},
+        witness={
+            "type": "contradiction",
+            **frame_witness(model, frame, steps),
+            "requirements": requirements,
+            "conflicts": conflicts,
+        },
         operator="instruction.contradiction",
     )
 

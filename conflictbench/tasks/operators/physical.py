@@ -13,10 +13,11 @@ from __future__ import annotations
 import itertools
 import random
 
-from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
-from conflictbench.tasks.operators.phrasing import bare, choose
 from conflictbench.tasks.scene.affordances import category, fits_inside
 from conflictbench.tasks.scene.task_model import TaskModel
+
+from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
+from .phrasing import bare, choose
 
 PREMISES = {
     "graspable": "{E} cannot be picked up and carried: {it} is part of the scene's furniture",
@@ -213,7 +214,7 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
             for v in violations
         ),
         premise="; ".join(_premise(model, v) for v in violations),
-        witness={"type": "affordance_violation", "steps": steps, "violations": violations},
+        witness={"type": "affordance_violation", **frame_witness(model, frame, steps), "violations": violations},
         operator="physical.affordance_violation",
     )
 

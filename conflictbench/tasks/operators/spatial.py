@@ -13,10 +13,11 @@ from __future__ import annotations
 import itertools
 import random
 
-from conflictbench.tasks.operators.frames import Draft, Mods, Slot, frames_for_level, realise, step_label
-from conflictbench.tasks.operators.phrasing import bare, choose
 from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.task_model import TaskModel
+
+from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
+from .phrasing import bare, choose
 
 MIN_STATES = 25
 """A claim false in fewer of the 50 initial states is not used (the case would pair too rarely)."""
@@ -273,7 +274,7 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
             step_label(level, i, f"{part} relation ({c['relation'].replace('_', ' ')})") for i, part, c, _ in chosen
         ),
         premise="; ".join(_premise(model, c) for _, _, c, _ in chosen),
-        witness={"type": "false_relation", "steps": steps, "relations": relations},
+        witness={"type": "false_relation", **frame_witness(model, frame, steps), "relations": relations},
         init_states=None if states == model.facts.states() else tuple(sorted(states)),
         operator="spatial.false_relation",
     )

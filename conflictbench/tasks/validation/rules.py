@@ -17,12 +17,15 @@ from dataclasses import dataclass, field
 
 from conflictbench.core import ConflictCase
 from conflictbench.tasks.libero.base_tasks import base_task
-from conflictbench.tasks.operators.contradictions import contradiction, literal_entities
-from conflictbench.tasks.scene.affordances import AFFORDANCES, category, fits_inside
-from conflictbench.tasks.scene.facts import RELATIONS, TaskFacts, file_sha256, load_scene_facts, states_sha256
-from conflictbench.tasks.scene.lexicon import absence_problem, words
-from conflictbench.tasks.scene.lexicon import concept as absent_concept
+from conflictbench.tasks.scene.facts import TaskFacts, file_sha256, load_scene_facts, states_sha256
 from conflictbench.tasks.scene.task_model import TaskModel, build_model
+
+from .grounding import check_absent
+from .instruction import check_contradiction
+from .physical import check_affordance
+from .spatial import check_relation
+from .structure import check_structure
+from .text import normalise
 
 WITNESS_TYPES = {
     "instruction": "contradiction",
@@ -30,28 +33,6 @@ WITNESS_TYPES = {
     "spatial": "false_relation",
     "physical": "affordance_violation",
 }
-FACTOR_KEYS = {
-    "contradiction": "conflicts",
-    "absent_referent": "referents",
-    "false_relation": "relations",
-    "affordance_violation": "violations",
-}
-NEEDS = (*AFFORDANCES, "movable", "fits_in")
-PRONOUNS = {"it", "them", "its", "both"}
-RELATION_WORDS = {
-    "left_of": ("left",),
-    "right_of": ("right",),
-    "in_front_of": ("in front of",),
-    "behind": ("behind",),
-    "next_to": ("next to", "beside"),
-    "on": ("on",),
-    "in": ("in", "inside"),
-    "between": ("between",),
-}
-
-
-def normalise(text: str) -> str:
-    return " ".join(words(text))
 
 
 @dataclass
@@ -110,151 +91,7 @@ def _task_problems(ctx: Context, key: tuple[str, int]) -> list[str]:
     return out
 
 
-# -- names in text --------------------------------------------------------------------------------
-def entity_names(model: TaskModel, entity: str) -> set[str]:
-    return model.entity_names(entity)
-
-
-def names_in(text: str, names: Iterable[str]) -> bool:
-    t = f" {normalise(text)} "
-    return any(f" {normalise(n)} " in t for n in names)
-
-
-def _named_or_pronoun(model: TaskModel, entity: str, text: str, instruction: str) -> bool:
-    names = entity_names(model, entity)
-    if names_in(text, names):
-        return True
-    return bool(PRONOUNS & set(words(text))) and names_in(instruction, names)
-
-
 # -- family rules ---------------------------------------------------------------------------------
-def check_contradiction(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
-    w, out = case.witness, []
-    reqs = {r.get("id"): r for r in w.get("requirements", []) if isinstance(r, dict)}
-    for r in reqs.values():
-        lit = r.get("literal")
-        if not isinstance(lit, list) or len(lit) < 3 or lit[0] not in ("goal", "avoid", "keep", "do"):
-            out.append(f"requirement {r.get('id')}: malformed literal {lit!r}")
-            continue
-        if r.get("text", "") not in case.instruction:
-            out.append(f"requirement {r.get('id')}: text {r.get('text')!r} is not in the instruction")
-        for e in literal_entities(lit):
-            if e not in model.facts.entities and e not in model.problem.fixtures:
-                out.append(f"requirement {r.get('id')}: {e!r} is not in the scene")
-            elif not _named_or_pronoun(model, e, r.get("text", ""), case.instruction):
-                out.append(f"requirement {r.get('id')}: its text does not name {e}")
-    if not w.get("conflicts"):
-        out.append("the witness lists no contradicting requirements")
-    for pair in w.get("conflicts", []):
-        if not (isinstance(pair, list) and len(pair) == 2 and all(p in reqs for p in pair)):
-            out.append(f"conflict {pair!r} does not name two listed requirements")
-            continue
-        a, b = (reqs[p].get("literal") for p in pair)
-        if (
-            isinstance(a, list)
-            and isinstance(b, list)
-            and len(a) >= 3
-            and len(b) >= 3
-            and contradiction(a, b, model.facts, states) is None
-        ):
-            out.append(f"requirements {pair[0]} and {pair[1]} do not contradict ({a} / {b})")
-    return out
-
-
-def check_absent(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
-    out = []
-    for r in case.witness.get("referents", []):
-        text = str(r.get("text", ""))
-        if not text or text not in case.instruction:
-            out.append(f"referent {text!r} is not in the instruction")
-            continue
-        known = absent_concept(str(r.get("concept", "")))
-        synonyms = known.synonyms if known else ()
-        phrase = text.removeprefix("the ")
-        why = absence_problem(phrase, synonyms, model.problem)
-        if why:
-            out.append(f"referent {text!r} is not absent: {why}")
-    return out
-
-
-def check_relation(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
-    out = []
-    facts = model.facts
-    for r in case.witness.get("relations", []):
-        rel, text = r.get("relation"), str(r.get("text", ""))
-        if rel not in RELATIONS:
-            out.append(f"unknown relation {rel!r}")
-            continue
-        if text not in case.instruction:
-            out.append(f"relation text {text!r} is not in the instruction")
-        args = [r.get("subject", {})] + list(r.get("landmarks", []))
-        if len(args) != (3 if rel == "between" else 2):
-            out.append(f"{rel} takes {3 if rel == 'between' else 2} arguments, got {len(args)}")
-            continue
-        groups = []
-        for arg in args:
-            listed = set(arg.get("entities", []))
-            unknown = listed - set(facts.entities)
-            if not listed or unknown:
-                out.append(f"relation {rel}: entities {sorted(unknown) or '(none)'} are not in the scene")
-                break
-            missing = model.candidates(str(arg.get("phrase", ""))) - listed
-            if missing:
-                out.append(f"relation {rel}: {arg.get('phrase')!r} could also mean {', '.join(sorted(missing))}")
-            if not names_in(text, {str(arg.get("phrase", ""))}):
-                out.append(f"relation text {text!r} does not name {arg.get('phrase')!r}")
-            groups.append(sorted(listed))
-        else:
-            if not any(names_in(text, {w}) for w in RELATION_WORDS[rel]):
-                out.append(f"relation text {text!r} does not say {rel.replace('_', ' ')}")
-            for combo in _product(groups):
-                true_in = facts.holds(rel, *combo) & states
-                if true_in:
-                    out.append(f"{rel}{tuple(combo)} holds in initial state(s) {sorted(true_in)[:5]}")
-    return out
-
-
-def _product(groups: list[list[str]]) -> list[list[str]]:
-    combos: list[list[str]] = [[]]
-    for g in groups:
-        combos = [c + [x] for c in combos for x in g if x not in c]
-    return combos
-
-
-def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
-    out = []
-    present = set(model.problem.objects) | set(model.problem.fixtures)
-    for v in case.witness.get("violations", []):
-        entity, needs, text = v.get("entity"), v.get("needs"), str(v.get("text", ""))
-        if entity not in present:
-            out.append(f"violation: {entity!r} is not in the scene")
-            continue
-        if needs not in NEEDS:
-            out.append(f"violation: unknown affordance {needs!r}")
-            continue
-        if text not in case.instruction:
-            out.append(f"violation text {text!r} is not in the instruction")
-        info = category(model.category_of(entity))
-        if needs == "fits_in":
-            holder = v.get("holder")
-            if holder not in present:
-                out.append(f"violation: holder {holder!r} is not in the scene")
-                continue
-            if fits_inside(info.category, model.category_of(holder)) is not False:
-                out.append(f"{entity} may fit inside {holder}")
-            if not names_in(text, entity_names(model, holder)) or not names_in(
-                case.instruction, entity_names(model, entity)
-            ):
-                out.append(f"the text does not name {entity} and {holder}")
-            continue
-        violated = info.has("fixed") is True if needs == "movable" else info.lacks(needs)
-        if not violated:
-            out.append(f"{entity} ({info.category}) does not plainly lack {needs!r} in the affordance table")
-        if not names_in(text, entity_names(model, entity)):
-            out.append(f"violation text {text!r} does not name {entity}")
-    return out
-
-
 FAMILY_CHECKS = {
     "contradiction": check_contradiction,
     "absent_referent": check_absent,
@@ -264,40 +101,6 @@ FAMILY_CHECKS = {
 
 
 # -- one case, a whole suite ----------------------------------------------------------------------
-def _structure(case: ConflictCase, wtype: str) -> list[str]:
-    w, out = case.witness, []
-    steps = w.get("steps")
-    if not isinstance(steps, list) or not steps or not all(isinstance(s, str) and s for s in steps):
-        return ["witness field 'steps' must list the instruction's steps"]
-    pos = 0
-    for s in steps:
-        i = case.instruction.find(s, pos)
-        if i < 0:
-            out.append(f"step {s!r} is not in the instruction (in order)")
-            break
-        pos = i + len(s)
-    factors = w.get(FACTOR_KEYS.get(wtype, "factors"), [])
-    if not isinstance(factors, list) or not factors:
-        return out + [f"witness field {FACTOR_KEYS.get(wtype, 'factors')!r} is empty"]
-    if wtype == "contradiction":
-        step_of = {r.get("id"): r.get("step") for r in w.get("requirements", []) if isinstance(r, dict)}
-        factor_steps = [max(step_of.get(p, 0) or 0 for p in pair) if isinstance(pair, list) else 0 for pair in factors]
-    else:
-        factor_steps = [f.get("step") if isinstance(f, dict) else None for f in factors]
-    if not all(isinstance(s, int) and 1 <= s <= len(steps) for s in factor_steps):
-        out.append(f"factor steps {factor_steps} do not point at the {len(steps)} step(s)")
-    n, k, spread = len(steps), len(factors), len(set(factor_steps))
-    expected = {
-        "L1": n == 1 and k == 1,
-        "L2": n == 1 and k >= 2,
-        "L3": n >= 2 and k == 1,
-        "L4": n >= 2 and k >= 2 and spread >= 2,
-    }
-    if not expected.get(case.level, False):
-        out.append(f"level {case.level} does not match the witness ({n} step(s), {k} factor(s) in {spread} step(s))")
-    return out
-
-
 def validate_case(case: ConflictCase, ctx: Context) -> list[str]:
     key = (case.suite, case.task_id)
     try:
@@ -329,7 +132,7 @@ def validate_case(case: ConflictCase, ctx: Context) -> list[str]:
         states = frozenset(case.init_states)
     try:  # a witness from a user's file may have any shape: a bad one is a finding, not a crash
         if wtype in FAMILY_CHECKS:
-            out += _structure(case, wtype)
+            out += check_structure(case, wtype, model)
             out += FAMILY_CHECKS[wtype](case, model, states)
         else:
             out += list(ctx.extra_checks[wtype](case, model))

@@ -1,0 +1,155 @@
+"""Rules every case meets whatever its family: steps, levels, an observable conflict, the whole
+original task, and unambiguous pronouns.
+
+The witness describes the instruction's steps: ``steps`` (each step's text, in order), and, per
+step, ``step_roles`` (``original``: a step of the base task, or part of one, such as the "pick up"
+of a split pick-and-place; ``added``: a plausible extra step) and ``step_goals`` (the base task's
+goal literals the step achieves). The rules re-derive what they can from the base task:
+
+- **Whole original**: the steps' goals are exactly the base task's subgoals, and every step names
+  the entities of its goals (or the factor that stands in for one, a grounding referent).
+- **Observable**: an episode ends as soon as the ORIGINAL goal holds, so a conflict placed after the
+  original steps would never be reached. Added steps come before every original step.
+- **Unambiguous**: a pronoun is only the object of a placing verb whose antecedent is the object
+  just picked up ("pick up the bowl and put it on the plate"); constraints never use pronouns.
+"""
+
+from __future__ import annotations
+
+import re
+
+from conflictbench.core import ConflictCase
+from conflictbench.tasks.scene.task_model import TaskModel
+
+from .text import names_in, normalise
+
+FACTOR_KEYS = {
+    "contradiction": "conflicts",
+    "absent_referent": "referents",
+    "false_relation": "relations",
+    "affordance_violation": "violations",
+}
+ROLES = ("original", "added")
+PRONOUN = re.compile(r"\b(it|them|its|they|itself)\b")
+PLACING = ("place", "put", "set", "drop", "stow", "carry", "move", "slide", "bring", "lay", "stand")
+"""Verbs whose object may be the pronoun for the thing just picked up: "... and place it on the plate"."""
+GRASPING = ("pick up", "grab", "lift", "take", "hold", "fold", "crumple", "squash", "bend", "open", "roll up", "crush")
+"""Verbs that introduce the antecedent of a following placing verb's pronoun."""
+
+
+def _steps_and_level(case: ConflictCase, wtype: str) -> list[str]:
+    w, out = case.witness, []
+    steps = w.get("steps")
+    if not isinstance(steps, list) or not steps or not all(isinstance(s, str) and s for s in steps):
+        return ["witness field 'steps' must list the instruction's steps"]
+    pos = 0
+    for s in steps:
+        i = case.instruction.find(s, pos)
+        if i < 0:
+            out.append(f"step {s!r} is not in the instruction (in order)")
+            break
+        pos = i + len(s)
+    factors = w.get(FACTOR_KEYS.get(wtype, "factors"), [])
+    if not isinstance(factors, list) or not factors:
+        return out + [f"witness field {FACTOR_KEYS.get(wtype, 'factors')!r} is empty"]
+    if wtype == "contradiction":
+        step_of = {r.get("id"): r.get("step") for r in w.get("requirements", []) if isinstance(r, dict)}
+        factor_steps = [max(step_of.get(p, 0) or 0 for p in pair) if isinstance(pair, list) else 0 for pair in factors]
+    else:
+        factor_steps = [f.get("step") if isinstance(f, dict) else None for f in factors]
+    if not all(isinstance(s, int) and 1 <= s <= len(steps) for s in factor_steps):
+        out.append(f"factor steps {factor_steps} do not point at the {len(steps)} step(s)")
+    n, k, spread = len(steps), len(factors), len(set(factor_steps))
+    expected = {
+        "L1": n == 1 and k == 1,
+        "L2": n == 1 and k >= 2,
+        "L3": n >= 2 and k == 1,
+        "L4": n >= 2 and k >= 2 and spread >= 2,
+    }
+    if not expected.get(case.level, False):
+        out.append(f"level {case.level} does not match the witness ({n} step(s), {k} factor(s) in {spread} step(s))")
+    return out
+
+
+def check_structure(case: ConflictCase, wtype: str, model: TaskModel) -> list[str]:
+    out = _steps_and_level(case, wtype)
+    if out:
+        return out
+    return _observable_and_whole(case, wtype, model) + _pronouns(case)
+
+
+def _atom(literal) -> tuple[str, ...]:
+    return tuple(str(a) for a in literal)
+
+
+def _replaced(case: ConflictCase, wtype: str) -> dict[int, set[str]]:
+    """Step number -> entities a grounding factor stands in for (the text names the referent instead)."""
+    out: dict[int, set[str]] = {}
+    if wtype == "absent_referent":
+        for r in case.witness.get("referents", []):
+            if isinstance(r, dict) and r.get("replaces"):
+                out.setdefault(int(r.get("step", 0)), set()).add(str(r["replaces"]))
+    return out
+
+
+def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> list[str]:
+    w, out = case.witness, []
+    steps = w["steps"]
+    roles, goals = w.get("step_roles"), w.get("step_goals")
+    if not (isinstance(roles, list) and len(roles) == len(steps) and all(r in ROLES for r in roles)):
+        return [f"witness field 'step_roles' must give each of the {len(steps)} step(s) a role ({' or '.join(ROLES)})"]
+    if not (isinstance(goals, list) and len(goals) == len(steps) and all(isinstance(g, list) for g in goals)):
+        return [f"witness field 'step_goals' must list each of the {len(steps)} step(s)' goal literals"]
+    first_original = roles.index("original") if "original" in roles else len(roles)
+    late = [i + 1 for i, r in enumerate(roles) if r == "added" and i > first_original]
+    if late:
+        out.append(
+            f"added step(s) {late} come after the original task's first step: the episode can end "
+            "(original goal met) before the conflict is reached"
+        )
+    base = {_atom(a) for s in model.steps for a in s.goal}
+    asked: set[tuple[str, ...]] = set()
+    replaced = _replaced(case, wtype)
+    for i, (role, literals) in enumerate(zip(roles, goals)):
+        if role == "added" and literals:
+            out.append(f"step {i + 1} is marked added but achieves the base task's goal {literals}")
+        for literal in literals:
+            atom = _atom(literal)
+            if atom not in base:
+                out.append(f"step {i + 1}: {list(atom)} is not a subgoal of the base task")
+                continue
+            asked.add(atom)
+            text = steps[i]
+            if i > 0 and PRONOUN.search(text):
+                text = steps[i - 1] + " " + text  # "pick up the bowl, then put it on the plate"
+            for entity in atom[1:]:
+                if entity in replaced.get(i + 1, set()):
+                    continue
+                if not names_in(text, model.entity_names(entity) | model.entity_names(model.parent(entity))):
+                    out.append(f"step {i + 1} does not name {entity}, which its goal {list(atom)} needs")
+        if role == "original" and not literals:  # the pick-up half of a split pick-and-place
+            if i + 1 >= len(steps) or not goals[i + 1] or roles[i + 1] != "original":
+                out.append(f"step {i + 1} is marked original but achieves nothing and no placing step follows it")
+    missing = sorted(base - asked)
+    if missing:
+        out.append(f"the instruction drops the base task's subgoal(s) {[list(m) for m in missing]}")
+    return out
+
+
+def _pronouns(case: ConflictCase) -> list[str]:
+    """A pronoun may only be the object of a placing verb, right after a grasping verb's object."""
+    out = []
+    text = normalise(case.instruction)
+    bodies = [normalise(s) for s in case.witness["steps"]]
+    for match in PRONOUN.finditer(text):
+        before = text[: match.start()].split()
+        if match.group(1) in ("its", "they", "itself") or not before or before[-1] not in PLACING:
+            out.append(f"pronoun {match.group(1)!r} at {' '.join(before[-4:])!r}: only 'place it' after a pick-up")
+            continue
+        if not any(f"{before[-1]} {match.group(1)}" in b for b in bodies):
+            out.append(f"pronoun {match.group(1)!r} is in a constraint, not a step: it could mean several things")
+            continue
+        window = " ".join(before[-14:])
+        if not any(re.search(rf"\b{g}\b", window) for g in GRASPING):
+            out.append(f"pronoun {match.group(1)!r} has no object picked up just before it")
+    return out
