@@ -13,12 +13,14 @@ from conflictbench.cli.args import Parser
 from conflictbench.core import LEVELS, LIBERO_SUITES, PROMPT_CONDITIONS, UserError
 from conflictbench.core.plugins import Plugins
 
-SUBCOMMANDS = ("validate", "stats", "sample", "export", "build")
+SUBCOMMANDS = ("validate", "stats", "sample", "export", "build", "review-sheets", "review-merge")
 USAGE = """usage: conflictbench suite validate [FILE]          re-check every case (shipped suite by default)
        conflictbench suite stats [FILE] [--markdown]  cases per family x level x LIBERO suite
        conflictbench suite sample --per-cell N [--seed S] [--out FILE]   stratified sample for review
        conflictbench suite export FILE.jsonl [--suite FILE] [--prompts]  one JSON object per case
        conflictbench suite build [--seed S] [--out FILE] [--facts] [--check]  regenerate the suite
+       conflictbench suite review-sheets --out DIR [--size N] [--only IDS] [--priors FILE]  batches for readers
+       conflictbench suite review-merge VERDICTS.jsonl --reviewer NAME [--round N]  append their decisions
 """
 
 
@@ -33,9 +35,11 @@ def command(argv: list[str], plugins: Plugins) -> int:
     verb, rest = argv[0], list(argv[1:])
     if verb not in SUBCOMMANDS:
         raise UserError(f"unknown suite command {verb!r}; valid: {', '.join(SUBCOMMANDS)}")
-    return {"validate": _validate, "stats": _stats, "sample": _sample, "export": _export, "build": _build}[verb](
-        rest, plugins
-    )
+    from conflictbench.cli.suite_review import review_merge, review_sheets
+
+    verbs = {"validate": _validate, "stats": _stats, "sample": _sample, "export": _export, "build": _build}
+    verbs |= {"review-sheets": review_sheets, "review-merge": review_merge}
+    return verbs[verb](rest, plugins)
 
 
 def _load(path: str | None, plugins: Plugins):

@@ -25,8 +25,10 @@ from conflictbench.tasks.suite.review import apply_reviews, load_reviews
 from conflictbench.tasks.validation.rules import Context, new_context, normalise, validate_case
 
 SUITE_NAME = "conflictvla"
-SUITE_VERSION = "1.1.0"
-"""Bumped whenever a case's text changes (1.1.0: one "but" per step in instruction-family L2)."""
+SUITE_VERSION = "2.0.0"
+"""Bumped whenever a case's text changes (2.0.0: every conflict observable, whole originals, truly
+unsatisfiable contradictions, camera-visible spatial margins, broader grounding and physical families,
+every case reviewed)."""
 DEFAULT_SEED = 0
 PER_CELL = {"instruction": 3, "grounding": 3, "spatial": 3, "physical": 3}
 """Cases kept per (base task, family, level); fewer where a task offers fewer valid candidates."""
@@ -185,12 +187,13 @@ def build_cases(
     ctx = new_context(facts_path, plugins.conflict_operators().values() if plugins is not None else ())
     facts = load_scene_facts(facts_path)
     cases: list[ConflictCase] = []
+    taken: dict[str, set[str]] = defaultdict(set)  # no exact text twice within one LIBERO suite
     for task in all_base_tasks():
         if progress:
             progress(f"{task.suite} task {task.task_id}")
         model = build_model(task, facts[task.key])
         ctx.models[task.key] = model
-        cases += generate_task_cases(model, entries, seed, ctx, per_cell)
+        cases += generate_task_cases(model, entries, seed, ctx, per_cell, taken[task.suite])
     # The shipped decisions are about the shipped cases (seed 0); another seed writes other cases,
     # which nobody has reviewed yet, unless a decisions file for them is named.
     if reviews_path is not None or seed == DEFAULT_SEED:

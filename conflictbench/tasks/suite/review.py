@@ -1,11 +1,15 @@
-"""Manual review: stratified samples for reviewers, and the decisions the build honours.
+"""Review: every case is read by a reviewer that did not write it, and the build honours the decisions.
 
 Decisions live beside the suite in ``data/review.jsonl``, one per line::
 
     {"case_id": "...", "decision": "accepted" | "revised" | "removed", "note": "why",
+     "reviewer": "reader-07", "round": 1,
      "instruction": "...", "premise": "...", "witness": {...}}   # the last three only for "revised"
 
-The build applies them after generation: a removed case stays in the file with status
+Round 1 reads every case; a case flagged there is read again in round 2 by another reviewer, and
+the decision of the latest round stands (one decision per case and round). With
+``require_review`` (the shipped suite), a case nobody has decided on gets status ``pending`` and
+no run plays it. The build applies the decisions after generation: a removed case stays in the file with status
 ``removed`` (its id stays reserved, planners skip it); a revised case takes the reviewer's text and
 status ``revised`` and must still pass validation (the witness, the reviewer's if given, must point
 into the new text: rewording around the witnessed phrases keeps the original witness valid); an
@@ -42,6 +46,8 @@ class Decision:
     premise: str | None = None
     witness: dict | None = None
     line: int = 0
+    reviewer: str = ""
+    round: int = 1
 
 
 def review_path() -> Path:
@@ -50,7 +56,7 @@ def review_path() -> Path:
 
 def parse_reviews(text: str, source: str) -> list[Decision]:
     out: list[Decision] = []
-    seen: dict[str, int] = {}
+    seen: dict[tuple[str, int], int] = {}
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
@@ -70,11 +76,17 @@ def parse_reviews(text: str, source: str) -> list[Decision]:
             raise ReviewError(f"{where}, field 'instruction': a revised case needs its new instruction")
         if row.get("witness") is not None and not isinstance(row["witness"], dict):
             raise ReviewError(f"{where}, field 'witness': expected a JSON object")
-        if row["case_id"] in seen:
+        if not isinstance(row.get("reviewer", ""), str):
+            raise ReviewError(f"{where}, field 'reviewer': expected a string")
+        round_ = row.get("round", 1)
+        if not isinstance(round_, int) or isinstance(round_, bool) or round_ < 1:
+            raise ReviewError(f"{where}, field 'round': expected a whole number from 1")
+        key = (row["case_id"], round_)
+        if key in seen:
             raise ReviewError(
-                f"{where}, field 'case_id': {row['case_id']!r} was decided on line {seen[row['case_id']]}"
+                f"{where}, field 'case_id': {row['case_id']!r} was decided in round {round_} on line {seen[key]}"
             )
-        seen[row["case_id"]] = number
+        seen[key] = number
         out.append(
             Decision(
                 row["case_id"],
@@ -84,6 +96,8 @@ def parse_reviews(text: str, source: str) -> list[Decision]:
                 row.get("premise"),
                 row.get("witness"),
                 number,
+                row.get("reviewer", ""),
+                round_,
             )
         )
     return out
@@ -98,17 +112,33 @@ def load_reviews(path: str | Path | None = None) -> list[Decision]:
     return parse_reviews(p.read_text(encoding="utf-8"), str(p))
 
 
-def apply_reviews(cases: Sequence[ConflictCase], decisions: Iterable[Decision], ctx=None) -> list[ConflictCase]:
+def latest(decisions: Iterable[Decision]) -> list[Decision]:
+    """The decision that stands for each case: its latest round's."""
+    out: dict[str, Decision] = {}
+    for d in decisions:
+        if d.case_id not in out or d.round > out[d.case_id].round:
+            out[d.case_id] = d
+    return list(out.values())
+
+
+def apply_reviews(
+    cases: Sequence[ConflictCase], decisions: Iterable[Decision], ctx=None, *, require_review: bool = False
+) -> list[ConflictCase]:
     from conflictbench.tasks.validation.rules import validate_case
 
     by_id = {c.case_id: i for i, c in enumerate(cases)}
     out = list(cases)
+    decisions = list(decisions)
     for d in decisions:
         if d.case_id not in by_id:
             raise ReviewError(
                 f"review line {d.line}: case {d.case_id!r} is not produced by the generator any more; "
                 "review the new sample and update the decision"
             )
+    if require_review:
+        decided = {d.case_id for d in decisions}
+        out = [c if c.case_id in decided else replace(c, status="pending") for c in out]
+    for d in latest(decisions):
         i = by_id[d.case_id]
         case = out[i]
         if d.decision == "removed":

@@ -25,6 +25,7 @@ from .instruction import check_contradiction
 from .physical import check_affordance
 from .spatial import check_relation
 from .structure import check_structure
+from .suite_rules import suite_problems
 from .text import normalise
 
 WITNESS_TYPES = {
@@ -142,16 +143,11 @@ def validate_case(case: ConflictCase, ctx: Context) -> list[str]:
 
 
 def validate_cases(cases: Iterable[ConflictCase], ctx: Context) -> list[tuple[str, str]]:
-    """(case_id, reason) for every rule a case breaks; removed cases are skipped."""
+    """(case_id, reason) for every rule a case breaks, then the rules about the suite as a whole
+    (:mod:`.suite_rules`); removed cases are skipped."""
+    cases = [c for c in cases if c.status != "removed"]
     failures: list[tuple[str, str]] = []
-    seen: dict[tuple[str, int, str], str] = {}
     for case in cases:
-        if case.status == "removed":
-            continue
         for reason in validate_case(case, ctx):
             failures.append((case.case_id, reason))
-        key = (case.suite, case.task_id, normalise(case.instruction))
-        if key in seen:
-            failures.append((case.case_id, f"same instruction as {seen[key]} for the same base task"))
-        seen.setdefault(key, case.case_id)
-    return failures
+    return failures + suite_problems(cases, ctx)

@@ -128,8 +128,11 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
                 if not names_in(text, model.entity_names(entity) | model.entity_names(model.parent(entity))):
                     out.append(f"step {i + 1} does not name {entity}, which its goal {list(atom)} needs")
         if role == "original" and not literals:  # the pick-up half of a split pick-and-place
-            if i + 1 >= len(steps) or not goals[i + 1] or roles[i + 1] != "original":
-                out.append(f"step {i + 1} is marked original but achieves nothing and no placing step follows it")
+            placed = [str(g[1]) for g in goals[i + 1]] if i + 1 < len(steps) and roles[i + 1] == "original" else []
+            if not any(names_in(steps[i], model.entity_names(o)) for o in placed):
+                out.append(
+                    f"step {i + 1} is marked original but achieves nothing: it picks up nothing the next step places"
+                )
     missing = sorted(base - asked)
     if missing:
         out.append(f"the instruction drops the base task's subgoal(s) {[list(m) for m in missing]}")
