@@ -101,6 +101,9 @@ def _stats(argv: Sequence[str], plugins: Plugins) -> int:
     status = Counter(c.status for c in suite.cases)
     tasks = len({(c.suite, c.task_id) for c in suite.accepted()})
     print(f"statuses: {', '.join(f'{k} {v}' for k, v in sorted(status.items()))}; base tasks used: {tasks}")
+    from conflictbench.tasks.suite.stats import composition_lines, removal_lines
+
+    print("\n".join(composition_lines(suite.cases) + removal_lines(suite.cases, plugins.families())))
     return 0
 
 
