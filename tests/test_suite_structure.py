@@ -160,12 +160,12 @@ def test_a_step_marked_original_that_achieves_nothing_is_rejected(ctx):
         (
             "put both the alphabet soup and the tomato sauce in the basket without touching it",
             "without touching it",
-            "only 'place it' after a pick-up",
+            "in a constraint",
         ),
         (
             "put both the alphabet soup and the tomato sauce in the basket without moving its lid",
             "without moving its lid",
-            "'its'",
+            "in a constraint",
         ),
     ],
 )
@@ -200,3 +200,16 @@ def test_the_same_text_twice_within_a_libero_suite_is_rejected(ctx):
     twin = dataclasses.replace(one, case_id="planted-twin")
     assert validate_cases([one], ctx) == []
     assert ("planted-twin", f"same instruction as {one.case_id} within libero_goal") in validate_cases([one, twin], ctx)
+
+
+def test_a_pronoun_without_a_picked_up_antecedent_is_rejected(ctx):
+    """ "push the cream cheese aside, then put it on the plate": "it" is the cream cheese, not the bowl."""
+    unclear = case(
+        ("libero_goal", 8),
+        "push the cream cheese aside, then put it on the plate without moving the robot arm",
+        ["push the cream cheese aside", "put it on the plate"],
+        ["added", "original"],
+        [[], [["on", BOWL, "plate_1"]]],
+    )
+    reasons = validate_case(unclear, ctx)
+    assert any("has no object picked up just before it" in r for r in reasons), reasons

@@ -140,19 +140,21 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
 
 
 def _pronouns(case: ConflictCase) -> list[str]:
-    """A pronoun may only be the object of a placing verb, right after a grasping verb's object."""
+    """A pronoun may only be the object of a placing verb whose antecedent a grasping verb introduced
+    just before, in the same step or at the end of the previous one; constraints never hold one."""
     out = []
-    text = normalise(case.instruction)
     bodies = [normalise(s) for s in case.witness["steps"]]
-    for match in PRONOUN.finditer(text):
-        before = text[: match.start()].split()
-        if match.group(1) in ("its", "they", "itself") or not before or before[-1] not in PLACING:
-            out.append(f"pronoun {match.group(1)!r} at {' '.join(before[-4:])!r}: only 'place it' after a pick-up")
-            continue
-        if not any(f"{before[-1]} {match.group(1)}" in b for b in bodies):
-            out.append(f"pronoun {match.group(1)!r} is in a constraint, not a step: it could mean several things")
-            continue
-        window = " ".join(before[-14:])
-        if not any(re.search(rf"\b{g}\b", window) for g in GRASPING):
-            out.append(f"pronoun {match.group(1)!r} has no object picked up just before it")
+    in_bodies = sum(len(PRONOUN.findall(b)) for b in bodies)
+    if len(PRONOUN.findall(normalise(case.instruction))) > in_bodies:
+        out.append("a pronoun in a constraint: it could mean several things (name the entity)")
+    for i, body in enumerate(bodies):
+        for match in PRONOUN.finditer(body):
+            before = body[: match.start()].split()
+            word = match.group(1)
+            if word in ("its", "they", "itself") or (before and before[-1] not in PLACING):
+                out.append(f"pronoun {word!r} at {' '.join(before[-4:])!r}: only 'place it' after a pick-up")
+                continue
+            earlier = " ".join(before) if len(before) > 1 else (bodies[i - 1] if i > 0 else "")
+            if not any(re.search(rf"\b{g}\b", earlier) for g in GRASPING):
+                out.append(f"pronoun {word!r} has no object picked up just before it")
     return out
