@@ -152,3 +152,46 @@ def test_build_with_another_seed_differs(tmp_path, capsys):
     assert other.version == load_suite().version
     assert {c.case_id for c in other.cases} != {c.case_id for c in load_suite().cases}
     assert json.loads(out.read_text().splitlines()[0])["seed"] == 1
+
+
+@pytest.mark.sim  # LIBERO's base tasks (the sheets carry each scene's facts)
+def test_review_sheets_then_merge_the_verdicts(tmp_path, capsys):
+    cases = [c for c in load_suite().accepted() if (c.suite, c.task_id) == ("libero_goal", 8)][:3]
+    source = tmp_path / "cases.jsonl"
+    source.write_text("".join(json.dumps(c.to_dict()) + "\n" for c in cases))
+    code, _, err = run(
+        capsys, "review-sheets", "--suite", str(source), "--out", str(tmp_path / "sheets"), "--size", "2"
+    )
+    assert code == 0 and "wrote 3 cases in 2 batch(es)" in err
+    sheets = sorted((tmp_path / "sheets").glob("batch-*.md"))
+    text = "\n".join(p.read_text() for p in sheets)
+    assert len(sheets) == 2 and text.count("### Scene: libero_goal task 8") == 2  # each sheet is self-contained
+    assert text.count("# Reviewing conflict cases") == 2 and all(c.case_id in text for c in cases)
+    assert "- the bowl [akita_black_bowl_1; akita_black_bowl; object" in text and "Positions in initial state 0" in text
+
+    verdicts = tmp_path / "verdicts.jsonl"
+    verdicts.write_text(
+        json.dumps({"case_id": cases[0].case_id, "verdict": "valid", "note": "fine"})
+        + "\n"
+        + json.dumps({"case_id": cases[1].case_id, "verdict": "questionable", "note": "two readings"})
+        + "\n"
+    )
+    reviews = tmp_path / "review.jsonl"
+    code, _, err = run(capsys, "review-merge", str(verdicts), "--reviewer", "reader-1", "--reviews", str(reviews))
+    assert code == 0 and "appended 2 decision(s)" in err
+    rows = [json.loads(line) for line in reviews.read_text().splitlines()]
+    assert [(r["decision"], r["reviewer"], r["round"]) for r in rows] == [
+        ("accepted", "reader-1", 1),
+        ("removed", "reader-1", 1),
+    ]
+    assert rows[1]["note"] == "questionable: two readings"
+    # A recheck needs another reader; the same reader is refused with one line and exit 2.
+    again = ["review-merge", str(verdicts), "--reviews", str(reviews), "--round", "2"]
+    code, _, err = run(capsys, *again, "--reviewer", "reader-1")
+    assert code == 2 and "needs another reader" in err
+    code, _, err = run(capsys, *again, "--reviewer", "reader-2")
+    assert code == 0 and len(reviews.read_text().splitlines()) == 4
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text(json.dumps({"case_id": cases[0].case_id, "verdict": "fine"}) + "\n")
+    code, _, err = run(capsys, "review-merge", str(bad), "--reviewer", "reader-3", "--reviews", str(reviews))
+    assert code == 2 and "a verdict needs case_id, verdict" in err

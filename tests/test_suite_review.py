@@ -108,12 +108,6 @@ def test_malformed_decisions_name_line_and_field(row, message):
         decisions({"case_id": "y", "decision": "accepted", "note": ""}, row)
 
 
-def test_a_repeated_decision_is_refused():
-    row = {"case_id": "x", "decision": "accepted", "note": ""}
-    with pytest.raises(ReviewError, match="line 2, field 'case_id': 'x' was decided on line 1"):
-        decisions(row, row)
-
-
 def test_the_shipped_decisions_are_honoured_by_the_shipped_suite():
     shipped = {c.case_id: c for c in load_suite().cases}
     reviews = load_reviews()
@@ -138,3 +132,38 @@ def test_sampling_is_stratified_deterministic_and_skips_removed():
     assert len(cells) == 16 and all(len(v) == 3 for v in cells.values())
     for group in cells.values():
         assert len({c.suite for c in group}) == 3
+
+
+@pytest.mark.sim  # LIBERO's base tasks
+def test_unreviewed_cases_are_pending_when_review_is_required(cases, ctx):
+    a, b = cases[0], cases[1]
+    out = apply_reviews(
+        cases,
+        decisions({"case_id": a.case_id, "decision": "accepted", "note": "fine", "reviewer": "r1"}),
+        ctx,
+        require_review=True,
+    )
+    status = {c.case_id: c.status for c in out}
+    assert status[a.case_id] == "accepted" and status[b.case_id] == "pending"
+    assert {c.status for c in out} == {"accepted", "pending"}
+
+
+@pytest.mark.sim  # LIBERO's base tasks
+def test_the_latest_round_decides(cases, ctx):
+    a = cases[0]
+    rows = [
+        {"case_id": a.case_id, "decision": "removed", "note": "questionable: x", "reviewer": "r1", "round": 1},
+        {"case_id": a.case_id, "decision": "accepted", "note": "valid: y", "reviewer": "r2", "round": 2},
+    ]
+    assert next(c for c in apply_reviews(cases, decisions(*rows), ctx) if c.case_id == a.case_id).status == "accepted"
+    rows.reverse()  # the order of lines does not matter, the round does
+    assert next(c for c in apply_reviews(cases, decisions(*rows), ctx) if c.case_id == a.case_id).status == "accepted"
+
+
+def test_one_decision_per_case_and_round():
+    row = {"case_id": "x", "decision": "accepted", "note": "", "round": 2}
+    with pytest.raises(ReviewError, match="'x' was decided in round 2 on line 1"):
+        decisions(row, row)
+    assert len(decisions(row, {**row, "round": 3})) == 2
+    with pytest.raises(ReviewError, match="field 'round': expected a whole number"):
+        decisions({**row, "round": 0})
