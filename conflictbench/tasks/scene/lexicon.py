@@ -2,10 +2,20 @@
 
 A grounding conflict names something the scene does not hold. "Absent" is decided here, against
 the scene's whole vocabulary: every name, synonym and hypernym of every object and fixture in the
-base task (from the affordance table), the names of its regions, and the words any scene has (the
-robot, its gripper, the table). A referent is absent only if neither its phrase, nor any of its
-synonyms, nor its head noun is in that vocabulary, and none of its content words is a word of a
-present thing's name ("orange soda" next to the orange juice is refused: too close to call).
+base task (from the affordance table), every near-synonym and part a reader could take to denote
+it (the checked synonym table, ``data/synonyms.jsonl``: basket -> bucket, pail, crate, colander ...;
+stove -> cooktop, burner, hob ...; cabinet -> drawer, cupboard, dresser ...), the head nouns of
+their names, the names of its regions, and the words any scene has (the robot, its gripper, the
+table). A referent is absent only if neither its phrase, nor any of its synonyms, nor their head
+nouns is in that vocabulary, and none of its content words is a word of a present thing's name
+("orange soda" next to the orange juice is refused: too close to call).
+
+A WRONG ATTRIBUTE ("the red bowl" where the only bowls are black) is the one referent that shares
+its head noun with something present. ``data/attributes.jsonl`` gives the visible colour of each
+LIBERO category whose colour is unambiguous; a wrong colour is one of :data:`COLOURS` that is not,
+and is not close to (:data:`NEAR_COLOURS`), the colour of ANY attribute-known thing in the scene,
+nor a word of any present name; and every present thing the noun could denote has a known colour
+(otherwise "the red X" could be a thing whose colour the table does not know).
 """
 
 from __future__ import annotations
@@ -22,7 +32,24 @@ from conflictbench.tasks.libero.bddl import BDDLProblem
 from conflictbench.tasks.scene.affordances import AffordanceTableError, category, load_table
 
 ABSENT_TABLE = "absent_referents.jsonl"
-ROLES = ("object", "support", "container", "appliance", "openable", "landmark")
+SYNONYM_TABLE = "synonyms.jsonl"
+ATTRIBUTE_TABLE = "attributes.jsonl"
+ROLES = ("object", "support", "container", "appliance", "openable")
+COLOURS = ("red", "blue", "green", "yellow", "orange", "purple", "pink", "white", "black")
+NEAR_COLOURS = {
+    "red": {"pink", "orange", "maroon"},
+    "pink": {"red", "purple"},
+    "orange": {"red", "yellow", "brown"},
+    "yellow": {"orange", "cream", "gold"},
+    "white": {"cream", "grey", "silver", "beige"},
+    "black": {"grey", "brown", "dark"},
+    "brown": {"orange", "black", "wooden", "beige"},
+    "grey": {"silver", "white", "black"},
+    "blue": {"purple"},
+    "purple": {"blue", "pink"},
+    "green": set(),
+}
+"""Colours a reader could confuse: a wrong attribute is never one of these next to a present colour."""
 SCENE_WORDS = (
     "robot",
     "robot arm",
@@ -56,6 +83,17 @@ class AbsentConcept:
     phrase: str
     synonyms: tuple[str, ...]
     roles: tuple[str, ...]
+    size: int
+    """The affordance table's size class (1 hand-sized .. 4 furniture): what can go in or on it."""
+
+
+@dataclass(frozen=True)
+class Colouring:
+    """A LIBERO category's visible colour(s), and the noun its colour is said with ("bowl")."""
+
+    category: str
+    noun: str
+    colours: tuple[str, ...]
 
 
 def words(text: str) -> list[str]:
@@ -68,12 +106,14 @@ def content_words(text: str) -> set[str]:
 
 @functools.cache
 def absent_concepts(path: str | None = None) -> tuple[AbsentConcept, ...]:
-    p = Path(path) if path else Path(str(resources.files("conflictbench.tasks") / "data" / ABSENT_TABLE))
+    p = Path(path) if path else _data(ABSENT_TABLE)
     out = []
     for number, line in enumerate(p.read_text(encoding="utf-8").splitlines(), start=1):
         try:
             row = json.loads(line)
-            concept = AbsentConcept(row["concept"], row["phrase"], tuple(row["synonyms"]), tuple(row["roles"]))
+            concept = AbsentConcept(
+                row["concept"], row["phrase"], tuple(row["synonyms"]), tuple(row["roles"]), int(row["size"])
+            )
         except (json.JSONDecodeError, KeyError, TypeError) as exc:
             raise AffordanceTableError(
                 f"{p} line {number}: malformed absent referent ({type(exc).__name__}: {exc})"
@@ -89,6 +129,54 @@ def absent_concepts(path: str | None = None) -> tuple[AbsentConcept, ...]:
 
 def concept(name: str) -> AbsentConcept | None:
     return next((c for c in absent_concepts() if c.concept == name), None)
+
+
+def _data(name: str) -> Path:
+    return Path(str(resources.files("conflictbench.tasks") / "data" / name))
+
+
+def _rows(name: str, keys: tuple[str, ...]) -> list[dict]:
+    p = _data(name)
+    out = []
+    for number, line in enumerate(p.read_text(encoding="utf-8").splitlines(), start=1):
+        try:
+            row = json.loads(line)
+            missing = [k for k in keys if k not in row]
+        except json.JSONDecodeError as exc:
+            raise AffordanceTableError(f"{p} line {number}: not valid JSON ({exc.msg})") from None
+        if missing:
+            raise AffordanceTableError(f"{p} line {number}: missing field(s) {missing}")
+        out.append(row)
+    return out
+
+
+@functools.cache
+def near_synonyms() -> dict[str, tuple[str, ...]]:
+    """Category -> every near-synonym and part a reader could take to denote it (synonyms.jsonl)."""
+    return {
+        r["category"]: tuple(r["near_synonyms"]) + tuple(r["parts"])
+        for r in _rows(SYNONYM_TABLE, ("category", "near_synonyms", "parts"))
+    }
+
+
+@functools.cache
+def colourings() -> dict[str, Colouring]:
+    """Category -> its visible colour(s), for the categories whose colour is unambiguous (attributes.jsonl)."""
+    rows = _rows(ATTRIBUTE_TABLE, ("category", "noun", "colours", "note"))
+    return {r["category"]: Colouring(r["category"], r["noun"], tuple(r["colours"])) for r in rows}
+
+
+def denotations(cat: str) -> set[str]:
+    """Every phrase that may denote a thing of the category: names, synonyms, hypernyms, near-synonyms,
+    parts, and the head nouns of its names."""
+    info = category(cat)
+    out = set(info.names) | set(info.synonyms) | set(info.hypernyms) | set(near_synonyms().get(cat, ()))
+    return out | {head(n) for n in info.names}
+
+
+def head(phrase: str) -> str:
+    w = words(phrase)
+    return w[-1] if w else phrase
 
 
 # -- regions --------------------------------------------------------------------------------------
@@ -146,7 +234,7 @@ def scene_vocabulary(problem: BDDLProblem) -> tuple[set[str], set[str]]:
     name_words: set[str] = set()
     for cat in scene_categories(problem):
         info = category(cat)
-        phrases |= set(info.names) | set(info.synonyms) | set(info.hypernyms)
+        phrases |= denotations(cat)
         for phrase in (*info.names, *info.synonyms):
             name_words |= content_words(phrase)
     for region in problem.regions.values():
@@ -172,8 +260,66 @@ def absence_problem(phrase: str, synonyms: Iterable[str], problem: BDDLProblem) 
 
 
 def absent_for(problem: BDDLProblem, role: str) -> list[AbsentConcept]:
-    """The absent referents usable in ``role`` for this scene, in table order."""
+    """The out-of-domain absent referents usable in ``role`` for this scene, in table order."""
     return [c for c in absent_concepts() if role in c.roles and absence_problem(c.phrase, c.synonyms, problem) is None]
+
+
+SCENERY = {"table", "kitchen_table", "living_room_table", "study_table", "floor"}
+"""Categories every scene has in some form: never an absent LIBERO referent."""
+
+
+def libero_absent(problem: BDDLProblem) -> list[str]:
+    """LIBERO categories absent from this scene that share no word a reader could confuse with
+    anything present (no "white bowl" beside a black bowl: that is a wrong attribute)."""
+    present = set(scene_categories(problem))
+    return [
+        cat
+        for cat, info in load_table().items()
+        if cat not in present and cat not in SCENERY and absence_problem(info.name, info.synonyms, problem) is None
+    ]
+
+
+def _instances(noun: str, problem: BDDLProblem) -> list[str]:
+    """Present categories the noun could denote (a ramekin is a bowl too)."""
+    out = []
+    for cat in scene_categories(problem):
+        info = category(cat)
+        if noun in denotations(cat) or noun in {head(n) for n in (*info.names, *info.synonyms)}:
+            out.append(cat)
+    return out
+
+
+def wrong_colours(noun: str, problem: BDDLProblem) -> list[str]:
+    """Colours that make "<colour> <noun>" a wrong attribute here; none when the noun denotes
+    nothing present or something of unknown colour."""
+    known = colourings()
+    instances = _instances(noun, problem)
+    if not instances or any(c not in known for c in instances):
+        return []
+    taken: set[str] = set()
+    for cat in scene_categories(problem):
+        if cat in known:
+            for colour in known[cat].colours:
+                taken |= {colour} | NEAR_COLOURS.get(colour, set())
+        taken |= {w for phrase in (*category(cat).names, *category(cat).synonyms) for w in words(phrase)}
+    return [c for c in COLOURS if c not in taken]
+
+
+def attribute_problem(phrase: str, problem: BDDLProblem) -> str | None:
+    """Why ``phrase`` ("red bowl") is not a wrong attribute of something present, or ``None``."""
+    colour, _, noun = phrase.partition(" ")
+    if colour not in COLOURS:
+        return f"{colour!r} is not a colour of the attribute table"
+    if not _instances(noun, problem):
+        return f"nothing in the scene is a {noun!r}: not a wrong attribute"
+    if colour not in wrong_colours(noun, problem):
+        return (
+            f"{phrase!r} may denote something in the scene (a {noun} of that or a close colour, or of unknown colour)"
+        )
+    phrases, _ = scene_vocabulary(problem)
+    if phrase in phrases:
+        return f"{phrase!r} names something in the scene"
+    return None
 
 
 def with_article(noun_phrase: str) -> str:
