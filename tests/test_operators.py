@@ -120,8 +120,8 @@ def test_instruction_witness_pairs_are_real_contradictions():
     for d in drafts("instruction", key, "L4"):
         reqs = {r["id"]: r["literal"] for r in d.witness["requirements"]}
         assert len({r["step"] for r in d.witness["requirements"]}) >= 2
-        for a, b in d.witness["conflicts"]:
-            assert contradiction(reqs[a], reqs[b], facts, facts.states())
+        for a, b, mode in d.witness["conflicts"]:
+            assert mode == "simultaneous" and contradiction(reqs[a], reqs[b], facts, facts.states())
 
 
 def test_one_contrastive_but_per_step():
@@ -171,7 +171,19 @@ class ExtraOperators:
                 "witness": {
                     "type": "absent_referent",
                     "steps": ["put the bowl on the purple trampoline"],
-                    "referents": [{"step": 1, "role": "destination", "text": "the purple trampoline"}],
+                    "step_roles": ["original"],
+                    "step_goals": [[["on", "akita_black_bowl_1", "plate_1"]]],
+                    "step_entities": [["akita_black_bowl_1"]],
+                    "referents": [
+                        {
+                            "step": 1,
+                            "role": "destination",
+                            "text": "the purple trampoline",
+                            "concept": "trampoline",
+                            "source": "out_of_domain",
+                            "replaces": "plate_1",
+                        }
+                    ],
                 },
             }
 

@@ -156,7 +156,7 @@ def test_grounding_referent_must_be_truly_absent(suite, ctx, replacement, reason
         witness={
             **case.witness,
             "steps": [s.replace(ref["text"], replacement) for s in case.witness["steps"]],
-            "referents": [{**ref, "text": replacement, "concept": ""}],
+            "referents": [{**ref, "text": replacement, "concept": "", "source": "out_of_domain"}],
         },
     )
     rejected(planted, ctx, reason)
