@@ -119,17 +119,18 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
                 out.append(f"step {i + 1}: {list(atom)} is not a subgoal of the base task")
                 continue
             asked.add(atom)
-            text = steps[i]
+            text, stand_ins = steps[i], replaced.get(i + 1, set())
             if i > 0 and PRONOUN.search(text):
                 text = steps[i - 1] + " " + text  # "pick up the bowl, then put it on the plate"
+                stand_ins = stand_ins | replaced.get(i, set())  # "pick up the banana, then put it ..."
             for entity in atom[1:]:
-                if entity in replaced.get(i + 1, set()):
+                if entity in stand_ins:
                     continue
                 if not names_in(text, model.entity_names(entity) | model.entity_names(model.parent(entity))):
                     out.append(f"step {i + 1} does not name {entity}, which its goal {list(atom)} needs")
         if role == "original" and not literals:  # the pick-up half of a split pick-and-place
             placed = [str(g[1]) for g in goals[i + 1]] if i + 1 < len(steps) and roles[i + 1] == "original" else []
-            if not any(names_in(steps[i], model.entity_names(o)) for o in placed):
+            if not any(names_in(steps[i], model.entity_names(o)) or o in replaced.get(i + 1, set()) for o in placed):
                 out.append(
                     f"step {i + 1} is marked original but achieves nothing: it picks up nothing the next step places"
                 )
