@@ -1,166 +1,238 @@
-"""Instruction operators: requirements inside the text that cannot all be met.
+"""Instruction operators: requirements inside the text that no order of execution can all meet.
 
-A step's goal is paired with a constraint that rules it out: keep the object still or untouched,
-keep the arm still, make sure the object does not end up where it is sent, keep the drawer shut
-while opening it, never grasp what must be picked up. The witness lists every requirement as a
-literal (:mod:`.contradictions`) and the pairs that contradict; validation re-derives each pair.
+Rules (suite 2.0), each enforced again by :mod:`conflictbench.tasks.validation.instruction`:
+
+- Every contradiction is SIMULTANEOUS: a constraint that holds throughout a step against the
+  step's own goal. Per step kind:
+
+  * moving steps (place, push, pick up, place it, move aside): keep the moved object still, never
+    touch the moved object, or keep the robot arm still;
+  * state steps (open, close, turn on): keep the operated drawer, door or stove in the opposite
+    state the whole time, never touch the operated thing itself, or keep the robot arm still.
+
+  No end conditions against a step ("turn the stove on and make sure it is off at the end" is met
+  by doing it, then undoing it), no "pick up X without grasping X" (X can be scooped), and no
+  constraint on anything but the step's own moved or operated thing or the robot arm ("open the
+  drawer without touching the cabinet" is met through the handle, which is both).
+- A constraint names its entity in full or by a shorter name that denotes it alone in the scene;
+  never a pronoun ("... put them in the basket without touching it" could mean the basket).
+- L1/L3: one constraint on one step (L3: any step of the frame; added steps come first, so every
+  step is reached before the episode can end). L2: two constraints of different kinds on the one
+  step, each alone contradicting its goal. L4: constraints on at least two different steps.
+- Several phrasings per constraint kind, chosen with the rng, so instructions do not repeat.
+
+The witness lists every requirement as a literal (:mod:`.contradictions`) and the pairs that
+contradict as ``[goal id, constraint id, "simultaneous"]``.
 """
 
 from __future__ import annotations
 
 import itertools
 import random
+from dataclasses import dataclass
 
+from conflictbench.tasks.scene.affordances import category, load_table
+from conflictbench.tasks.scene.lexicon import words as _words
 from conflictbench.tasks.scene.task_model import TaskModel
 
 from .contradictions import EXCLUSIVE, already
 from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
 from .phrasing import bare, choose
 
+# Each kind: (phrases that attach to the step, phrases that stand as a second imperative).
+# Phrases never contain "it": a constraint names its entity.
 STILL = (
-    "without moving {x}",
-    "while keeping {x} exactly where it is",
-    "but leave {x} exactly where it is",
-    "without letting {x} leave its spot",
+    ("without moving {x}", "while keeping {x} fixed in place", "without letting {x} move at all"),
+    ("do not move {x} at all", "keep {x} fixed in place the whole time", "make sure {x} never moves"),
 )
-UNTOUCHED = ("without touching {x}", "without making any contact with {x}", "but never touch {x}")
-AVOID = (
-    "but make sure {x} does not end up {d}",
-    "making sure {x} is not {d} at the end",
-    "so that {x} ends up anywhere but {d}",
+UNTOUCHED = (
+    ("without touching {x}", "without making any contact with {x}", "without the robot ever touching {x}"),
+    ("never touch {x}", "do not touch {x} at any point", "make no contact with {x} at all"),
 )
-ROBOT = ("without moving the robot arm", "while keeping the arm completely still", "without moving the gripper at all")
-UNGRASPED = ("without grasping {x}", "without ever closing the gripper on {x}")
-KEEP = {
-    "close": ("but keep {t} shut", "while leaving {t} closed", "but keep {t} closed the whole time"),
-    "open": ("but keep {t} open", "while leaving {t} open the whole time"),
-    "turnoff": ("but keep {t} switched off", "while leaving {t} off"),
-    "turnon": ("but keep {t} running", "while leaving {t} on"),
+ROBOT = (
+    (
+        "without moving the robot arm",
+        "while keeping the robot arm completely still",
+        "without the robot arm moving at all",
+    ),
+    ("keep the robot arm completely still", "do not move the robot arm at all", "make sure the robot arm never moves"),
+)
+KEEP = {  # the state kept, against a step that must bring about the opposite
+    "close": (
+        ("while keeping {x} closed the whole time", "while {x} stays shut throughout"),
+        ("keep {x} closed the whole time", "make sure {x} stays shut throughout"),
+    ),
+    "open": (
+        ("while keeping {x} open the whole time", "while {x} stays open throughout"),
+        ("keep {x} open the whole time", "make sure {x} stays open throughout"),
+    ),
+    "turnoff": (
+        ("while keeping {x} switched off the whole time", "while {x} stays off throughout"),
+        ("keep {x} switched off the whole time", "make sure {x} stays off throughout"),
+    ),
+    "turnon": (
+        ("while keeping {x} switched on the whole time", "while {x} stays on throughout"),
+        ("keep {x} switched on the whole time", "make sure {x} stays on throughout"),
+    ),
 }
-END = {
-    "close": "and make sure {t} is closed when you finish",
-    "open": "and make sure {t} is open when you finish",
-    "turnoff": "and make sure {t} is off at the end",
-    "turnon": "and make sure {t} is on at the end",
+MOVING = ("place", "push", "place_it", "pick", "move_aside")
+STATES = ("open", "close", "turn_on", "turn_off")
+LABELS = {
+    "still": "goal vs. keeping the moved object still",
+    "untouched": "goal vs. never touching the acted-on thing",
+    "robot": "goal vs. a still robot arm",
+    "keep": "state change vs. keeping the opposite state throughout",
 }
-GRASP_FRAME = "pick up {o} and place {it} {d}"
-KINDS = ("still", "untouched", "avoid", "robot", "ungrasped", "keep", "end")
+DONE = {"open": "opened", "close": "closed", "turnon": "switched on", "turnoff": "switched off"}
+STATE_WORD = {"open": "open", "close": "closed", "turnon": "on", "turnoff": "off"}
+PLACE_WORDS = {"to", "behind", "in", "on", "next", "between", "at", "near"}
+VARIANTS = 3
+"""Phrasings drafted per combination of constraints."""
 
 
-def _ref(model: TaskModel, entity: str, rng: random.Random) -> str:
-    """How a constraint names an entity: its name, or "it" where the name carries a long modifier."""
-    name = model.name(entity) if entity in model.names else model.dest_phrases[entity][1]
-    return "it" if len(name.split()) > 4 or rng.random() < 0.2 else name
+@dataclass
+class Constraint:
+    kind: str
+    literal: list
+    goal: list
+    """The step's goal literal it contradicts."""
+    attached: tuple[str, ...]
+    """Phrasings that attach to the step ("without touching the bowl")."""
+    standalone: tuple[str, ...]
+    """Phrasings that stand as an imperative ("never touch the bowl")."""
+    premise: str
 
 
-def _goal_literals(slot: Slot) -> list[list[str]]:
+def _full_name(model: TaskModel, entity: str) -> str:
+    return model.name(entity) if entity in model.names else model.dest_phrases[entity][1]
+
+
+def denotes_only(model: TaskModel, phrase: str, entity: str) -> bool:
+    """Does the phrase fit the entity and nothing else in the scene? No other thing may carry a name
+    or kind that contains it ("the sauce" is ambiguous beside a ketchup); the entity's own holder and
+    regions do not count (a drawer's cabinet, the stove's cooking area)."""
+    key = f" {' '.join(_words(phrase)).removeprefix('the ')} "
+    own = {entity, model.parent(entity)} | {e for e in model.facts.entities if model.parent(e) == entity}
+    others = (set(model.facts.entities) | set(model.problem.fixtures) | set(model.problem.objects)) - own
+    return not any(
+        key in f" {n} " and f" and{key}" not in f" {n} "  # "the white mug" is not "the yellow and white mug"
+        for other in others
+        for n in map(_joined, _names_and_kinds(model, other))
+    )
+
+
+def _names_and_kinds(model: TaskModel, entity: str) -> set[str]:
+    """Its names, and the kinds it belongs to: "the sauce" could mean the ketchup (a sauce)."""
+    cat = model.category_of(entity)
+    kinds = set(category(cat).hypernyms) if cat in load_table() else set()
+    # a place named after a landmark ("to the front of the stove") is not called the stove
+    return {n for n in model.entity_names(entity) if n.split(" ")[0] not in PLACE_WORDS} | kinds
+
+
+def _joined(name: str) -> str:
+    return " ".join(_words(name))
+
+
+def constraint_name(model: TaskModel, entity: str, rng: random.Random) -> str | None:
+    """The entity's full name, or (half the time) a shorter ending of its head that still denotes it
+    alone ("the pot" for "the moka pot", "the middle drawer" for "the middle drawer of the
+    cabinet"). Only endings: they keep the head noun, so "the wine" never stands for "the wine
+    bottle" (touching the bottle is not touching the wine), nor "the cabinet" for its drawer.
+    ``None`` where even the full name fits something else."""
+    full = _full_name(model, entity)
+    head = bare(full).split(" of ")[0].split()  # "the middle drawer of the cabinet": "middle drawer"
+    endings = [" ".join(head[i:]) for i in range(len(head))]
+    parent = model.entity_names(model.parent(entity)) if model.parent(entity) != entity else set()
+    short = [
+        p
+        for p in endings
+        if p != bare(full) and p in model.entity_names(entity) - parent and denotes_only(model, p, entity)
+    ]
+    if short and rng.random() < 0.5:
+        return f"the {short[-1]}"
+    return full if denotes_only(model, full, entity) else None
+
+
+def _goal(slot: Slot, obj: str) -> list:
     if slot.kind == "pick":
-        return [["do", "lift", slot.objects[0]]]
-    return [["goal", *atom] for atom in slot.step.goal if slot.kind != "pick"]
-
-
-def _kinds(slot: Slot) -> list[str]:
-    if slot.kind in ("place", "push", "place_it"):
-        return ["still", "untouched", "avoid", "robot"] + (["ungrasped"] if slot.kind == "place" else [])
-    if slot.kind == "pick":
-        return ["still", "untouched", "robot", "ungrasped"]
+        return ["do", "lift", obj]
     if slot.kind == "move_aside":
-        return ["still", "untouched", "robot"]
-    if slot.kind in ("open", "close", "turn_on", "turn_off"):
-        return ["keep", "untouched", "robot", "end"]
-    return []
+        return ["goal", "moved", obj]
+    return ["goal", *next(a for a in slot.step.goal if obj in a[1:2])]
 
 
-def _constraint(model: TaskModel, slot: Slot, kind: str, mods: Mods, rng: random.Random):
-    """(constraint text, its literal, the goal literal it contradicts, the conflict in words) or None."""
-    goals = _goal_literals(slot)
-    if slot.kind in ("place", "push", "place_it", "pick", "move_aside"):
-        obj = choose(rng, list(slot.objects))
-        goal = next((g for g in goals if obj in g), goals[0])
-        x = _ref(model, obj, rng) if not slot.pronoun else "it"
-        noun = bare(model.name(obj))
+def _constraint(model: TaskModel, slot: Slot, kind: str, rng: random.Random) -> Constraint | None:
+    if slot.kind in MOVING:
+        obj = choose(rng, slot.objects)
+        goal = _goal(slot, obj)
+        noun = bare(_full_name(model, obj))
         where = model.dest_text(slot.dest, slot.prep) if slot.dest else ""
         must = {"pick": "be picked up", "move_aside": "be moved out of the way"}.get(slot.kind, f"go {where}")
+        x = constraint_name(model, obj, rng)
+        if x is None and kind != "robot":
+            return None
         if kind == "still":
-            return (
-                choose(rng, STILL).format(x=x),
-                ["keep", "still", obj],
-                goal,
-                f"the {noun} must {must} yet must not move",
-            )
+            return _made(kind, ["keep", "still", obj], goal, STILL, x, f"the {noun} must {must} yet must not move")
         if kind == "untouched":
-            return (
-                choose(rng, UNTOUCHED).format(x=x),
-                ["keep", "untouched", obj],
-                goal,
-                f"the {noun} must {must} without ever being touched",
-            )
+            premise = f"the {noun} must {must}, yet the robot may never touch it"
+            return _made(kind, ["keep", "untouched", obj], goal, UNTOUCHED, x, premise)
         if kind == "robot":
-            return (
-                choose(rng, ROBOT),
-                ["keep", "still", "robot"],
-                goal,
-                f"moving the {noun} needs the arm to move, yet the arm must stay still",
-            )
-        if kind == "avoid" and goal[0] == "goal" and slot.dest:
-            return (
-                choose(rng, AVOID).format(x=x, d=where),
-                ["avoid", *goal[1:]],
-                goal,
-                f"the {noun} must end up {where} and must not",
-            )
-        if kind == "ungrasped":
-            if slot.kind == "place":
-                if len(slot.objects) > 1:
-                    return None
-                mods.frame = GRASP_FRAME
-                goal = ["do", "lift", obj]
-            return (
-                choose(rng, UNGRASPED).format(x=x),
-                ["keep", "ungrasped", obj],
-                goal,
-                f"the {noun} must be picked up without being grasped",
-            )
+            premise = f"the {noun} must {must}, which needs the robot arm to move, yet the arm must stay still"
+            return _made(kind, ["keep", "still", "robot"], goal, ROBOT, x, premise)
+        return None
+    if slot.kind not in STATES:
         return None
     target = slot.objects[0]
-    goal = goals[0]
+    goal = ["goal", *slot.step.goal[0]]
     pred = goal[1]
-    thing = bare(model.dest_phrases[target][1] if target in model.dest_phrases else model.name(target))
-    done = {"open": "opened", "close": "closed", "turnon": "switched on", "turnoff": "switched off"}
-    state = {"open": "open", "close": "closed", "turnon": "on", "turnoff": "off"}
+    thing = bare(_full_name(model, target))
+    x = constraint_name(model, target, rng)
+    if x is None and kind != "robot":
+        return None
     if kind == "keep":
-        return (
-            choose(rng, KEEP[EXCLUSIVE[pred]]).format(t="it"),
-            ["keep", EXCLUSIVE[pred], target],
-            goal,
-            f"the {thing} must be {done[pred]} yet stay {state[EXCLUSIVE[pred]]}",
-        )
-    if kind == "end":
-        return (
-            END[EXCLUSIVE[pred]].format(t="it"),
-            ["goal", EXCLUSIVE[pred], target],
-            goal,
-            f"the {thing} must be {done[pred]} yet end up {state[EXCLUSIVE[pred]]}",
-        )
+        kept = EXCLUSIVE[pred]
+        premise = f"the {thing} must be {DONE[pred]} yet stay {STATE_WORD[kept]} the whole time"
+        return _made(kind, ["keep", kept, target], goal, KEEP[kept], x, premise)
     if kind == "untouched":
-        parent = model.parent(target)
-        return (
-            choose(rng, UNTOUCHED).format(x=model.name(parent)),
-            ["keep", "untouched", parent],
-            goal,
-            f"the {thing} must be {done[pred]} without touching the {bare(model.name(parent))}",
-        )
+        premise = f"the {thing} must be {DONE[pred]}, yet the robot may never touch it"
+        return _made(kind, ["keep", "untouched", target], goal, UNTOUCHED, x, premise)
     if kind == "robot":
-        return (
-            choose(rng, ROBOT),
-            ["keep", "still", "robot"],
-            goal,
-            f"the {thing} must be {done[pred]}, yet the arm must stay still",
-        )
+        premise = f"the {thing} must be {DONE[pred]}, which needs the robot arm to move, yet the arm must stay still"
+        return _made(kind, ["keep", "still", "robot"], goal, ROBOT, x, premise)
     return None
 
 
+def _made(kind, literal, goal, phrases, x, premise) -> Constraint:
+    attached, standalone = (tuple(p.format(x=x) for p in group) for group in phrases)
+    return Constraint(kind, literal, goal, attached, standalone, premise)
+
+
+def _kinds(slot: Slot) -> list[str]:
+    if slot.kind in MOVING:
+        return ["still", "untouched", "robot"]
+    if slot.kind in STATES:
+        return ["keep", "untouched", "robot"]
+    return []
+
+
+def _phrase(made: list[Constraint], rng: random.Random) -> list[str]:
+    """The constraints of one step as written, in order: one attaches ("without touching the bowl")
+    or follows "but" ("but never touch the bowl"); a second joins with "and" ("without touching the
+    bowl and without moving the robot arm") or stands as ", and" + imperative."""
+    first = made[0]
+    if len(made) == 1:
+        if rng.random() < 0.6:
+            return [choose(rng, first.attached)]
+        return ["but " + choose(rng, first.standalone)]
+    second = made[1]
+    withouts = [[p for p in c.attached if p.startswith("without ")] for c in made]
+    if all(withouts) and rng.random() < 0.5:
+        return [choose(rng, withouts[0]), "and " + choose(rng, withouts[1])]
+    return [choose(rng, first.attached), ", and " + choose(rng, second.standalone)]
+
+
 def generate(model: TaskModel, level: str, rng: random.Random):
+    states = model.facts.states()
     for frame in frames_for_level(model, level):
         options = [(i, k) for i, slot in enumerate(frame) for k in _kinds(slot)]
         if level in ("L1", "L3"):
@@ -169,66 +241,47 @@ def generate(model: TaskModel, level: str, rng: random.Random):
             combos = [list(c) for c in itertools.combinations(options, 2) if c[0][0] == c[1][0]]
         else:
             combos = [list(c) for c in itertools.combinations(options, 2) if c[0][0] != c[1][0]]
-        for combo in combos:
-            for _ in range(2):
-                draft = _draft(model, level, frame, combo, rng)
+        for _ in range(VARIANTS):
+            for combo in combos:
+                draft = _draft(model, level, frame, combo, rng, states)
                 if draft:
                     yield draft
 
 
-def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.Random) -> Draft | None:
-    mods: dict[int, Mods] = {}
-    made_for: dict[int, list] = {}
+def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.Random, states) -> Draft | None:
+    by_step: dict[int, list[Constraint]] = {}
     for index, kind in combo:
-        made = _constraint(model, frame[index], kind, mods.setdefault(index, Mods()), rng)
-        if made is None:
-            return None
-        if made[2][0] == "goal" and already(model.facts, made[2], model.facts.states()):
-            return None
-        made_for.setdefault(index, []).append(made)
-    picked: list[tuple[int, str, list, list, str]] = []
-    for index, made in made_for.items():
-        # "without ..." before "but ...": "put it in the basket without touching it, but leave it where it is"
-        made.sort(key=lambda m: m[0].startswith("but "))
-        texts = [made[0][0]]
-        for text, *_ in made[1:]:
-            # one "but" per step reads naturally ("anywhere but" counts); a second joins with "and":
-            # ", and never touch it"
-            if not text.startswith("but ") or any(" but " in f" {t}" for t in texts):
-                text = text.removeprefix("but ").removeprefix("while ").removeprefix("and ")
-            texts.append(text)
-        if len(set(texts)) < len(texts):
-            return None
-        mods[index].extras = [texts[0]] + [(", " if t.startswith("but ") else ", and ") + t for t in texts[1:]]
-        picked += [(index, t, literal, goal, conflict) for t, (_, literal, goal, conflict) in zip(texts, made)]
-    picked.sort(key=lambda p: p[0])
+        made = _constraint(model, frame[index], kind, rng)
+        if made is None or (made.goal[0] == "goal" and already(model.facts, made.goal, states)):
+            return None  # a goal that already holds somewhere needs no change: nothing contradicts it
+        by_step.setdefault(index, []).append(made)
+    mods: dict[int, Mods] = {}
+    written: list[tuple[int, str, Constraint]] = []
+    for index, made in sorted(by_step.items()):
+        texts = _phrase(made, rng)
+        mods[index] = Mods(extras=texts)
+        for text, constraint in zip(texts, made):
+            written.append((index, text.removeprefix(", and ").removeprefix("and ").removeprefix("but "), constraint))
     instruction, steps, clauses = realise(model, frame, mods, rng)
     requirements: list[dict] = []
     conflicts: list[list[str]] = []
     goal_ids: dict[tuple[int, str], str] = {}
-    for index, text, literal, goal, _ in picked:
-        key = (index, repr(goal))
+    for index, text, constraint in written:
+        key = (index, repr(constraint.goal))
         if key not in goal_ids:
             goal_ids[key] = f"r{len(requirements) + 1}"
-            requirements.append({"id": goal_ids[key], "step": index + 1, "text": clauses[index].body, "literal": goal})
+            requirements.append(
+                {"id": goal_ids[key], "step": index + 1, "text": clauses[index].body, "literal": constraint.goal}
+            )
         rid = f"r{len(requirements) + 1}"
-        requirements.append({"id": rid, "step": index + 1, "text": text, "literal": literal})
-        conflicts.append([goal_ids[key], rid])
-    words = {
-        "still": "goal vs. keeping it still",
-        "untouched": "goal vs. not touching",
-        "avoid": "goal vs. its negation",
-        "robot": "goal vs. a still arm",
-        "ungrasped": "picking up vs. not grasping",
-        "keep": "state vs. its opposite",
-        "end": "state vs. its opposite at the end",
-    }
+        requirements.append({"id": rid, "step": index + 1, "text": text, "literal": constraint.literal})
+        conflicts.append([goal_ids[key], rid, "simultaneous"])
     return Draft(
         family="instruction",
         level=level,
         instruction=instruction,
-        factors=tuple(step_label(level, i, words[k]) for i, k in combo),
-        premise="; ".join(conflict for *_, conflict in picked),
+        factors=tuple(step_label(level, i, LABELS[k]) for i, k in combo),
+        premise="; ".join(c.premise for *_, c in written),
         witness={
             "type": "contradiction",
             **frame_witness(model, frame, steps),
