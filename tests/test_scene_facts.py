@@ -61,6 +61,12 @@ def test_between_is_lenient_about_overshoot_but_not_about_the_side():
     assert f.holds("between", "a", "b", "c") == {0, 1}
 
 
+def test_between_is_false_only_clearly_beyond_an_end():
+    # a short b-c segment (20 cm): 15 % is 3 cm, so the 5 cm margin decides; 4 cm past c still counts
+    f = _facts({"a": [[0.24, 0, 0], [0.26, 0, 0]], "b": [[0, 0, 0]] * 2, "c": [[0.2, 0, 0]] * 2}, radius=0.0)
+    assert f.holds("between", "a", "b", "c") == {0}
+
+
 def test_on_and_in_count_any_contact_as_true():
     touch = {frozenset(("a", "b")): frozenset({1})}
     f = _facts(
@@ -79,7 +85,17 @@ def test_unknown_relation_or_entity_is_an_error():
 
 
 def test_directional_margin_is_stated_in_code():
-    assert DIRECTION_MARGIN == pytest.approx(0.03)
+    assert DIRECTION_MARGIN == pytest.approx(0.05)
+
+
+def test_a_direction_is_false_only_by_max_of_5_cm_and_the_subject_radius():
+    # a lies 4, 6 and 9 cm to the RIGHT of b's centre: "a left of b" is false from 5 cm (radius 3 cm) ...
+    f = _facts({"a": [[0, 0.04, 0], [0, 0.06, 0], [0, 0.09, 0]], "b": [[0, 0, 0]] * 3}, radius=0.03)
+    assert f.false_states("left_of", "a", "b") == {1, 2}
+    assert np.allclose(f.clearance("left_of", "a", "b"), [0.04, 0.06, 0.09])
+    # ... but a subject of radius 8 cm must lie past b's centre by its own half-extent
+    f = _facts({"a": [[0, 0.04, 0], [0, 0.06, 0], [0, 0.09, 0]], "b": [[0, 0, 0]] * 3}, radius=0.08)
+    assert f.false_states("left_of", "a", "b") == {2}
 
 
 # -- the shipped file -------------------------------------------------------------------------------

@@ -2,10 +2,22 @@
 
 Every entity stays present and named; what breaks is the relation the words presuppose ("the
 ketchup to the left of the basket" where the ketchup starts to its right, "the black bowl on the
-cookie box" where no bowl touches the box). A claim is about every entity the subject's words could
-pick out (both black bowls of a libero_spatial scene), and must be false for all of them, under
-the lenient reading of :meth:`.scene.TaskFacts.holds`, in every fixed initial state the case is
-paired with: all 50 where possible, otherwise the listed states (at least ``MIN_STATES``).
+cookie box" where no bowl touches the box). The family's rules (checked again by
+:mod:`conflictbench.tasks.validation.spatial`, which every draft passes before it is yielded):
+
+- a claim is about every entity the subject's words could pick out (both black bowls of a
+  libero_spatial scene) and is false for all of them, under the lenient reading of
+  :meth:`.scene.facts.TaskFacts.holds`, in every initial state the case is paired with: all 50
+  where possible, otherwise the listed states (at least ``MIN_STATES``);
+- a direction is false by a margin a camera shows: the subject's centre lies past the landmark's
+  centre, on the other side, by at least max(5 cm, the subject's radius); the witness gives the
+  smallest such clearance over the paired states as ``margin_m``;
+- the claim is still false when its step is reached: no earlier step moves or operates its subject
+  or landmarks (or their fixtures), and its own step does not move its landmark;
+- readable: no "left"/"right" word in a phrase of a left/right claim (nor "front"/"back" for
+  front/behind), "on"/"in" only with a real support or container at least the subject's size, a
+  destination's description as a relative clause ("the plate that is behind the stove");
+- L2: two parts of the one step (object and destination), or two different claims about one part.
 """
 
 from __future__ import annotations
@@ -13,14 +25,18 @@ from __future__ import annotations
 import itertools
 import random
 
+from conflictbench.core import ConflictCase
 from conflictbench.tasks.scene.affordances import category
+from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
+from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, check_relation
+from conflictbench.tasks.validation.structure import check_structure
+from conflictbench.tasks.validation.text import names_in
 
-from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
-from .phrasing import bare, choose
+from .frames import Draft, Mods, Slot, acted_on, frame_witness, frames_for_level, realise, step_label
+from .phrasing import bare, choose, frames_for
 
-MIN_STATES = 25
-"""A claim false in fewer of the 50 initial states is not used (the case would pair too rarely)."""
+__all__ = ["MIN_STATES", "OPERATORS", "claims", "generate"]
 PHRASES = {
     "left_of": ("to the left of", "on the left side of", "left of"),
     "right_of": ("to the right of", "on the right side of", "right of"),
@@ -91,32 +107,33 @@ def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str])
     return out
 
 
-def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset()) -> list[dict]:
+def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holder_avoid: frozenset = frozenset()):
     """Every false relation about ``subject``, with the states where it is false for all candidates.
 
-    ``avoid``: entities the same step already acts on (the moved object, the destination), which
-    would make a landmark read oddly ("the plate next to the bowl" while moving that bowl).
+    ``avoid``: entities no landmark may be (moved by this step or an earlier one, which would make
+    the claim stale or read oddly); ``holder_avoid``: entities no "on"/"in" holder may be (the
+    step's own destination: "pick up the sauce in the basket, then put it in the basket").
     """
     noun, candidates = subject_noun(model, subject)
     movable = model.facts.entities[subject].kind == "object"
     out = []
     for relation in PHRASES:
-        if relation in ("on", "in") and not movable:
-            continue
-        exclude = (
-            set(candidates) | {model.parent(c) for c in candidates} | set(avoid) | {model.parent(a) for a in avoid}
-        )
-        marks = [
-            np_ for _, np_ in _landmarks(model, "next_to" if relation == "between" else relation, subject, exclude)
-        ]
+        if relation in ("on", "in", "between") and not movable:
+            continue  # "the cabinet between the bowl and the plate" reads oddly; fixtures sit on nothing
+        exclude = set(candidates) | {model.parent(c) for c in candidates} | set(avoid)
+        if relation in ("on", "in"):
+            exclude |= set(holder_avoid)
+        kind = "next_to" if relation == "between" else relation
+        marks = [np_ for ent, np_ in _landmarks(model, kind, subject, exclude) if model.parent(ent) not in exclude]
         options = [list(p) for p in itertools.combinations(marks, 2)] if relation == "between" else [[m] for m in marks]
         for phrases in options:
-            if relation in ("left_of", "right_of") and any(
-                w in f" {p} " for p in (noun, *phrases) for w in (" left ", " right ")
-            ):
-                continue  # "the left plate to the right of ..." reads as a contradiction in words, not a false relation
+            axis_words = SAME_AXIS_WORDS.get(relation, ())
+            if any(w in f" {p} ".split() for p in (noun, *phrases) for w in axis_words):
+                continue  # "the left plate to the right of ..." reads as a contradiction in words
             groups = [sorted(model.candidates(p)) for p in phrases]
             if not all(groups) or any(set(g) & set(candidates) for g in groups):
+                continue
+            if any(e in exclude or model.parent(e) in exclude for g in groups for e in g):
                 continue
             false = model.facts.states()
             for cand in candidates:
@@ -130,6 +147,7 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset()) -> li
                         "subject": noun,
                         "candidates": candidates,
                         "landmark_phrases": phrases,
+                        "landmark_groups": groups,
                         "landmark_text": " and ".join(phrases),
                         "false_states": false,
                     }
@@ -139,9 +157,11 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset()) -> li
 
 def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
     if part == "object":
-        return (
-            slot.objects[0] if len(slot.objects) == 1 and slot.kind in ("place", "push", "pick", "move_aside") else None
-        )
+        if len(slot.objects) != 1 or slot.kind not in ("place", "push", "pick", "move_aside"):
+            return None
+        if slot.kind in ("place", "push") and not (slot.dest and model.dest_phrases[slot.dest][0]):
+            return None  # "move the pudding in front of the plate to the right of the plate": which is where?
+        return slot.objects[0]
     if part == "dest" and slot.dest and slot.kind in ("place", "place_it", "push"):
         holder = model.parent(slot.dest)
         return holder if holder in model.names and holder in model.facts.entities else None
@@ -151,14 +171,24 @@ def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
     return None
 
 
+def _separates(slot: Slot, obj: str) -> bool:
+    """Whether the step's frames can close the object phrase before the destination ("pick up X
+    and put it ..."), so a bare locating modifier cannot be read as where to put it."""
+    if slot.kind in ("pick", "move_aside"):  # "slide the box next to the stove to one side": where to?
+        return slot.kind == "pick"
+    return any("{o} and" in f for f in frames_for(slot.kind, slot.prep, "", obj))
+
+
 def _phrase(claim: dict, rng: random.Random, clause: bool = False) -> str:
-    """ "the bowl behind the stove"; with ``clause`` always a relative clause ("the bowl that is
-    behind the stove"), where a bare modifier could be read as a destination (push X behind Y)."""
+    """ "the bowl behind the stove"; with ``clause`` a relative clause ("the bowl that is behind the
+    stove"), where a bare modifier could be read as a destination or attach to the wrong noun."""
     rel = choose(rng, PHRASES[claim["relation"]])
     if rel.startswith(("sitting", "resting")):
         form = "{s} {r} {l}"
+    elif clause:
+        form = choose(rng, ("{s} that is {r} {l}", "{s} that is {r} {l}", "{s} which is {r} {l}"))
     else:
-        form = "{s} that is {r} {l}" if clause else choose(rng, ("{s} {r} {l}", "{s} that is {r} {l}", "{s} {r} {l}"))
+        form = choose(rng, ("{s} {r} {l}", "{s} that is {r} {l}", "{s} {r} {l}"))
     return form.format(s=claim["subject"], r=rel, l=claim["landmark_text"])
 
 
@@ -172,7 +202,7 @@ def _apply(
         else:
             mods.dest = (mods.dest or "").replace(earlier, text)
         return text
-    text = _phrase(claim, rng, clause=part == "object" and slot.kind != "place")
+    text = _phrase(claim, rng, clause=part != "object" or not _separates(slot, claim["subject"]))
     if part == "object":
         mods.locating = True
     if part in ("object", "target"):
@@ -182,8 +212,11 @@ def _apply(
             mods.obj = np_.replace(model.name(model.parent(slot.objects[0])), text)
         else:
             mods.obj = text
+        if part == "target":  # "turn the stove that is left of the rack on" splits the verb
+            mods.frame = choose(rng, [f for f in frames_for(slot.kind, None, None, mods.obj) if f.endswith("{o}")])
         return text
     prep, np_ = model.dest_phrases[slot.dest]
+    prep = slot.prep or prep  # "put the cream cheese in the bowl" stays "in"
     holder = model.name(model.parent(slot.dest))
     mods.dest = f"{prep} {np_.replace(holder, text)}".strip() if holder in np_ else f"{prep} {np_} {text}".strip()
     return text
@@ -199,17 +232,35 @@ def _premise(model: TaskModel, claim: dict) -> str:
     return f"{who} {verb} {rel} {where} in the initial scene"
 
 
+def _margin(model: TaskModel, claim: dict, states: frozenset) -> float | None:
+    """The smallest clearance past the landmark's centre over the paired states (directions only)."""
+    if claim["relation"] not in DIRECTIONS:
+        return None
+    idx = sorted(states)
+    return round(
+        min(
+            float(model.facts.clearance(claim["relation"], a, b)[idx].min())
+            for a in claim["candidates"]
+            for b in claim["landmark_groups"][0]
+        ),
+        3,
+    )
+
+
 def generate(model: TaskModel, level: str, rng: random.Random):
     cache: dict[tuple, list[dict]] = {}
 
-    def claims_for(entity: str, avoid: frozenset) -> list[dict]:
-        if (entity, avoid) not in cache:
-            cache[(entity, avoid)] = claims(model, entity, avoid)
-        return cache[(entity, avoid)]
+    def claims_for(entity: str, avoid: frozenset, holder_avoid: frozenset) -> list[dict]:
+        key = (entity, avoid, holder_avoid)
+        if key not in cache:
+            cache[key] = claims(model, entity, avoid, holder_avoid)
+        return cache[key]
 
     for frame in frames_for_level(model, level):
+        if _stale(model, frame):
+            continue
         parts = [
-            (i, p) for i, slot in enumerate(frame) for p in ("object", "dest", "target") if _subject_of(model, slot, p)
+            (i, p) for i, slot in enumerate(frame) for p in ("object", "dest", "target") if _usable(model, frame, i, p)
         ]
         if level in ("L1", "L3"):
             combos = [[p] for p in parts]
@@ -218,10 +269,48 @@ def generate(model: TaskModel, level: str, rng: random.Random):
         else:
             combos = [list(c) for c in itertools.combinations(parts, 2) if c[0][0] != c[1][0]]
         for combo in combos:
-            for _ in range(3):
+            for _ in range(6):
                 draft = _draft(model, level, frame, combo, claims_for, rng)
                 if draft:
                     yield draft
+
+
+def _stale(model: TaskModel, frame: list[Slot]) -> bool:
+    """An added step moves what a later step's own name describes the object by ("slide the
+    ramekin aside, then pick up the bowl between the plate and the ramekin")."""
+    for i, slot in enumerate(frame):
+        if not slot.aux:
+            continue
+        moved = _touched(model, [slot])
+        later = " ".join(model.name(o) for s in frame[i + 1 :] for o in s.objects if o in model.names)
+        if any(names_in(later, _names(model, e)) for e in moved):
+            return True
+    return False
+
+
+def _names(model: TaskModel, entity: str) -> set[str]:
+    return {n for n in model.entity_names(entity) if model.candidates(n) <= {entity, model.parent(entity)}}
+
+
+def _touched(model: TaskModel, slots: list[Slot]) -> set[str]:
+    out = {e for slot in slots for e in acted_on(model, slot)}
+    return out | {model.parent(e) for e in out}
+
+
+def _usable(model: TaskModel, frame: list[Slot], index: int, part: str) -> bool:
+    """A part can carry a claim when it has a subject no earlier step has moved or operated."""
+    subject = _subject_of(model, frame[index], part)
+    return bool(subject) and not ({subject, model.parent(subject)} & _touched(model, frame[:index]))
+
+
+def _avoid(model: TaskModel, frame: list[Slot], index: int, subject: str) -> tuple[frozenset, frozenset]:
+    slot = frame[index]
+    avoid = _touched(model, frame[: index + 1]) - {subject}
+    if slot.kind == "pick" and index + 1 < len(frame):  # the object it lifts is the next step's
+        avoid |= _touched(model, [frame[index + 1]]) - {subject}
+    dest = slot.step.dest if slot.kind in ("pick", "place", "place_it", "push") else None
+    holder_avoid = frozenset({dest, model.parent(dest)} - {None}) if dest else frozenset()
+    return frozenset(avoid), holder_avoid
 
 
 def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft | None:
@@ -231,8 +320,8 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
     for index, part in combo:
         slot = frame[index]
         subject = _subject_of(model, slot, part)
-        avoid = frozenset(e for e in (*slot.objects, slot.dest) if e and e != subject)
-        pool = [c for c in claims_for(subject, avoid) if len(c["false_states"] & states) >= MIN_STATES]
+        avoid, holder_avoid = _avoid(model, frame, index, subject)
+        pool = [c for c in claims_for(subject, avoid, holder_avoid) if len(c["false_states"] & states) >= MIN_STATES]
         if not pool:
             return None
         earlier = next((t for i, p, c, t in chosen if (i, p) == (index, part)), None)
@@ -248,6 +337,10 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
             ]
             if not pool:
                 return None
+        seen = {(c["relation"], c["subject"], c["landmark_text"]) for _, _, c, _ in chosen}
+        pool = [c for c in pool if (c["relation"], c["subject"], c["landmark_text"]) not in seen]
+        if not pool:
+            return None
         full = [c for c in pool if c["false_states"] == model.facts.states()]
         claim = choose(rng, full if full and rng.random() < 0.85 else pool)
         states = states & claim["false_states"]
@@ -263,10 +356,11 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
             "relation": c["relation"],
             "subject": {"phrase": bare(c["subject"]), "entities": sorted(c["candidates"])},
             "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in c["landmark_phrases"]],
+            **({"margin_m": _margin(model, c, states)} if c["relation"] in DIRECTIONS else {}),
         }
         for i, part, c, text in chosen
     ]
-    return Draft(
+    draft = Draft(
         family="spatial",
         level=level,
         instruction=instruction,
@@ -278,6 +372,27 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
         init_states=None if states == model.facts.states() else tuple(sorted(states)),
         operator="spatial.false_relation",
     )
+    return draft if _passes(model, draft, states) else None
+
+
+def _passes(model: TaskModel, draft: Draft, states: frozenset) -> bool:
+    """The family's and the shared structural rules, checked before a draft is offered (a long
+    locating phrase can push "pick up" out of the pronoun's reach, for one)."""
+    case = ConflictCase(
+        case_id="draft",
+        suite=model.task.suite,
+        task_id=model.task.task_id,
+        base_instruction=model.task.language,
+        instruction=draft.instruction,
+        family="spatial",
+        level=draft.level,
+        factors=draft.factors,
+        premise=draft.premise,
+        witness=draft.witness,
+        status="accepted",
+        init_states=draft.init_states,
+    )
+    return not (check_structure(case, "false_relation", model) or check_relation(case, model, states))
 
 
 OPERATORS = [("spatial.false_relation", "spatial", generate)]

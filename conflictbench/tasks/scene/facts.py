@@ -31,18 +31,21 @@ FORMAT_VERSION = 1
 SHIPPED = "scene_facts.jsonl"
 
 # -- tolerances (metres) ------------------------------------------------------------------------
-# A claimed-false relation must be false with a margin, so that no reasonable reading of the
-# words (and no estimate from an image) could make it true.
-DIRECTION_MARGIN = 0.03
-"""``a left of b`` counts as false only where a lies at least this far to the RIGHT of b's centre
-(signed offset along the axis <= -margin); a just-in-front-of-b object is not a witness."""
+# A claimed-false relation must be false with a margin a 256-px camera image shows, so that no
+# reasonable reading of the words (and no estimate from an image) could make it true.
+DIRECTION_MARGIN = 0.05
+"""``a left of b`` counts as false only where a's centre lies on the OTHER side of b's centre (to
+its right) by at least ``max(DIRECTION_MARGIN, radius of a)``: 5 cm, or a's own horizontal
+half-extent where a is larger, so that a's whole footprint is past b's centre. Closer than that,
+the lenient reading counts the relation as (possibly) true."""
 NEAR_GAP = 0.10
 """``a next to b`` holds leniently when the gap between their footprints is at most this."""
 FAR_GAP = 0.15
 """``a next to b`` counts as false only when the footprint gap exceeds this (10 cm + 5 cm margin)."""
 BETWEEN_OVERSHOOT = 0.15
 """``a between b and c``: the projection of a on segment b-c may overshoot either end by this
-fraction of the segment and still count as between (lenient)."""
+fraction of the segment, and by at least ``max(DIRECTION_MARGIN, radius of a)``, and still count as
+between (lenient): "between" is false only where a is clearly beyond an end or off the line."""
 BETWEEN_OFFSET = 0.12
 """``a between b and c``: a may sit this far (plus its own radius) off the b-c line (lenient)."""
 
@@ -122,9 +125,8 @@ class TaskFacts:
             if name not in self.entities:
                 raise SceneFactsError(f"{self.suite} task {self.task_id} has no entity {name!r}")
         if relation in DIRECTIONS:
-            axis, sign = DIRECTIONS[relation]
-            offset = sign * (self.positions[args[0]][:, axis] - self.positions[args[1]][:, axis])
-            return frozenset(int(i) for i in np.flatnonzero(offset > -DIRECTION_MARGIN))
+            clear = self.clearance(relation, args[0], args[1])
+            return frozenset(int(i) for i in np.flatnonzero(clear < self.direction_margin(args[0])))
         if relation == "next_to":
             gap = self._gap(args[0], args[1])
             return frozenset(int(i) for i in np.flatnonzero(gap <= FAR_GAP))
@@ -135,6 +137,17 @@ class TaskFacts:
     def false_states(self, relation: str, *args: str) -> frozenset:
         return self.states() - self.holds(relation, *args)
 
+    def direction_margin(self, subject: str) -> float:
+        """How far past the landmark's centre ``subject`` must lie for a direction to be false."""
+        return max(DIRECTION_MARGIN, self.entities[subject].radius or 0.0)
+
+    def clearance(self, relation: str, a: str, b: str) -> np.ndarray:
+        """Per state: how far a's centre lies on the side of b OPPOSITE to ``relation`` (metres;
+        negative where a is on the claimed side). ``relation(a, b)`` is false where this reaches
+        :meth:`direction_margin`."""
+        axis, sign = DIRECTIONS[relation]
+        return -sign * (self.positions[a][:, axis] - self.positions[b][:, axis])
+
     def _gap(self, a: str, b: str) -> np.ndarray:
         dist = np.linalg.norm(self.positions[a][:, :2] - self.positions[b][:, :2], axis=1)
         return dist - (self.entities[a].radius or 0.0) - (self.entities[b].radius or 0.0)
@@ -144,12 +157,10 @@ class TaskFacts:
         seg = pc - pb
         length2 = np.maximum((seg**2).sum(axis=1), 1e-9)
         t = ((pa - pb) * seg).sum(axis=1) / length2
-        off = np.abs(seg[:, 0] * (pa - pb)[:, 1] - seg[:, 1] * (pa - pb)[:, 0]) / np.sqrt(length2)
-        ok = (
-            (t > -BETWEEN_OVERSHOOT)
-            & (t < 1 + BETWEEN_OVERSHOOT)
-            & (off <= BETWEEN_OFFSET + (self.entities[a].radius or 0.0))
-        )
+        length = np.sqrt(length2)
+        off = np.abs(seg[:, 0] * (pa - pb)[:, 1] - seg[:, 1] * (pa - pb)[:, 0]) / length
+        over = np.maximum(BETWEEN_OVERSHOOT, self.direction_margin(a) / length)  # as a fraction of b-c
+        ok = (t > -over) & (t < 1 + over) & (off <= BETWEEN_OFFSET + (self.entities[a].radius or 0.0))
         return frozenset(int(i) for i in np.flatnonzero(ok))
 
     def _support(self, relation: str, a: str, b: str) -> frozenset:

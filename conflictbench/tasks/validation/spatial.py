@@ -1,59 +1,232 @@
-"""The spatial family's rule: every presupposed relation is false for every entity its words denote."""
+"""The spatial family's rules: a presupposed relation that is false, visibly, and still false when
+its step is reached.
+
+A case's witness lists ``relations``: per relation its ``step`` (1-based), the ``text`` the step
+says it with, the ``relation`` (left_of, right_of, in_front_of, behind, next_to, between, on, in),
+the ``subject`` and ``landmarks`` (each a phrase and every scene entity the phrase could denote)
+and, for a direction, ``margin_m``. A relation is valid when:
+
+- **False everywhere it pairs**: it holds, under the lenient reading of
+  :meth:`.scene.facts.TaskFacts.holds`, for no combination of the entities its words could denote,
+  in no initial state the case is paired with (all 50, or at least ``MIN_STATES`` listed ones).
+- **Visibly false**: a direction (left/right of, in front of, behind) is false by at least
+  ``max(5 cm, the subject's radius)`` past the landmark's centre, as recomputed from the scene
+  facts; the witness's ``margin_m`` is that smallest clearance over the paired states.
+- **Still false when reached**: no entity of the relation (subject or landmark, or their parent
+  fixture) is moved or operated by an EARLIER step (the witness's ``step_entities`` and what the
+  steps' goals imply), and no landmark is moved or operated by the relation's own step.
+- **Readable**: said inside its own step; no "left"/"right" (or "front"/"back") in a phrase of a
+  relation on the same axis ("the left plate to the right of ..."); "on" only for a movable subject
+  and a support at least as large, "in" only for a container at least as large; no claim twice.
+- **Level**: L2's relations all sit in its one step, about two parts or two claims about one part.
+"""
 
 from __future__ import annotations
 
 from conflictbench.core import ConflictCase
-from conflictbench.tasks.scene.facts import RELATIONS
+from conflictbench.tasks.scene.affordances import category
+from conflictbench.tasks.scene.facts import DIRECTIONS, RELATIONS
 from conflictbench.tasks.scene.task_model import TaskModel
 
 from .text import names_in
 
+MIN_STATES = 25
+"""A claim false in fewer of the 50 initial states is not used (the case would pair too rarely)."""
 RELATION_WORDS = {
     "left_of": ("left",),
     "right_of": ("right",),
     "in_front_of": ("in front of",),
     "behind": ("behind",),
     "next_to": ("next to", "beside"),
-    "on": ("on",),
+    "on": ("on", "on top of"),
     "in": ("in", "inside"),
     "between": ("between",),
 }
+SAME_AXIS_WORDS = {
+    "left_of": ("left", "right"),
+    "right_of": ("left", "right"),
+    "in_front_of": ("front", "back", "rear", "behind"),
+    "behind": ("front", "back", "rear", "behind"),
+}
+"""Words that, inside a subject or landmark phrase, make a direction read as a contradiction."""
+MARGIN_SLACK = 0.0015
+"""Positions are stored in millimetres: a witness margin may differ from the recomputed one by this."""
 
 
 def check_relation(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
-    out = []
+    out: list[str] = []
+    if case.init_states is not None and len(states) < MIN_STATES:
+        out.append(f"paired with {len(states)} initial state(s); a claim needs at least {MIN_STATES}")
+    relations = case.witness.get("relations", [])
+    steps = case.witness.get("steps", [])
+    acted = acted_per_step(case, model)
+    for r in relations:
+        out += _one_relation(case, model, states, r, steps, acted)
+    out += _claims_and_level(case, relations)
+    return out
+
+
+def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: list[set[str]]) -> list[str]:
     facts = model.facts
-    for r in case.witness.get("relations", []):
-        rel, text = r.get("relation"), str(r.get("text", ""))
-        if rel not in RELATIONS:
-            out.append(f"unknown relation {rel!r}")
+    rel, text, step = r.get("relation"), str(r.get("text", "")), r.get("step")
+    if rel not in RELATIONS:
+        return [f"unknown relation {rel!r}"]
+    out = []
+    if text not in case.instruction:
+        out.append(f"relation text {text!r} is not in the instruction")
+    if isinstance(step, int) and 1 <= step <= len(steps) and text not in steps[step - 1]:
+        out.append(f"relation text {text!r} is not in step {step} ({steps[step - 1]!r})")
+    args = [r.get("subject", {})] + list(r.get("landmarks", []))
+    if len(args) != (3 if rel == "between" else 2):
+        return out + [f"{rel} takes {3 if rel == 'between' else 2} arguments, got {len(args)}"]
+    groups = []
+    for arg in args:
+        listed = set(arg.get("entities", []))
+        unknown = listed - set(facts.entities)
+        if not listed or unknown:
+            return out + [f"relation {rel}: entities {sorted(unknown) or '(none)'} are not in the scene"]
+        missing = model.candidates(str(arg.get("phrase", ""))) - listed
+        if missing:
+            out.append(f"relation {rel}: {arg.get('phrase')!r} could also mean {', '.join(sorted(missing))}")
+        if not names_in(text, {str(arg.get("phrase", ""))}):
+            out.append(f"relation text {text!r} does not name {arg.get('phrase')!r}")
+        groups.append(sorted(listed))
+    if not any(names_in(text, {w}) for w in RELATION_WORDS[rel]):
+        out.append(f"relation text {text!r} does not say {rel.replace('_', ' ')}")
+    phrases = [str(a.get("phrase", "")) for a in args]
+    clash = [w for p in phrases for w in SAME_AXIS_WORDS.get(rel, ()) if names_in(p, {w})]
+    if clash:
+        out.append(f"{rel.replace('_', ' ')} about {' / '.join(phrases)!r}: {clash[0]!r} reads as a contradiction")
+    out += _holder(model, rel, groups)
+    out += _when_reached(r, groups, acted, model)
+    combos = _product(groups)
+    if rel in DIRECTIONS:
+        out += _margin(r, rel, combos, model, states)
+    for combo in combos:
+        true_in = facts.holds(rel, *combo) & states
+        if true_in:
+            out.append(f"{rel}{tuple(combo)} holds in initial state(s) {sorted(true_in)[:5]}")
+    return out
+
+
+def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states: frozenset) -> list[str]:
+    """A direction must be false by what a camera shows: recomputed here, and the witness must agree."""
+    facts, out = model.facts, []
+    idx = sorted(states)
+    smallest = None
+    for a, b in combos:
+        clear = float(facts.clearance(rel, a, b)[idx].min())
+        need = facts.direction_margin(a)
+        if clear < need:
+            out.append(f"{rel}({a}, {b}) is false by only {clear:.3f} m; a camera needs {need:.3f} m")
+        smallest = clear if smallest is None else min(smallest, clear)
+    said = r.get("margin_m")
+    if not isinstance(said, int | float):
+        out.append(f"a {rel.replace('_', ' ')} relation needs its margin_m in the witness")
+    elif smallest is not None and abs(said - smallest) > MARGIN_SLACK:
+        out.append(f"witness margin_m {said} does not match the scene facts ({smallest:.3f} m)")
+    return out
+
+
+def _holder(model: TaskModel, rel: str, groups: list[list[str]]) -> list[str]:
+    """ "on" needs a movable subject and a support, "in" a container, at least as large as the subject."""
+    if rel not in ("on", "in"):
+        return []
+    out = []
+    need = "support" if rel == "on" else "container"
+    for subject in groups[0]:
+        if model.facts.entities[subject].kind != "object":
+            out.append(f"{rel}: {subject} is not a movable object")
             continue
-        if text not in case.instruction:
-            out.append(f"relation text {text!r} is not in the instruction")
-        args = [r.get("subject", {})] + list(r.get("landmarks", []))
-        if len(args) != (3 if rel == "between" else 2):
-            out.append(f"{rel} takes {3 if rel == 'between' else 2} arguments, got {len(args)}")
+        size = category(model.category_of(subject)).size
+        for landmark in groups[1]:
+            holder = model.parent(landmark)
+            info = category(model.category_of(holder))
+            if info.has(need) is not True or info.size < size:
+                out.append(f"{rel}: {holder} is an absurd holder for {subject} (not a {need} its size)")
+    return out
+
+
+def _when_reached(r: dict, groups: list[list[str]], acted: list[set[str]], model: TaskModel) -> list[str]:
+    step = r.get("step")
+    if not isinstance(step, int) or not 1 <= step <= len(acted):
+        return []
+    earlier = set().union(*acted[: step - 1]) if step > 1 else set()
+    out = []
+    for i, group in enumerate(groups):
+        for entity in group:
+            touched = {entity, model.parent(entity)} & earlier
+            if touched:
+                out.append(
+                    f"step {step}'s relation is about {entity}, which an earlier step moves or operates "
+                    f"({', '.join(sorted(touched))}): it may no longer be false when the step is reached"
+                )
+            if i > 0 and {entity, model.parent(entity)} & acted[step - 1]:
+                out.append(f"step {step}'s relation uses {entity}, which that same step moves, as its landmark")
+    return out
+
+
+def acted_per_step(case: ConflictCase, model: TaskModel) -> list[set[str]]:
+    """Per step, the entities it moves or operates: what the witness's ``step_entities`` says, what
+    the step's goals imply (the moved objects; the operated region and its fixture), the object a
+    pick-up step lifts (the next step's), and for an added step everything it names outside its
+    relation phrases (a step the goals do not describe is read conservatively)."""
+    w = case.witness
+    steps = w.get("steps", [])
+    said = w.get("step_entities") or [[] for _ in steps]
+    goals = w.get("step_goals") or [[] for _ in steps]
+    roles = w.get("step_roles") or ["original" for _ in steps]
+    texts = {int(r.get("step", 0)): [] for r in w.get("relations", [])}
+    for r in w.get("relations", []):
+        texts[int(r.get("step", 0))].append(str(r.get("text", "")))
+
+    def moved(literals) -> set[str]:
+        out = set()
+        for lit in literals:
+            if lit and lit[0] in ("on", "in"):
+                out.add(str(lit[1]))
+            elif len(lit) > 1:
+                out |= {str(lit[1]), model.parent(str(lit[1]))}
+        return out
+
+    acted = []
+    for i in range(len(steps)):
+        here = set(map(str, said[i] if i < len(said) else [])) | moved(goals[i] if i < len(goals) else [])
+        role = roles[i] if i < len(roles) else "original"
+        if role == "original" and not (goals[i] if i < len(goals) else []) and i + 1 < len(goals):
+            here |= moved(goals[i + 1])  # "pick up the bowl", then "place it on the plate"
+        if role == "added":
+            rest = steps[i]
+            for t in texts.get(i + 1, []):
+                rest = rest.replace(t, " ")
+            here |= {e for e in model.facts.entities if names_in(rest, _own_names(model, e))}
+        acted.append(here | {model.parent(e) for e in here})
+    return acted
+
+
+def _own_names(model: TaskModel, entity: str) -> set[str]:
+    """Names that pick out this entity (or its own regions) alone: "ketchup", "top drawer", not
+    "table" for every table region."""
+    mine = {entity, model.parent(entity)} | {e for e in model.facts.entities if model.parent(e) == entity}
+    return {n for n in model.entity_names(entity) if model.candidates(n) <= mine}
+
+
+def _claims_and_level(case: ConflictCase, relations: list) -> list[str]:
+    out, seen = [], set()
+    for r in relations:
+        if not isinstance(r, dict):
             continue
-        groups = []
-        for arg in args:
-            listed = set(arg.get("entities", []))
-            unknown = listed - set(facts.entities)
-            if not listed or unknown:
-                out.append(f"relation {rel}: entities {sorted(unknown) or '(none)'} are not in the scene")
-                break
-            missing = model.candidates(str(arg.get("phrase", ""))) - listed
-            if missing:
-                out.append(f"relation {rel}: {arg.get('phrase')!r} could also mean {', '.join(sorted(missing))}")
-            if not names_in(text, {str(arg.get("phrase", ""))}):
-                out.append(f"relation text {text!r} does not name {arg.get('phrase')!r}")
-            groups.append(sorted(listed))
-        else:
-            if not any(names_in(text, {w}) for w in RELATION_WORDS[rel]):
-                out.append(f"relation text {text!r} does not say {rel.replace('_', ' ')}")
-            for combo in _product(groups):
-                true_in = facts.holds(rel, *combo) & states
-                if true_in:
-                    out.append(f"{rel}{tuple(combo)} holds in initial state(s) {sorted(true_in)[:5]}")
+        claim = (
+            r.get("relation"),
+            tuple(sorted(r.get("subject", {}).get("entities", []))),
+            tuple(tuple(sorted(lm.get("entities", []))) for lm in r.get("landmarks", [])),
+        )
+        if claim in seen:
+            out.append(f"the claim {r.get('relation')} about {r.get('subject', {}).get('phrase')!r} is made twice")
+        seen.add(claim)
+    if case.level == "L2" and len(relations) >= 2:
+        if {r.get("step") for r in relations if isinstance(r, dict)} != {1}:
+            out.append("an L2 case's relations must all sit in its one step")
     return out
 
 

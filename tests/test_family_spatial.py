@@ -1,0 +1,241 @@
+"""The spatial family: what its operator writes is valid, and each of its validator's rules rejects
+a planted case that breaks it (a stale relation, a margin a camera cannot see, a contradiction in
+words, an absurd holder, a claim made twice, a margin the witness misstates)."""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+
+import numpy as np
+import pytest
+
+from conflictbench.core import LEVELS
+from conflictbench.tasks.libero.base_tasks import base_task
+from conflictbench.tasks.operators import spatial
+from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.scene.task_model import build_model
+from conflictbench.tasks.suite.build import _to_case
+from conflictbench.tasks.validation.rules import new_context, validate_case
+from conflictbench.tasks.validation.spatial import check_relation
+
+pytestmark = pytest.mark.sim  # the cases are built from LIBERO's base tasks
+
+TASKS = [("libero_spatial", 0), ("libero_object", 4), ("libero_goal", 8), ("libero_10", 4), ("libero_10", 9)]
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    return new_context()
+
+
+def model(key):
+    return build_model(base_task(*key), load_scene_facts()[key])
+
+
+def cases(key, level, limit=30):
+    out = []
+    for d in spatial.generate(model(key), level, random.Random(0)):
+        out.append(_to_case(base_task(*key), d))
+        if len(out) >= limit:
+            break
+    return out
+
+
+def find(key, level, where):
+    return next(c for c in cases(key, level, limit=400) if where(c))
+
+
+def reasons(case, m=None):
+    m = m or model((case.suite, case.task_id))
+    states = m.facts.states() if case.init_states is None else frozenset(case.init_states)
+    return check_relation(case, m, states)
+
+
+def rejected(case, needle, m=None):
+    out = reasons(case, m)
+    assert any(needle in r for r in out), out
+
+
+def with_relation(case, index=0, **changes):
+    rels = [dict(r) for r in case.witness["relations"]]
+    rels[index].update(changes)
+    return dataclasses.replace(case, witness={**case.witness, "relations": rels})
+
+
+# -- what the operator writes -----------------------------------------------------------------------------
+@pytest.mark.parametrize("level", LEVELS)
+def test_drafts_pass_every_rule_and_directions_carry_their_margin(level, ctx):
+    produced = 0
+    for key in TASKS:
+        for case in cases(key, level, limit=10):
+            assert validate_case(case, ctx) == [], (case.instruction, validate_case(case, ctx))
+            for r in case.witness["relations"]:
+                if r["relation"] in ("left_of", "right_of", "in_front_of", "behind"):
+                    assert r["margin_m"] >= 0.05
+            produced += 1
+    assert produced >= 10
+
+
+def test_no_relation_is_about_what_an_earlier_step_moved():
+    for key in TASKS:
+        for level in ("L3", "L4"):
+            for case in cases(key, level, limit=60):
+                acted = case.witness["step_entities"]
+                for r in case.witness["relations"]:
+                    earlier = {e for s in acted[: r["step"] - 1] for e in s}
+                    named = set(r["subject"]["entities"]) | {e for lm in r["landmarks"] for e in lm["entities"]}
+                    assert not named & earlier, (case.instruction, r)
+
+
+def test_a_split_pick_up_never_describes_its_object_by_its_own_destination():
+    # once: "first pick up the yellow and white mug that is inside the microwave, next place it in the microwave"
+    for case in cases(("libero_10", 9), "L3", limit=200) + cases(("libero_object", 5), "L4", limit=200):
+        goals = [g for gs in case.witness["step_goals"] for g in gs if g[0] in ("on", "in")]
+        for r in case.witness["relations"]:
+            own = {g[2] for g in goals if g[1] in r["subject"]["entities"]}  # where this object is to go
+            if r["relation"] in ("on", "in"):
+                assert not {e for lm in r["landmarks"] for e in lm["entities"]} & own, case.instruction
+
+
+def test_an_added_step_never_moves_what_the_base_name_describes_by():
+    # "slide the ramekin aside, then pick up the black bowl between the plate and the ramekin ..."
+    for case in cases(("libero_spatial", 0), "L3", limit=400):
+        if case.witness["step_roles"][0] == "added":
+            moved = set(case.witness["step_entities"][0])
+            assert not moved & {"glazed_rim_porcelain_ramekin_1", "plate_1"}, case.instruction
+
+
+# -- planted cases, one per rule --------------------------------------------------------------------------
+def test_a_landmark_an_earlier_step_moves_is_rejected():
+    case = find(("libero_object", 4), "L3", lambda c: c.witness["step_roles"][0] == "added")
+    moved = case.witness["step_entities"][0][0]
+    phrase = moved.rsplit("_", 1)[0].replace("_", " ")
+    text = f"the basket next to the {phrase}"
+    planted = dataclasses.replace(
+        case,
+        instruction=f"{case.witness['steps'][0]}, then put the ketchup in {text}",
+        witness={
+            **case.witness,
+            "steps": [case.witness["steps"][0], f"put the ketchup in {text}"],
+            "relations": [
+                {
+                    "step": 2,
+                    "text": text,
+                    "relation": "next_to",
+                    "subject": {"phrase": "basket", "entities": ["basket_1", "basket_1_contain_region"]},
+                    "landmarks": [{"phrase": phrase, "entities": [moved]}],
+                }
+            ],
+        },
+    )
+    rejected(planted, "which an earlier step moves or operates")
+
+
+def test_the_split_pick_up_then_a_relation_to_the_picked_object_is_rejected():
+    case = find(
+        ("libero_10", 4), "L3", lambda c: len(c.witness["steps"]) == 3 and c.witness["relations"][0]["step"] == 3
+    )
+    steps = case.witness["steps"]
+    text = "the right plate next to the white mug"
+    planted = dataclasses.replace(
+        case,
+        instruction=f"{steps[0]}, then {steps[1]}, then put the yellow and white mug on {text}",
+        witness={
+            **case.witness,
+            "steps": [steps[0], steps[1], f"put the yellow and white mug on {text}"],
+            "relations": [
+                {
+                    "step": 3,
+                    "text": text,
+                    "relation": "next_to",
+                    "subject": {"phrase": "right plate", "entities": ["plate_2"]},
+                    "landmarks": [{"phrase": "white mug", "entities": ["porcelain_mug_1"]}],
+                }
+            ],
+        },
+    )
+    rejected(planted, "porcelain_mug_1, which an earlier step moves")
+
+
+def test_a_landmark_the_same_step_moves_is_rejected():
+    case = find(("libero_object", 4), "L1", lambda c: c.witness["relations"][0]["subject"]["phrase"] == "basket")
+    text = "the basket that is next to the ketchup"
+    planted = with_relation(
+        dataclasses.replace(case, instruction=f"put the ketchup in {text}"),
+        text=text,
+        relation="next_to",
+        landmarks=[{"phrase": "ketchup", "entities": ["ketchup_1"]}],
+    )
+    planted = dataclasses.replace(
+        planted, witness={**planted.witness, "steps": [planted.instruction], "step_entities": [["ketchup_1"]]}
+    )
+    rejected(planted, "which that same step moves, as its landmark")
+
+
+def test_a_direction_false_by_less_than_the_camera_margin_is_rejected():
+    key = ("libero_object", 4)
+    case = find(key, "L1", lambda c: c.witness["relations"][0]["relation"] in ("left_of", "right_of"))
+    r = case.witness["relations"][0]
+    m = model(key)
+    subject, landmark = r["subject"]["entities"][0], r["landmarks"][0]["entities"][0]
+    # move the subject so that it lies only 4 cm past the landmark's centre, on the other side
+    sign = -1.0 if r["relation"] == "left_of" else 1.0  # right_of is false where the subject is at -y
+    pos = {k: v.copy() for k, v in m.facts.positions.items()}
+    pos[subject][:, 1] = pos[landmark][:, 1] - sign * 0.04
+    m.facts = dataclasses.replace(m.facts, positions=pos)
+    rejected(case, "is false by only 0.040 m; a camera needs 0.050 m", m)
+
+
+def test_a_misstated_or_missing_margin_is_rejected():
+    case = find(("libero_object", 4), "L1", lambda c: "margin_m" in c.witness["relations"][0])
+    rejected(with_relation(case, margin_m=case.witness["relations"][0]["margin_m"] + 0.05), "does not match")
+    rel = {k: v for k, v in case.witness["relations"][0].items() if k != "margin_m"}
+    rejected(dataclasses.replace(case, witness={**case.witness, "relations": [rel]}), "needs its margin_m")
+
+
+def test_left_or_right_in_a_left_right_relation_reads_as_a_contradiction():
+    def right_plate(r):
+        return r["subject"]["phrase"] == "right plate" and len(r["landmarks"]) == 1
+
+    case = find(("libero_10", 4), "L3", lambda c: any(right_plate(r) for r in c.witness["relations"]))
+    index = next(i for i, r in enumerate(case.witness["relations"]) if right_plate(r))
+    rejected(with_relation(case, index, relation="left_of"), "'right' reads as a contradiction")
+
+
+def test_on_with_an_absurd_holder_is_rejected():
+    key = ("libero_object", 4)
+    case = find(key, "L1", lambda c: c.witness["relations"][0]["subject"]["phrase"] == "ketchup")
+    text = "the ketchup on the milk"
+    planted = with_relation(
+        dataclasses.replace(case, instruction=case.instruction.replace(case.witness["relations"][0]["text"], text)),
+        text=text,
+        relation="on",
+        landmarks=[{"phrase": "milk", "entities": ["milk_1"]}],
+    )
+    rejected(planted, "milk_1 is an absurd holder for ketchup_1")
+
+
+def test_a_claim_made_twice_is_rejected():
+    case = find(("libero_object", 4), "L2", lambda c: True)
+    rels = case.witness["relations"]
+    rejected(dataclasses.replace(case, witness={**case.witness, "relations": [rels[0], rels[0]]}), "is made twice")
+
+
+def test_a_relation_outside_its_step_is_rejected():
+    case = find(("libero_object", 4), "L3", lambda c: c.witness["relations"][0]["step"] == 2)
+    rejected(with_relation(case, step=1), "is not in step 1")
+
+
+def test_too_few_paired_states_are_rejected():
+    case = find(("libero_object", 4), "L1", lambda c: True)
+    rejected(dataclasses.replace(case, init_states=tuple(range(10))), "a claim needs at least 25")
+
+
+def test_the_geometry_behind_the_margin_rule():
+    facts = load_scene_facts()[("libero_object", 4)]
+    a, b = "ketchup_1", "milk_1"
+    clear = facts.clearance("left_of", a, b)
+    assert np.allclose(clear, facts.positions[a][:, 1] - facts.positions[b][:, 1])
+    false = facts.false_states("left_of", a, b)
+    assert all(clear[s] >= facts.direction_margin(a) for s in false)
