@@ -30,12 +30,12 @@ def case(key, instruction, steps, roles, goals, *, family="instruction", level=N
         "steps": steps,
         "step_roles": roles,
         "step_goals": goals,
-        "step_entities": [[] for _ in steps],
+        "step_entities": [[g[1] for g in goal_list] or ["cream_cheese_1"] for goal_list in goals],
         "requirements": [
             {"id": "r1", "step": last, "text": steps[-1], "literal": ["goal", *goal]},
             {"id": "r2", "step": last, "text": "without moving the robot arm", "literal": ["keep", "still", "robot"]},
         ],
-        "conflicts": [["r1", "r2"]],
+        "conflicts": [["r1", "r2", "simultaneous"]],
         **witness,
     }
     from conflictbench.tasks.libero.base_tasks import base_task
@@ -100,6 +100,7 @@ def test_an_added_step_after_the_original_task_is_rejected(ctx):
             "steps": ["push the cream cheese aside", "put the bowl on the plate"],
             "step_roles": ["added", "original"],
             "step_goals": [[], [["on", BOWL, "plate_1"]]],
+            "step_entities": [["cream_cheese_1"], [BOWL]],
             "requirements": [
                 {
                     "id": "r1",
