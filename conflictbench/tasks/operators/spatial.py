@@ -159,8 +159,6 @@ def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
     if part == "object":
         if len(slot.objects) != 1 or slot.kind not in ("place", "push", "pick", "move_aside"):
             return None
-        if slot.kind in ("place", "push") and not (slot.dest and model.dest_phrases[slot.dest][0]):
-            return None  # "move the pudding in front of the plate to the right of the plate": which is where?
         return slot.objects[0]
     if part == "dest" and slot.dest and slot.kind in ("place", "place_it", "push"):
         holder = model.parent(slot.dest)
@@ -310,6 +308,8 @@ def _avoid(model: TaskModel, frame: list[Slot], index: int, subject: str) -> tup
         avoid |= _touched(model, [frame[index + 1]]) - {subject}
     dest = slot.step.dest if slot.kind in ("pick", "place", "place_it", "push") else None
     holder_avoid = frozenset({dest, model.parent(dest)} - {None}) if dest else frozenset()
+    if dest and not model.dest_phrases[dest][0]:  # "to the right of the plate": no claim about the plate
+        avoid |= {e for e in model.names if names_in(model.dest_phrases[dest][1], {model.name(e)})}
     return frozenset(avoid), holder_avoid
 
 
@@ -331,7 +331,8 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
                 c
                 for c in pool
                 if c["relation"] != first["relation"]
-                and c["landmark_text"] != first["landmark_text"]
+                and c["landmark_text"] not in first["landmark_text"]  # not "in its drawer, left of the cabinet"
+                and first["landmark_text"] not in c["landmark_text"]
                 and c["relation"] not in ("between", "on", "in")
                 and first["relation"] != "between"
             ]
