@@ -52,6 +52,8 @@ def test_fixtures_cannot_be_carried_and_are_fixed(cat):
         ("black_book", "openable", True),
         ("desk_caddy", "graspable", None),
         ("moka_pot", "openable", None),
+        ("moka_pot", "turnable", None),  # electric moka pots exist
+        ("moka_pot", "container", None),  # its chambers unscrew
     ],
 )
 def test_judgements_the_operators_rely_on(cat, affordance, value):

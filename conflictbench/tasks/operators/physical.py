@@ -1,201 +1,364 @@
-"""Physical operators: entities that are present, asked to do what their category cannot.
+"""Physical operators: a present, named entity asked to do or undergo what its nature rules out.
 
-Each violation pairs a present, named entity with an affordance the action needs and the
-affordance table plainly denies (``false``, never ``null``): carrying a fixture (``graspable``),
-pushing furniture (``movable`` = not ``fixed``), putting something inside what has no inside
-(``container``), resting something on a bottle (``support``), a bowl into a ramekin (``fits_in``),
-opening a plate (``openable``), switching on a mug (``turnable``), folding a bowl (``foldable``),
-pouring out butter (``pourable``).
+Rules of the family (re-checked by :mod:`conflictbench.tasks.validation.physical`):
+
+- **Whole original.** Every case still asks for every subgoal of its base task, naming the original
+  object and destination. The violation is an impossible manner of that same step ("fold the black
+  bowl in half and put it on the plate"), an added participant or property of it ("put the bowl on
+  the plate together with the stove", "... with the butter tucked inside the ketchup"), or an added
+  step BEFORE the original ones ("lift the stove, then put the bowl on the plate").
+- **Plainly denied.** Each violation pairs an entity of the scene, named in the text, with an
+  affordance the table sets to ``false`` (never ``null``): ``foldable`` (rigidity), ``graspable`` or
+  ``movable`` (fixed), ``fits_in`` from the size classes (size), ``container`` (containment),
+  ``support``, ``openable`` (articulation), ``turnable`` (switch), ``pourable`` (pouring). The
+  operator is stricter than the table where a reader could hesitate: only furniture-sized fixtures
+  other than the work surface are "fixed" (a microwave or wine rack can be lifted by a person), a
+  plate is never a holder ("in the plate" is common for "on the plate"), nothing with a door or
+  covers opens, and the stove is never asked to open (read as an oven).
+- **Levels.** L1: one violation in the one step. L2: two violations of that one step, each
+  impossible on its own (different entity or affordance). L3: exactly one violation, in an original
+  step or in an added step before them. L4: violations in at least two different steps.
+- **Varied.** Every violation records its ``kind``; each kind has several wordings, and the
+  candidates of one cell are capped per (kinds, roles) signature so no kind or skeleton dominates.
 """
 
 from __future__ import annotations
 
 import itertools
 import random
+from dataclasses import dataclass
 
 from conflictbench.tasks.scene.affordances import category, fits_inside
-from conflictbench.tasks.scene.task_model import TaskModel
+from conflictbench.tasks.scene.task_model import Step, TaskModel
 
-from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
-from .phrasing import bare, choose
+from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, slot_of, step_label
+from .phrasing import bare, choose, coordinate
 
+KIND_NEEDS = {
+    "rigidity": ("foldable",),
+    "fixed": ("graspable", "movable"),
+    "size": ("fits_in",),
+    "containment": ("container",),
+    "support": ("support",),
+    "articulation": ("openable",),
+    "switch": ("turnable",),
+    "pouring": ("pourable",),
+}
 PREMISES = {
-    "graspable": "{E} cannot be picked up and carried: {it} is part of the scene's furniture",
-    "movable": "{E} is fixed in place and cannot be pushed anywhere",
-    "container": "{E} has no inside, so nothing can be put in {it}",
-    "support": "nothing can rest on top of {e}",
-    "fits_in": "{E} is larger than {h} and cannot fit inside {it2}",
-    "openable": "{E} has nothing that opens or closes",
-    "turnable": "{E} has no switch and cannot be turned on or off",
-    "foldable": "{E} is rigid and cannot be folded",
-    "pourable": "{E} holds nothing that can be poured",
+    "foldable": "{E} is rigid and cannot be folded or bent",
+    "graspable": "{E} is heavy furniture fixed in the scene: the robot cannot pick it up or carry it",
+    "movable": "{E} is heavy furniture fixed in the scene and cannot be pushed anywhere",
+    "fits_in": "{E} is larger than {H} and cannot fit inside it",
+    "container": "{E} is sealed or solid: nothing can be put inside it",
+    "support": "{E} has a narrow or sloping top: nothing can rest on it",
+    "openable": "{E} has no lid, door or drawer: there is nothing to open or close",
+    "turnable": "{E} has no switch or knob: it cannot be turned on or off",
+    "pourable": "{E} is a solid food: it cannot be poured",
 }
-VERB_SWAPS = {  # needs -> frames per slot kind
-    "foldable": {
-        "place": "fold {o} in half and put {it} {d}",
-        "pick": "fold {o} in half",
-        "move_aside": "fold {o} in half",
-    },
-    "turnable": {"pick": "turn on {o}", "move_aside": "switch on {o}"},
-    "openable": {"pick": "open {o}", "move_aside": "open {o}"},
-    "pourable": {"place": "pour {o} {d}"},
-}
+CAP_PER_SIGNATURE = 4
+"""Candidates kept per (kinds, roles) signature of a cell: keeps kinds and skeletons balanced."""
+
+# Wordings. {O}: the step's object as named by the task; {X}: the violating entity; {H}: a holder;
+# {d}: the step's destination phrase. Each entry is (text of the step body or clause, violating part).
+RIGID_PLACE = (
+    ("fold {O} in half and put it {d}", "fold {O} in half"),
+    ("bend {O} in half and place it {d}", "bend {O} in half"),
+    ("fold {O} flat and set it down {d}", "fold {O} flat"),
+)
+RIGID_ALONE = (("fold {X} in half", "fold {X} in half"), ("bend {X} in half", "bend {X} in half"))
+OPEN_PLACE = (("open {O} and put it {d}", "open {O}"), ("open up {O} and place it {d}", "open up {O}"))
+OPEN_ALONE = (("open {X}", "open {X}"), ("open up {X}", "open up {X}"))
+SWITCH_ALONE = (("switch on {X}", "switch on {X}"), ("turn on {X}", "turn on {X}"), ("turn {X} on", "turn {X} on"))
+POUR_PLACE = (("pour {O} {into}", "pour {O}"), ("pour {O} out {into}", "pour {O} out"))
+LIFT_ALONE = (("lift {X}", "lift {X}"), ("pick up {X}", "pick up {X}"), ("lift {X} and set it down again", "lift {X}"))
+INTO_ALONE = (("put {X} inside {H}", "{X} inside {H}"), ("stuff {X} inside {H}", "{X} inside {H}"))
+ONTO_ALONE = (("stand {X} on top of {H}", "{X} on top of {H}"), ("stack {X} on top of {H}", "{X} on top of {H}"))
+PICK_INTO = (("pick up {O} and put it inside {H}", "inside {H}"), ("grab {O} and place it inside {H}", "inside {H}"))
+PICK_ONTO = (("pick up {O} and stand it on top of {H}", "on top of {H}"),)
+TUCKED = ("{X} tucked inside {H}", "{X} packed inside {H}")
+RESTING = ("{X} resting on top of {H}", "{X} standing on top of {H}")
+TOGETHER = ("together with {X}",)
+HOLDING = ("while holding {X}", "while carrying {X}")
 
 
-SKIP_CATEGORIES = {"floor"}
-"""Never named as the object of a physical conflict: nobody asks a robot to pick up the floor."""
+@dataclass(frozen=True)
+class Option:
+    """One violation a slot of a frame can carry, and how it is written."""
 
-
-def _named(model: TaskModel) -> list[str]:
-    return [e for e in model.names if e not in model.unnamed and model.category_of(e) not in SKIP_CATEGORIES]
+    step: int
+    kind: str
+    needs: str
+    role: str
+    """``body`` (rewrites the step), ``obj`` (adds a participant to the object), ``with`` (a "with
+    ..." property clause), ``extra`` (a trailing clause) or ``aux`` (a whole added step)."""
+    wordings: tuple[tuple[str, str], ...]
+    entity: str
+    holder: str | None = None
 
 
 def short_name(model: TaskModel, entity: str) -> str:
-    """The entity without the base task's locating phrase: its twin shares every affordance."""
-    if entity in model.goal_twins():
-        return f"the {category(model.category_of(entity)).names[0]}"
+    """A bystander's name; a goal twin ("the black bowl between ...") keeps its locating phrase."""
     return model.name(entity)
 
 
-def _lacking(model: TaskModel, needs: str, exclude: set[str]) -> list[str]:
+def _info(model: TaskModel, entity: str):
+    return category(model.category_of(entity))
+
+
+def _objects(model: TaskModel, exclude: set[str]) -> list[str]:
+    """Named, graspable things a clause may add as participants."""
+    return [
+        e
+        for e in model.names
+        if e not in exclude
+        and e not in model.unnamed
+        and e not in model.goal_twins()
+        and _info(model, e).has("graspable")
+    ]
+
+
+def _heavy_fixtures(model: TaskModel, exclude: set[str]) -> list[str]:
+    """Furniture-sized fixtures a reader will agree no robot arm lifts: not the work surface."""
     out = []
-    for e in _named(model):
-        if e in exclude:
+    for e in model.names:
+        info = _info(model, e)
+        if e in exclude or info.size < 4 or info.has("fixed") is not True or not info.lacks("graspable"):
             continue
-        info = category(model.category_of(e))
-        if (needs == "movable" and info.has("fixed") is True) or (needs != "movable" and info.lacks(needs)):
-            out.append(e)
+        if {"table", "floor"} & set(info.names):
+            continue
+        out.append(e)
     return out
 
 
-def _options(model: TaskModel, slot: Slot) -> list[tuple[str, str, str | None]]:
-    """(part, needs, frame) the slot can violate: part is object, verb, dest, target or a second target."""
-    out: list[tuple[str, str, str | None]] = []
-    if slot.kind in ("place", "pick"):
-        out += [("object", "graspable", None), ("also", "graspable", None)]
-    if slot.kind == "move_aside":  # pushed aside, not carried: what it needs is to be movable
-        out += [("object", "movable", None), ("also", "movable", None)]
-    if slot.kind in ("place", "pick", "move_aside") and len(slot.objects) == 1:
-        for needs, frames in VERB_SWAPS.items():
-            if slot.kind in frames and category(model.category_of(slot.objects[0])).lacks(needs):
-                if needs != "pourable" or slot.prep in ("in", "on"):
-                    out.append(("verb", needs, frames[slot.kind]))
-    if slot.kind == "push":
-        out += [("object", "movable", None), ("also", "movable", None)]
-    if slot.kind in ("place", "place_it") and slot.prep in ("in", "on"):
-        out.append(("dest", "container" if slot.prep == "in" else "support", None))
-        if slot.prep == "in" and len(slot.objects) == 1:
-            out.append(("dest", "fits_in", None))
+def _sealed(model: TaskModel, e: str) -> bool:
+    """A holder nothing can be put inside: no container, nothing that opens, and not a plate."""
+    info = _info(model, e)
+    return info.lacks("container") and info.has("openable") is not True and info.category != "plate"
+
+
+def _opens_never(model: TaskModel, e: str) -> bool:
+    info = _info(model, e)
+    return info.lacks("openable") and info.size < 4
+
+
+def _too_big(model: TaskModel, item: str, holder: str) -> bool:
+    """A real container a whole size class too small for the item (a bowl and a ramekin)."""
+    holds = _info(model, holder).has("container")
+    return bool(holds) and fits_inside(model.category_of(item), model.category_of(holder)) is False
+
+
+def _food(model: TaskModel, e: str) -> bool:
+    return "food" in _info(model, e).hypernyms
+
+
+def _exclusions(model: TaskModel) -> set[str]:
+    """What a violation never adds as a participant: the task's own objects and destinations (with
+    their fixtures and landmarks), so no step's goal is touched by another step's violation."""
+    out = model.targets() | {model.parent(t) for t in model.targets()}
+    for step in model.steps:
+        if step.dest:
+            text = model.dest_text(step.dest, step.prep)
+            out |= {e for e in model.names if model.name(e) in text}
+    return out
+
+
+def _object_name(model: TaskModel, entity: str) -> str:
+    return model.name(entity) if entity in model.names else model.dest_phrases[entity][1]
+
+
+def slot_options(model: TaskModel, index: int, slot: Slot) -> list[Option]:
+    """Every violation a step of a frame can carry (aux steps carry none: violating ones are built whole)."""
+    if slot.aux:
+        return []
+    out: list[Option] = []
+    exclude = _exclusions(model)
+    o = slot.objects[0]
+    one = len(slot.objects) == 1
+    info = _info(model, o) if model.category_of(o) != "region" else None
+    twin = o in model.goal_twins()
+    others = _objects(model, exclude)
+
+    def add(kind, needs, role, wordings, entity, holder=None):
+        out.append(Option(index, kind, needs, role, tuple(wordings), entity, holder))
+
+    if slot.kind in ("place", "pick") and one and info is not None:
+        if info.lacks("foldable"):
+            add("rigidity", "foldable", "body", RIGID_PLACE if slot.kind == "place" else RIGID_ALONE, o)
+        if _opens_never(model, o):
+            add("articulation", "openable", "body", OPEN_PLACE if slot.kind == "place" else OPEN_ALONE, o)
+        if slot.kind == "place" and slot.prep in ("in", "on") and info.lacks("pourable") and _food(model, o):
+            add("pouring", "pourable", "body", POUR_PLACE, o)
+        if slot.kind == "pick":
+            for h in others:
+                if _too_big(model, o, h):
+                    add("size", "fits_in", "body", PICK_INTO, o, h)
+                elif _sealed(model, h):
+                    add("containment", "container", "body", PICK_INTO, h, o)
+                if _info(model, h).lacks("support"):
+                    add("support", "support", "body", PICK_ONTO, h, o)
+    if slot.kind in ("place", "pick", "place_it") and not twin:
+        for x in others:
+            for h in slot.objects:
+                if _sealed(model, h) and x != h:
+                    add("containment", "container", "with", tuple((w, w) for w in TUCKED), h, x)
+                if _info(model, h).lacks("support") and x != h:
+                    add("support", "support", "with", tuple((w, w) for w in RESTING), h, x)
+                if _too_big(model, h, x) and slot.kind != "pick":  # not "grab the book with the book in ..."
+                    add("size", "fits_in", "with", tuple((w, w) for w in TUCKED), h, x)
+    if slot.kind in ("place", "place_it", "push"):
+        needs = "movable" if slot.kind == "push" else "graspable"
+        for f in _heavy_fixtures(model, exclude):
+            add("fixed", needs, "extra", tuple((w, w) for w in TOGETHER), f)
+            if slot.kind != "place_it" and not (twin and slot.kind == "place"):
+                add("fixed", needs, "obj", (("", ""),), f)
     if slot.kind in ("open", "close"):
-        out += [("target", "openable", None), ("also", "openable", None)]
+        for y in others:
+            if _opens_never(model, y):
+                add("articulation", "openable", "obj", (("", ""),), y)
     if slot.kind in ("turn_on", "turn_off"):
-        out += [("target", "turnable", None), ("also", "turnable", None)]
+        for y in others:
+            if _info(model, y).lacks("turnable"):
+                add("switch", "turnable", "obj", (("", ""),), y)
+    if slot.kind in ("open", "close", "turn_on", "turn_off"):
+        parents = {model.parent(x) for x in slot.objects}
+        for f in _heavy_fixtures(model, exclude | parents):
+            add("fixed", "graspable", "extra", tuple((w, w) for w in HOLDING), f)
     return out
 
 
-def _mentioned(model: TaskModel, text: str) -> set[str]:
-    return {e for e in model.names if model.name(e) in text}
+def aux_options(model: TaskModel) -> list[Option]:
+    """Added steps that are impossible in themselves, about bystanders only (never a target)."""
+    targets = _exclusions(model)
+    others = _objects(model, targets)
+    out: list[Option] = []
+    for f in _heavy_fixtures(model, targets):
+        out.append(Option(0, "fixed", "graspable", "aux", LIFT_ALONE, f))
+    for y in others:
+        info = _info(model, y)
+        if info.lacks("foldable"):
+            out.append(Option(0, "rigidity", "foldable", "aux", RIGID_ALONE, y))
+        if _opens_never(model, y):
+            out.append(Option(0, "articulation", "openable", "aux", OPEN_ALONE, y))
+        if info.lacks("turnable"):
+            out.append(Option(0, "switch", "turnable", "aux", SWITCH_ALONE, y))
+        for h in others:
+            if h == y:
+                continue
+            if _too_big(model, y, h):
+                out.append(Option(0, "size", "fits_in", "aux", INTO_ALONE, y, h))
+            elif _sealed(model, h):
+                out.append(Option(0, "containment", "container", "aux", INTO_ALONE, h, y))
+            if _info(model, h).lacks("support"):
+                out.append(Option(0, "support", "support", "aux", ONTO_ALONE, h, y))
+    return out
 
 
-def _apply(model, slot: Slot, option, mods: Mods, rng: random.Random, busy: set[str]) -> dict | None:
-    part, needs, frame = option
-    dest = slot.dest or slot.step.dest  # a pick step keeps its place step's destination out too
-    dest_text = model.dest_text(dest, slot.step.prep) if dest else ""
-    exclude = (
-        busy | set(slot.step.objects) | _mentioned(model, dest_text) | ({dest, model.parent(dest)} if dest else set())
-    )
-    if part == "verb":
-        entity = slot.objects[0]
-        mods.frame = frame
-        mods.obj = short_name(model, entity)
-        if needs == "pourable":
-            mods.dest = f"{'into' if slot.prep == 'in' else 'onto'} {model.dest_phrases[slot.dest][1]}"
-        return {"entity": entity, "needs": needs, "text": mods.obj}
-    if part in ("object", "target", "also"):
-        pool = _lacking(model, needs, exclude)
-        if not pool:
-            return None
-        entity = choose(rng, pool)
-        name = short_name(model, entity)
-        if part == "also":  # a second thing the same step acts on: "switch on both the plate and the rack"
-            if not mods.obj:
-                return None
-            mods.obj = f"both {mods.obj} and {name}"
-        elif len(slot.objects) == 2:  # "put both the soup and the stove in the basket"
-            mods.obj = f"both {model.name(slot.objects[0])} and {name}"
-        else:
-            mods.obj = name
-        mods.entity = entity
-        return {"entity": entity, "needs": needs, "text": name}
-    # the destination
-    item = mods.entity or slot.objects[0]
-    if needs == "fits_in":
-        pool = [
-            e
-            for e in _named(model)
-            if e not in exclude
-            and e != item
-            and fits_inside(model.category_of(item), model.category_of(e)) is False
-            and category(model.category_of(e)).has("container")
-        ]
+def _aux_slot(option: Option) -> Slot:
+    acted = tuple(e for e in (option.entity, option.holder) if e)
+    return Slot("move_aside", Step("move_aside", acted), acted, aux=True)
+
+
+def _fill(model: TaskModel, text: str, slot: Slot, option: Option) -> str:
+    """Put names into a wording: X is the entity acted on, H the holder or surface."""
+    o = _object_name(model, slot.objects[0]) if slot.objects else ""
+    x, h = option.entity, option.holder
+    if option.kind in ("containment", "support") and h:
+        x, h = h, option.entity  # the participant goes inside or on top of the violating entity
+    dest = slot.dest or slot.step.dest
+    d = model.dest_text(dest, slot.step.prep) if dest else ""
+    into = d.replace("in ", "into ", 1) if d.startswith("in ") else d.replace("on ", "onto ", 1)
+    return text.format(O=o, X=model.name(x), H=model.name(h) if h else "", d=d, into=into)
+
+
+def _apply(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], option: Option, rng: random.Random) -> dict:
+    slot = frame[option.step]
+    m = mods.setdefault(option.step, Mods())
+    body, part = choose(rng, option.wordings)
+    body, part = _fill(model, body, slot, option), _fill(model, part, slot, option)
+    if option.role in ("body", "aux"):
+        m.frame, m.obj = body, model.name(option.entity) if option.role == "aux" else m.obj
+    elif option.role == "obj":
+        m.obj = coordinate([_object_name(model, o) for o in slot.objects] + [model.name(option.entity)])
+        part = model.name(option.entity)
+    elif option.role == "with":
+        m.extras.append(("with " if not any(e.startswith("with ") for e in m.extras) else "and ") + body)
     else:
-        pool = _lacking(model, needs, exclude | {item})
-    if not pool:
-        return None
-    entity = choose(rng, pool)
-    prep = (
-        ("into" if (mods.frame or "").startswith("pour") else "inside")
-        if needs in ("container", "fits_in")
-        else "on top of"
-    )
-    mods.dest = f"{prep} {short_name(model, entity)}"
-    if needs == "fits_in":
-        return {"entity": item, "needs": "fits_in", "holder": entity, "text": short_name(model, entity)}
-    return {"entity": entity, "needs": needs, "text": short_name(model, entity)}
+        m.extras.append(body)
+    v = {"step": option.step + 1, "kind": option.kind, "needs": option.needs, "entity": option.entity, "text": part}
+    if option.holder and option.kind == "size":
+        v["holder"] = option.holder
+    return v
 
 
 def _premise(model: TaskModel, v: dict) -> str:
-    name = short_name(model, v["entity"])
-    holder = short_name(model, v["holder"]) if "holder" in v else ""
-    text = PREMISES[v["needs"]].format(E=name, e=name, it="it", h=holder, it2="it")
-    return text
+    holder = model.name(v["holder"]) if "holder" in v else ""
+    return PREMISES[v["needs"]].format(E=model.name(v["entity"]), H=holder)
+
+
+def _compatible(options: tuple[Option, ...]) -> bool:
+    """Two violations of one step must each stand alone: one rewrite of the body at most, one added
+    object at most, different (entity, affordance) pairs, and no rewrite alongside an added object."""
+    roles = [o.role for o in options]
+    if roles.count("body") > 1 or roles.count("obj") > 1 or ("body" in roles and "obj" in roles):
+        return False
+    keys = {(o.entity, o.needs) for o in options}
+    added = [o.holder for o in options if o.role == "with"]
+    if len(added) != len(set(added)):
+        return False  # "with the sauce inside the ketchup and the sauce on top of it": one thing twice
+    return len(keys) == len(options)
+
+
+def _combos(model: TaskModel, level: str) -> list[tuple[list[Slot], tuple[Option, ...]]]:
+    out: list[tuple[list[Slot], tuple[Option, ...]]] = []
+    if level in ("L1", "L2"):
+        for frame in frames_for_level(model, level):
+            options = slot_options(model, 0, frame[0])
+            size = 1 if level == "L1" else 2
+            out += [(frame, c) for c in itertools.combinations(options, size) if _compatible(c)]
+        return out
+    frames = frames_for_level(model, level)
+    plain = [f for f in frames if not any(s.aux for s in f)]
+    if len(model.steps) == 1:
+        plain.append([slot_of(model.steps[0])])
+    for frame in frames:
+        options = [o for i, s in enumerate(frame) for o in slot_options(model, i, s)]
+        if level == "L3":
+            out += [(frame, (o,)) for o in options]
+        else:
+            out += [(frame, c) for c in itertools.combinations(options, 2) if c[0].step != c[1].step]
+    for aux in aux_options(model):
+        for frame in plain:
+            full = [_aux_slot(aux), *frame]
+            if level == "L3":
+                out.append((full, (aux,)))
+                continue
+            for i, s in enumerate(frame):
+                out += [(full, (aux, o)) for o in slot_options(model, i + 1, s)]
+    return out
 
 
 def generate(model: TaskModel, level: str, rng: random.Random):
-    for frame in frames_for_level(model, level):
-        options = [(i, o) for i, slot in enumerate(frame) for o in _options(model, slot)]
-        if level in ("L1", "L3"):
-            combos = [[o] for o in options]
-        elif level == "L2":  # two parts of one step; a swapped object keeps its own verb
-            combos = [
-                list(c)
-                for c in itertools.combinations(options, 2)
-                if c[0][0] == c[1][0]
-                and c[0][1][0] != c[1][1][0]
-                and "verb" not in (c[0][1][0], c[1][1][0])
-                or c[0][0] == c[1][0]
-                and {c[0][1][0], c[1][1][0]} == {"verb", "dest"}
-            ]
-        else:
-            combos = [list(c) for c in itertools.combinations(options, 2) if c[0][0] != c[1][0]]
-        for combo in combos:
-            for _ in range(3):
-                draft = _draft(model, level, frame, combo, rng)
-                if draft:
-                    yield draft
+    by_signature: dict[tuple, list] = {}
+    for frame, combo in _combos(model, level):
+        signature = (len(frame), tuple(sorted((o.kind, o.role) for o in combo)))
+        by_signature.setdefault(signature, []).append((frame, combo))
+    picked = []
+    for signature in sorted(by_signature):
+        group = by_signature[signature]
+        rng.shuffle(group)
+        picked += group[:CAP_PER_SIGNATURE]
+    rng.shuffle(picked)
+    for frame, combo in picked:
+        for _ in range(2):  # a second wording: scenes with few entities still fill their cell
+            draft = _draft(model, level, frame, combo, rng)
+            if draft:
+                yield draft
 
 
 def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.Random) -> Draft | None:
     mods: dict[int, Mods] = {}
-    violations: list[dict] = []
-    busy: set[str] = set()
-    order = {"object": 0, "target": 0, "also": 1, "verb": 1, "dest": 2}
-    for index, option in sorted(combo, key=lambda c: (c[0], order[c[1][0]])):
-        v = _apply(model, frame[index], option, mods.setdefault(index, Mods()), rng, busy)
-        if v is None:
-            return None
-        busy.add(v["entity"])
-        violations.append({"step": index + 1, **v})
+    order = {"aux": 0, "body": 0, "obj": 1, "with": 2, "extra": 3}
+    violations = [_apply(model, frame, mods, o, rng) for o in sorted(combo, key=lambda o: (o.step, order[o.role]))]
     instruction, steps, _ = realise(model, frame, mods, rng)
     if any(v["text"] not in instruction for v in violations):
         return None
@@ -204,13 +367,7 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
         level=level,
         instruction=instruction,
         factors=tuple(
-            step_label(
-                level,
-                v["step"] - 1,
-                f"{bare(short_name(model, v['entity']))} not {v['needs']}"
-                if v["needs"] != "fits_in"
-                else f"{bare(short_name(model, v['entity']))} does not fit",
-            )
+            step_label(level, v["step"] - 1, f"{v['kind']}: {bare(model.name(v['entity']))} not {v['needs']}")
             for v in violations
         ),
         premise="; ".join(_premise(model, v) for v in violations),

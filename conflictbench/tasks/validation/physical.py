@@ -1,45 +1,163 @@
-"""The physical family's rule: every violated affordance is one the table plainly denies."""
+"""The physical family's rules, per case and per suite.
+
+Per case (:func:`check_affordance`; the shared :mod:`.structure` rules already check that every
+subgoal is still asked, naming its original object and destination, and that added steps come first):
+
+- every violation names a ``kind`` (rigidity, fixed, size, containment, support, articulation,
+  switch, pouring) and the affordance that kind is about;
+- its entity is in the scene, and its ``text`` is in the instruction and names the entity;
+- the affordance table PLAINLY denies it (``false``; ``fixed`` ``true`` for "movable"); a size
+  violation names a holder that is a real container a whole size class too small;
+- the level's shape: L1 one violation; L2 at least two in the one step, each about a different
+  (entity, affordance); L3 exactly one; L4 violations in at least two different steps; no
+  violation repeated.
+
+Per suite (:func:`suite_problems`, for the lead's suite-level check): each level cell (all physical
+cases of one level) has at least ``MIN_KINDS`` kinds; no sentence skeleton (:func:`skeleton`) is
+more than ``MAX_SKELETON_SHARE`` of its cell; no text appears twice within one LIBERO suite.
+"""
 
 from __future__ import annotations
 
+import re
+from collections import Counter, defaultdict
+from collections.abc import Iterable, Mapping
+
 from conflictbench.core import ConflictCase
-from conflictbench.tasks.scene.affordances import AFFORDANCES, category, fits_inside
+from conflictbench.tasks.scene.affordances import AFFORDANCES, category, load_table
 from conflictbench.tasks.scene.task_model import TaskModel
 
-from .text import entity_names, names_in
+from .text import entity_names, names_in, normalise
 
 NEEDS = (*AFFORDANCES, "movable", "fits_in")
+KIND_NEEDS = {
+    "rigidity": ("foldable",),
+    "fixed": ("graspable", "movable"),
+    "size": ("fits_in",),
+    "containment": ("container",),
+    "support": ("support",),
+    "articulation": ("openable",),
+    "switch": ("turnable",),
+    "pouring": ("pourable",),
+}
+MIN_KINDS = 4
+MAX_SKELETON_SHARE = 0.25
+PLACEHOLDER = "<e>"
+
+
+def _denied(model: TaskModel, v: dict, present: set[str]) -> list[str]:
+    entity, needs = v["entity"], v["needs"]
+    info = category(model.category_of(entity))
+    if needs == "fits_in":
+        holder = v.get("holder")
+        if holder not in present:
+            return [f"violation: holder {holder!r} is not in the scene"]
+        outer = category(model.category_of(holder))
+        if not (outer.has("container") is True and info.size > outer.size):
+            return [f"{entity} may fit inside {holder}: the holder is no container a size class smaller"]
+        if not names_in(v["text"], entity_names(model, holder)):
+            return [f"violation text {v['text']!r} does not name {holder}"]
+        return []
+    denied = info.has("fixed") is True if needs == "movable" else info.lacks(needs)
+    if not denied:
+        return [f"{entity} ({info.category}) does not plainly lack {needs!r} in the affordance table"]
+    return []
 
 
 def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
-    out = []
+    out: list[str] = []
     present = set(model.problem.objects) | set(model.problem.fixtures)
-    for v in case.witness.get("violations", []):
-        entity, needs, text = v.get("entity"), v.get("needs"), str(v.get("text", ""))
+    violations = case.witness.get("violations", [])
+    for v in violations:
+        entity, needs, kind, text = v.get("entity"), v.get("needs"), v.get("kind"), str(v.get("text", ""))
+        if kind not in KIND_NEEDS:
+            out.append(f"violation: unknown kind {kind!r} (one of {', '.join(KIND_NEEDS)})")
+        elif needs not in KIND_NEEDS[kind]:
+            out.append(f"violation: kind {kind!r} is about {' or '.join(KIND_NEEDS[kind])}, not {needs!r}")
         if entity not in present:
             out.append(f"violation: {entity!r} is not in the scene")
             continue
         if needs not in NEEDS:
             out.append(f"violation: unknown affordance {needs!r}")
             continue
-        if text not in case.instruction:
+        if not text or text not in case.instruction:
             out.append(f"violation text {text!r} is not in the instruction")
-        info = category(model.category_of(entity))
         if needs == "fits_in":
-            holder = v.get("holder")
-            if holder not in present:
-                out.append(f"violation: holder {holder!r} is not in the scene")
-                continue
-            if fits_inside(info.category, model.category_of(holder)) is not False:
-                out.append(f"{entity} may fit inside {holder}")
-            if not names_in(text, entity_names(model, holder)) or not names_in(
-                case.instruction, entity_names(model, entity)
-            ):
-                out.append(f"the text does not name {entity} and {holder}")
-            continue
-        violated = info.has("fixed") is True if needs == "movable" else info.lacks(needs)
-        if not violated:
-            out.append(f"{entity} ({info.category}) does not plainly lack {needs!r} in the affordance table")
-        if not names_in(text, entity_names(model, entity)):
+            if not names_in(case.instruction, entity_names(model, entity)):
+                out.append(f"the instruction does not name {entity}")
+        elif not names_in(text, entity_names(model, entity)):
             out.append(f"violation text {text!r} does not name {entity}")
+        out += _denied(model, v, present)
+    return out + _level_shape(case, violations)
+
+
+def _level_shape(case: ConflictCase, violations: list) -> list[str]:
+    keys = [(v.get("step"), v.get("entity"), v.get("needs")) for v in violations if isinstance(v, dict)]
+    out = []
+    if len(set(keys)) != len(keys):
+        out.append("a violation is repeated: each factor must be impossible on its own")
+    steps = {k[0] for k in keys}
+    if case.level == "L2":
+        if len(steps) != 1:
+            out.append("L2: both violations must be in the one step")
+        if len({(k[1], k[2]) for k in keys}) < 2:
+            out.append("L2: needs two different violations (entity or affordance) in its step")
+    if case.level in ("L1", "L3") and len(keys) != 1:
+        out.append(f"{case.level}: exactly one violation, found {len(keys)}")
+    if case.level == "L4" and len(steps) < 2:
+        out.append("L4: violations must be in at least two different steps")
+    return out
+
+
+# -- suite level ----------------------------------------------------------------------------------
+def _phrases(model: TaskModel) -> list[str]:
+    """Every phrase that names an entity of the task: names, destination phrases, category words."""
+    out: set[str] = set()
+    for e in model.facts.entities:
+        out |= {normalise(n) for n in model.entity_names(e)}
+    for name in model.names.values():
+        out.add(normalise(name.removeprefix("the ")))
+    for _, phrase in model.dest_phrases.values():
+        out.add(normalise(phrase.removeprefix("the ")))
+    for info in load_table().values():
+        out |= {normalise(n) for n in info.names}
+    return sorted((p for p in out if p), key=len, reverse=True)
+
+
+def skeleton(case: ConflictCase, model: TaskModel) -> str:
+    """The instruction with every entity phrase replaced by a placeholder (longest phrases first)."""
+    text = f" {normalise(case.instruction)} "
+    for phrase in _phrases(model):
+        text = re.sub(rf"(?<= ){re.escape(phrase)}(?= )", PLACEHOLDER, text)
+    text = re.sub(rf"\b(?:the|both) (?={re.escape(PLACEHOLDER)})", "", text)
+    return " ".join(text.split())
+
+
+def kinds_of(case: ConflictCase) -> list[str]:
+    return [str(v.get("kind")) for v in case.witness.get("violations", []) if isinstance(v, dict)]
+
+
+def suite_problems(cases: Iterable[ConflictCase], models: Mapping[tuple[str, int], TaskModel]) -> list[tuple[str, str]]:
+    """(case_id, reason) for the family's suite-wide rules: kinds and skeletons per level cell,
+    no text twice within one LIBERO suite."""
+    physical = [c for c in cases if c.family == "physical" and c.status != "removed"]
+    out: list[tuple[str, str]] = []
+    cells: dict[str, list[ConflictCase]] = defaultdict(list)
+    for c in physical:
+        cells[c.level].append(c)
+    for level, cell in sorted(cells.items()):
+        kinds = {k for c in cell for k in kinds_of(c)}
+        if len(kinds) < MIN_KINDS:
+            out.append((cell[0].case_id, f"physical {level}: {len(kinds)} kind(s) {sorted(kinds)}, need {MIN_KINDS}"))
+        shapes = {c.case_id: skeleton(c, models[c.suite, c.task_id]) for c in cell}
+        for shape, n in Counter(shapes.values()).items():
+            if n > MAX_SKELETON_SHARE * len(cell):
+                first = next(cid for cid, s in shapes.items() if s == shape)
+                out.append((first, f"physical {level}: skeleton {shape!r} is {n} of {len(cell)} cases"))
+    seen: dict[tuple[str, str], str] = {}
+    for c in physical:
+        key = (c.suite, normalise(c.instruction))
+        if key in seen:
+            out.append((c.case_id, f"same text as {seen[key]} within {c.suite}"))
+        seen.setdefault(key, c.case_id)
     return out

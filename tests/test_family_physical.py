@@ -1,0 +1,140 @@
+"""The physical family: every draft asks the whole original task with an impossible manner,
+participant or added step, and the validator rejects each defect of the old suite."""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+
+import pytest
+
+from conflictbench.tasks.libero.base_tasks import base_task
+from conflictbench.tasks.operators import physical
+from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.scene.task_model import build_model
+from conflictbench.tasks.suite.build import _to_case
+from conflictbench.tasks.validation.physical import skeleton, suite_problems
+from conflictbench.tasks.validation.rules import new_context, validate_case
+
+pytestmark = pytest.mark.sim  # LIBERO's base tasks
+
+TASKS = [("libero_spatial", 0), ("libero_object", 4), ("libero_goal", 8), ("libero_goal", 3), ("libero_10", 3)]
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    return new_context()
+
+
+def model(key):
+    return build_model(base_task(*key), load_scene_facts()[key])
+
+
+def cases(key, level, seed=0):
+    task = base_task(*key)
+    return [_to_case(task, d) for d in physical.generate(model(key), level, random.Random(seed))]
+
+
+def one(key, level, where=lambda c: True):
+    return next(c for c in cases(key, level) if where(c))
+
+
+def rejected(case, ctx, needle):
+    reasons = validate_case(case, ctx)
+    assert any(needle in r for r in reasons), reasons
+
+
+def with_violations(case, violations):
+    return dataclasses.replace(case, witness={**case.witness, "violations": violations})
+
+
+@pytest.mark.parametrize("key", TASKS)
+@pytest.mark.parametrize("level", ["L1", "L2", "L3", "L4"])
+def test_drafts_validate_and_keep_the_original_object_and_destination(ctx, key, level):
+    drafts = cases(key, level)
+    if level in ("L1", "L2") and len(model(key).steps) > 1:
+        assert drafts == []
+        return
+    assert drafts
+    for case in drafts:
+        assert validate_case(case, ctx) == [], case.instruction
+        assert case.instruction == case.instruction.lower() and not case.instruction.endswith(".")
+
+
+def test_the_old_replaced_object_is_rejected(ctx):
+    good = one(("libero_goal", 8), "L1")
+    planted = dataclasses.replace(
+        good,
+        instruction="set the table on the plate",
+        witness={**good.witness, "steps": ["set the table on the plate"]},
+    )
+    planted = with_violations(
+        planted, [{"step": 1, "kind": "fixed", "needs": "graspable", "entity": "main_table", "text": "the table"}]
+    )
+    rejected(planted, ctx, "does not name akita_black_bowl_1")
+
+
+def test_a_violation_needs_a_known_kind_matching_its_affordance(ctx):
+    good = one(("libero_goal", 8), "L1", lambda c: c.witness["violations"][0]["kind"] == "rigidity")
+    v = good.witness["violations"][0]
+    rejected(with_violations(good, [{**v, "kind": "magic"}]), ctx, "unknown kind")
+    rejected(with_violations(good, [{**v, "kind": "switch"}]), ctx, "is about turnable")
+
+
+def test_undecided_or_held_affordances_are_not_violations(ctx):
+    good = one(("libero_goal", 8), "L1", lambda c: c.witness["violations"][0]["kind"] == "rigidity")
+    v = good.witness["violations"][0]
+    # the bowl has support null (undecided) and is a container (true): neither is a violation
+    rejected(with_violations(good, [{**v, "kind": "support", "needs": "support"}]), ctx, "does not plainly lack")
+    rejected(with_violations(good, [{**v, "kind": "containment", "needs": "container"}]), ctx, "does not plainly lack")
+    rejected(with_violations(good, [{**v, "entity": "basket_1"}]), ctx, "is not in the scene")
+    rejected(with_violations(good, [{**v, "text": "fold the plate in half"}]), ctx, "is not in the instruction")
+
+
+def test_size_comes_from_the_table_sizes(ctx):
+    good = one(("libero_10", 5), "L1", lambda c: c.witness["violations"][0]["kind"] == "size")
+    v = good.witness["violations"][0]
+    assert v["entity"] == "black_book_1" and v["holder"] == "white_yellow_mug_1"
+    swapped = {**v, "entity": "white_yellow_mug_1", "holder": "black_book_1"}  # a mug is smaller than a book
+    rejected(with_violations(good, [swapped]), ctx, "may fit inside")
+
+
+def test_level_shapes(ctx):
+    l2 = one(("libero_object", 4), "L2")
+    first = l2.witness["violations"][0]
+    rejected(with_violations(l2, [first, dict(first)]), ctx, "is repeated")
+    l4 = one(("libero_goal", 8), "L4")
+    v1, v2 = l4.witness["violations"][:2]
+    rejected(with_violations(l4, [v1, {**v2, "step": v1["step"]}]), ctx, "at least two different steps")
+    l2_split = with_violations(l2, [first, {**l2.witness["violations"][1], "step": 2}])
+    assert validate_case(l2_split, ctx)
+
+
+def test_l3_has_one_violation_and_added_steps_come_first(ctx):
+    for case in cases(("libero_goal", 8), "L3"):
+        assert len(case.witness["violations"]) == 1
+        roles = case.witness["step_roles"]
+        assert "added" not in roles[roles.index("original") :]
+
+
+def test_suite_problems_catch_monotone_cells_and_repeated_text():
+    key = ("libero_goal", 8)
+    models = {key: model(key)}
+    l1 = cases(key, "L1")
+    rigid = [c for c in l1 if c.witness["violations"][0]["kind"] == "rigidity"][:1]
+    assert rigid
+    same = [dataclasses.replace(rigid[0], case_id=f"c{i}") for i in range(4)]
+    reasons = [r for _, r in suite_problems(same, models)]
+    assert any("kind(s)" in r for r in reasons)
+    assert any("skeleton" in r for r in reasons)
+    assert any("same text" in r for r in reasons)
+    assert skeleton(rigid[0], models[key]).count("<e>") == 2
+
+
+def test_the_built_cells_are_varied():
+    """Kinds and skeletons over a handful of tasks already spread out."""
+    keys = [("libero_spatial", 0), ("libero_object", 2), ("libero_goal", 8), ("libero_goal", 9)]
+    models = {k: model(k) for k in keys}
+    pool = [dataclasses.replace(c, level="L3") for k in keys for c in cases(k, "L3")[:6]]
+    assert {v["kind"] for c in pool for v in c.witness["violations"]} >= {"rigidity", "switch", "articulation"}
+    assert not [r for _, r in suite_problems(pool, models) if "skeleton" in r]
