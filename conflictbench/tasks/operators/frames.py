@@ -77,7 +77,8 @@ def slot_of(step: Step, aux: bool = False) -> Slot:
 
 
 def aux_steps(model: TaskModel) -> list[Slot]:
-    """Plausible extra steps: each can be done in every initial state and touches no target."""
+    """Plausible extra steps: each can be done in every initial state, touches no target, and moves
+    nothing the reference instruction names."""
     out: list[Slot] = []
     targets = model.targets() | {model.parent(t) for t in model.targets()}
     for name, entity in sorted(model.facts.entities.items()):
@@ -93,9 +94,13 @@ def aux_steps(model: TaskModel) -> list[Slot]:
         if category(model.category_of(name)).has("turnable") and name not in targets:
             if model.never("turnon", name) and model.facts.predicate("turnoff", name):
                 out.append(Slot("turn_on", Step("turn_on", (name,), goal=(("turnon", name),)), (name,), aux=True))
+    said = f" {model.task.language} "
     for name in model.objects():
         info = category(model.category_of(name))
-        if info.has("graspable") and name not in targets:
+        # Never move what the reference instruction names: "the bowl between the plate and the
+        # ramekin" no longer picks out the bowl once the ramekin has been pushed aside.
+        named = any(f" {n} " in said for n in model.entity_names(name))
+        if info.has("graspable") and name not in targets and not named:
             out.append(Slot("move_aside", Step("move_aside", (name,), goal=(("moved", name),)), (name,), aux=True))
     return out
 
