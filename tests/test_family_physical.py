@@ -135,6 +135,8 @@ def test_the_built_cells_are_varied():
     """Kinds and skeletons over a handful of tasks already spread out."""
     keys = [("libero_spatial", 0), ("libero_object", 2), ("libero_goal", 8), ("libero_goal", 9)]
     models = {k: model(k) for k in keys}
-    pool = [dataclasses.replace(c, level="L3") for k in keys for c in cases(k, "L3")[:6]]
-    assert {v["kind"] for c in pool for v in c.witness["violations"]} >= {"rigidity", "switch", "articulation"}
+    every = [c for k in keys for c in cases(k, "L3")]
+    kinds = {v["kind"] for c in every for v in c.witness["violations"]}
+    assert kinds >= {"rigidity", "switch", "articulation", "fixed"}
+    pool = [c for k in keys for c in cases(k, "L3")[:6]]
     assert not [r for _, r in suite_problems(pool, models) if "skeleton" in r]

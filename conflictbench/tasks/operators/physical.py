@@ -301,6 +301,8 @@ def _compatible(options: tuple[Option, ...]) -> bool:
     roles = [o.role for o in options]
     if roles.count("body") > 1 or roles.count("obj") > 1 or ("body" in roles and "obj" in roles):
         return False
+    if "with" in roles and "extra" in roles:  # "... with X inside Y together with Z": whose Z?
+        return False
     keys = {(o.entity, o.needs) for o in options}
     added = [o.holder for o in options if o.role == "with"]
     if len(added) != len(set(added)):
