@@ -76,9 +76,18 @@ def test_a_revision_may_bring_its_own_witness(cases, ctx):
     c = next(x for x in cases if x.family == "grounding" and x.level == "L1")
     text = "put the bowl on the purple trampoline"
     witness = {
-        "type": "absent_referent",
+        **c.witness,
         "steps": [text],
-        "referents": [{"step": 1, "role": "destination", "text": "the purple trampoline"}],
+        "referents": [
+            {
+                "step": 1,
+                "role": "destination",
+                "text": "the purple trampoline",
+                "concept": "trampoline",
+                "source": "out_of_domain",
+                "replaces": "plate_1",
+            }
+        ],
     }
     out = apply_reviews(
         cases,

@@ -95,15 +95,18 @@ def _stats(argv: Sequence[str], plugins: Plugins) -> int:
     parser = Parser(prog="conflictbench suite stats", description="Usable cases per family x level x LIBERO suite.")
     parser.add_argument("file", nargs="?", help="a suite file or export (default: the shipped suite)")
     parser.add_argument("--markdown", action="store_true", help="print a Markdown table (as in the README)")
+    parser.add_argument("--reviews", help="review decisions for the removal rates (default: the shipped ones)")
     args = parser.parse_args(argv)
     suite = _load(args.file, plugins)
     print(stats_table(suite.cases, plugins.families(), args.markdown), end="")
     status = Counter(c.status for c in suite.cases)
     tasks = len({(c.suite, c.task_id) for c in suite.accepted()})
     print(f"statuses: {', '.join(f'{k} {v}' for k, v in sorted(status.items()))}; base tasks used: {tasks}")
+    from conflictbench.tasks.suite.review import load_reviews
     from conflictbench.tasks.suite.stats import composition_lines, removal_lines
 
-    print("\n".join(composition_lines(suite.cases) + removal_lines(suite.cases, plugins.families())))
+    decisions = load_reviews(args.reviews) if args.reviews or not args.file else []
+    print("\n".join(composition_lines(suite.cases) + removal_lines(suite.cases, plugins.families(), decisions)))
     return 0
 
 

@@ -75,6 +75,8 @@ class Clause:
         frame = self.frame
         if frame is None:
             options = frames_for(self.kind, prep, self.dest, self.obj)
+            if self.kind == "place_it" and not self.pronoun:  # the object named again, not "it"
+                options = tuple(f.replace("{it}", "{o}") for f in options)
             if self.locating:
                 options = tuple(f for f in options if "{o} and" in f) or options
             frame = choose(rng, options)

@@ -277,6 +277,10 @@ def _apply(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], option: O
     body, part = _fill(model, body, slot, option), _fill(model, part, slot, option)
     if option.role in ("body", "aux"):
         m.frame, m.obj = body, model.name(option.entity) if option.role == "aux" else m.obj
+        after = option.step + 1
+        if option.role == "body" and " it " in f" {body} " and after < len(frame) and frame[after].pronoun:
+            # "pick up X and put it inside Y, then place it ...": X or Y? The next step names X again.
+            mods.setdefault(after, Mods()).obj = _object_name(model, frame[after].objects[0])
     elif option.role == "obj":
         m.obj = coordinate([_object_name(model, o) for o in slot.objects] + [model.name(option.entity)])
         part = model.name(option.entity)

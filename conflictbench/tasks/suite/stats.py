@@ -11,10 +11,17 @@ from conflictbench.core import LEVELS, ConflictCase
 USABLE = ("accepted", "revised")
 
 
-def removal_rates(cases: Sequence[ConflictCase], families: Sequence[str]) -> list[tuple[str, str, int, int]]:
-    """(family, level, removed, reviewed) per cell: reviewed = cases with a decision (not pending)."""
-    removed = Counter((c.family, c.level) for c in cases if c.status == "removed")
-    reviewed = Counter((c.family, c.level) for c in cases if c.status != "pending")
+def removal_rates(cases: Sequence[ConflictCase], families: Sequence[str], decisions) -> list[tuple[str, str, int, int]]:
+    """(family, level, removed, reviewed) per cell, from the review decisions (the latest round's
+    decision stands for each case)."""
+    from .review import latest
+
+    cell = {c.case_id: (c.family, c.level) for c in cases}
+    removed, reviewed = Counter(), Counter()
+    for d in latest(decisions):
+        if d.case_id in cell:
+            reviewed[cell[d.case_id]] += 1
+            removed[cell[d.case_id]] += d.decision == "removed"
     return [(f, lv, removed[(f, lv)], reviewed[(f, lv)]) for f in families for lv in LEVELS if reviewed[(f, lv)]]
 
 
@@ -43,13 +50,15 @@ def composition_lines(cases: Sequence[ConflictCase]) -> list[str]:
     return lines
 
 
-def removal_lines(cases: Sequence[ConflictCase], families: Sequence[str]) -> list[str]:
-    rows = removal_rates(cases, families)
+def removal_lines(cases: Sequence[ConflictCase], families: Sequence[str], decisions) -> list[str]:
+    rows = removal_rates(cases, families, decisions)
     if not rows:
-        return ["review: no decisions yet"]
+        return ["review: no decisions for these cases"]
     out = ["review removal rate per family x level (removed / reviewed):"]
     for family, level, removed, reviewed in rows:
         out.append(f"  {family:<12} {level}  {removed:>4} / {reviewed:<4} {100 * removed / reviewed:5.1f} %")
+    total_removed, total = sum(r[2] for r in rows), sum(r[3] for r in rows)
+    out.append(f"  all              {total_removed:>4} / {total:<4} {100 * total_removed / total:5.1f} %")
     pending = sum(1 for c in cases if c.status == "pending")
     if pending:
         out.append(f"  {pending} case(s) not yet reviewed (pending: no run plays them)")

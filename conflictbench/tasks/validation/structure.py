@@ -158,4 +158,7 @@ def _pronouns(case: ConflictCase) -> list[str]:
             earlier = " ".join(before) if len(before) > 1 else (bodies[i - 1] if i > 0 else "")
             if not any(re.search(rf"\b{g}\b", earlier) for g in GRASPING):
                 out.append(f"pronoun {word!r} has no object picked up just before it")
+            elif len(before) <= 1 and (PRONOUN.search(earlier) or set(earlier.split()) & set(PLACING)):
+                # "pick up X and put it inside Y, then place it ...": X or Y?
+                out.append(f"pronoun {word!r} opens a step after one that already placed something: X or Y?")
     return out
