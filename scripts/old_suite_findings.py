@@ -22,21 +22,43 @@ from conflictbench.tasks.validation.rules import new_context, validate_case
 from conflictbench.tasks.validation.suite_rules import suite_problems
 
 ADDED = re.compile(r"\b(out of the way|aside|to one side)\b")
-RULES = [  # (label, substring of the validator's reason)
+RULES = [  # (label, substring of the validator's reason); the first that matches names the rule
     ("unobservable: a conflict only after the original task", "come after the original task's first step"),
     ("truncated original: a subgoal dropped", "drops the base task's subgoal"),
-    ("a step does not name its goal's entities", "which its goal"),
-    ("ambiguous or misplaced pronoun", "pronoun"),
-    ("contradiction satisfiable by some order", "satisfiable"),
-    ("contradiction not derivable", "do not contradict"),
-    ("grounding: role not object/destination/receptacle", "role"),
-    ("grounding: referent not absent / a synonym", "not absent"),
-    ("spatial: margin too small for a camera", "margin"),
-    ("spatial: an earlier step acts on the relation's entities", "earlier step"),
-    ("spatial: relation holds", "holds in initial state"),
-    ("physical: violation not plainly denied", "does not plainly lack"),
+    ("a step does not name its goal's entities (a replaced object or destination)", "which its goal"),
+    ("ambiguous reference: a pronoun or a shared name in a constraint", "pronoun"),
+    ("ambiguous reference: a pronoun or a shared name in a constraint", "unambiguously"),
+    ("ambiguous reference: a pronoun or a shared name in a constraint", "does not name"),
+    ("instruction: satisfiable by some order of execution", "satisfiable"),
+    ("instruction: a constraint on something the step need not touch or move", "need not"),
+    ("instruction: a constraint that does not contradict its goal", "do not contradict"),
+    ("instruction: picking up without grasping (a bowl can be scooped)", "ungrasped"),
+    ("instruction: a constraint on a goal the step does not ask for", "is not what step"),
+    ("grounding: a landmark, not the object, destination or receptacle", "role"),
+    ("grounding: referent not absent (a synonym, part or kind of something present)", "not absent"),
+    ("spatial: false by less than a camera shows (< 5 cm or the subject's radius)", "false by only"),
+    ("spatial: an earlier step moves the relation's entities", "earlier step"),
+    ("spatial: a landmark its own step moves", "which that same step"),
+    ("spatial: the relation holds in a paired state", "holds in initial state"),
+    ("physical: a violation the table does not plainly deny", "does not plainly lack"),
+    ("physical: fewer than four kinds of violation in a level cell", "need 4"),
+    ("physical: one skeleton over a quarter of its cell", "skeleton"),
     ("same text twice within a LIBERO suite", "same instruction as"),
+    ("same text twice within a LIBERO suite", "same text as"),
 ]
+FORMAT_ONLY = ("needs its margin_m in the witness",)
+"""Reasons about a 2.0 witness field the 1.x file cannot have; the rule behind it is counted on its own."""
+KIND_OF_NEED = {  # 1.x physical witnesses name the affordance; 2.0 also names the kind of violation
+    "graspable": "fixed",
+    "movable": "fixed",
+    "container": "containment",
+    "support": "support",
+    "fits_in": "size",
+    "openable": "articulation",
+    "turnable": "switch",
+    "foldable": "rigidity",
+    "pourable": "pouring",
+}
 
 
 def _upgrade(case, model):
@@ -63,8 +85,14 @@ def _upgrade(case, model):
         goals[i] = [list(a) for a in step.goal]
         entities[i] = list(step.objects)
     witness = {**case.witness, "step_roles": roles, "step_goals": goals, "step_entities": entities}
+    if case.family == "instruction":  # 1.x pairs claim no mode: take the stronger one
+        witness["conflicts"] = [[*pair[:2], "simultaneous"] for pair in witness.get("conflicts", [])]
+    if case.family == "physical":
+        for v in witness.get("violations", []):
+            v.setdefault("kind", KIND_OF_NEED.get(v.get("needs"), "unknown"))
     if case.family == "grounding":
         for r in witness.get("referents", []):
+            r.setdefault("source", "out_of_domain")  # 1.x drew every referent from the out-of-domain list
             i = int(r.get("step", 1)) - 1
             step = next((s for s in base if [list(a) for a in s.goal] == goals[i]), base[0])
             r.setdefault("replaces", step.objects[0] if r.get("role") == "object" else step.dest)
@@ -81,8 +109,10 @@ def main(path: str) -> None:
     reasons = [(c.case_id, r) for c in cases for r in validate_case(c, ctx)] + suite_problems(cases, ctx)
     family_of = {c.case_id: (c.family, c.level) for c in cases}
     for case_id, reason in reasons:
+        if any(needle in reason for needle in FORMAT_ONLY):
+            continue
         rejected.add(case_id)
-        label = next((label for label, needle in RULES if needle in reason), "other: " + reason[:60])
+        label = next((label for label, needle in RULES if needle in reason), "other: " + reason[:90])
         by_rule[label].add(case_id)
     for case_id in rejected:
         cells[family_of[case_id]] += 1
