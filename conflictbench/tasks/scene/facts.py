@@ -40,8 +40,10 @@ half-extent where a is larger, so that a's whole footprint is past b's centre. C
 the lenient reading counts the relation as (possibly) true."""
 NEAR_GAP = 0.10
 """``a next to b`` holds leniently when the gap between their footprints is at most this."""
-FAR_GAP = 0.15
-"""``a next to b`` counts as false only when the footprint gap exceeds this (10 cm + 5 cm margin)."""
+FAR_GAP = 0.25
+"""``a next to b`` counts as false only when the footprint gap exceeds this. "Next to" is relative
+(a reader calls the nearest thing 22 cm away "next to" it, as a pilot review of suite 2.0 showed),
+so a claimed-false one needs things clearly apart: a quarter metre between their footprints."""
 BETWEEN_OVERSHOOT = 0.15
 """``a between b and c``: the projection of a on segment b-c may overshoot either end by this
 fraction of the segment, and by at least ``max(DIRECTION_MARGIN, radius of a)``, and still count as

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from conflictbench.core import ConflictCase, UserError
 from conflictbench.tasks.scene.affordances import AFFORDANCES, category, load_table
+from conflictbench.tasks.scene.lexicon import colourings
 from conflictbench.tasks.scene.task_model import TaskModel
 
 VERDICTS = ("valid", "questionable", "wrong")
@@ -34,7 +35,9 @@ def _affords(cat: str) -> str:
     info = category(cat)
     said = {True: "yes", False: "no", None: "unclear"}
     parts = [f"{a} {said[info.has(a)]}" for a in AFFORDANCES]
-    return f"; size class {info.size}; " + ", ".join(parts)
+    known = colourings().get(cat)
+    colour = f"; colour {' and '.join(known.colours)}" if known else "; colour not recorded"
+    return f"{colour}; size class {info.size}; " + ", ".join(parts)
 
 
 def scene_sheet(model: TaskModel) -> str:
