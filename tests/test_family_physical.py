@@ -13,12 +13,15 @@ from conflictbench.tasks.operators import physical
 from conflictbench.tasks.scene.facts import load_scene_facts
 from conflictbench.tasks.scene.task_model import build_model
 from conflictbench.tasks.suite.build import _to_case
-from conflictbench.tasks.validation.physical import skeleton, suite_problems
+from conflictbench.tasks.validation.physical import HOLDING_ONLY, skeleton, suite_problems
 from conflictbench.tasks.validation.rules import new_context, validate_case
 
 pytestmark = pytest.mark.sim  # LIBERO's base tasks
 
 TASKS = [("libero_spatial", 0), ("libero_object", 4), ("libero_goal", 8), ("libero_goal", 3), ("libero_10", 3)]
+
+ONLY_CONTAINMENT = {("libero_object", 4)}
+"""One-step tasks whose only violation is their own object as a holder: no second one for L2."""
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +58,9 @@ def test_drafts_validate_and_keep_the_original_object_and_destination(ctx, key, 
     if level in ("L1", "L2") and len(model(key).steps) > 1:
         assert drafts == []
         return
+    if level == "L2" and key in ONLY_CONTAINMENT:
+        assert drafts == []
+        return
     assert drafts
     for case in drafts:
         assert validate_case(case, ctx) == [], case.instruction
@@ -84,8 +90,8 @@ def test_a_violation_needs_a_known_kind_matching_its_affordance(ctx):
 def test_undecided_or_held_affordances_are_not_violations(ctx):
     good = one(("libero_goal", 8), "L1", lambda c: c.witness["violations"][0]["kind"] == "rigidity")
     v = good.witness["violations"][0]
-    # the bowl has support null (undecided) and is a container (true): neither is a violation
-    rejected(with_violations(good, [{**v, "kind": "support", "needs": "support"}]), ctx, "does not plainly lack")
+    # the bowl has pourable null (undecided) and is a container (true): neither is a violation
+    rejected(with_violations(good, [{**v, "kind": "pouring", "needs": "pourable"}]), ctx, "does not plainly lack")
     rejected(with_violations(good, [{**v, "kind": "containment", "needs": "container"}]), ctx, "does not plainly lack")
     rejected(with_violations(good, [{**v, "entity": "basket_1"}]), ctx, "is not in the scene")
     rejected(with_violations(good, [{**v, "text": "fold the plate in half"}]), ctx, "is not in the instruction")
@@ -100,7 +106,7 @@ def test_size_comes_from_the_table_sizes(ctx):
 
 
 def test_level_shapes(ctx):
-    l2 = one(("libero_object", 4), "L2")
+    l2 = one(("libero_goal", 8), "L2")
     first = l2.witness["violations"][0]
     rejected(with_violations(l2, [first, dict(first)]), ctx, "is repeated")
     l4 = one(("libero_goal", 8), "L4")
@@ -140,3 +146,50 @@ def test_the_built_cells_are_varied():
     assert kinds >= {"rigidity", "switch", "articulation", "fixed"}
     pool = [c for k in keys for c in cases(k, "L3")[:6]]
     assert not [r for _, r in suite_problems(pool, models) if "skeleton" in r]
+
+
+def replaced_text(case, old, new, violations):
+    """The case with ``old`` written as ``new`` in its instruction and steps."""
+    steps = [step.replace(old, new) for step in case.witness["steps"]]
+    case = dataclasses.replace(case, instruction=case.instruction.replace(old, new))
+    return dataclasses.replace(case, witness={**case.witness, "steps": steps, "violations": violations})
+
+
+@pytest.mark.parametrize("key", TASKS)
+def test_no_support_and_no_holding_only_fixtures_are_generated(key):
+    for level in ("L1", "L2", "L3", "L4"):
+        for case in cases(key, level):
+            for v in case.witness["violations"]:
+                assert v["kind"] != "support", case.instruction
+                assert v["kind"] != "fixed" or not HOLDING_ONLY.search(v["text"]), case.instruction
+
+
+def test_support_violations_are_rejected_as_disputable(ctx):
+    """'the plate standing on top of the wine bottle': a plate can balance on a bottle mouth."""
+    good = one(("libero_goal", 8), "L1", lambda c: c.witness["violations"][0]["kind"] == "rigidity")
+    v = good.witness["violations"][0]
+    planted = {**v, "kind": "support", "needs": "support", "entity": "wine_bottle_1"}
+    rejected(with_violations(good, [planted]), ctx, "is disputable")
+
+
+def test_a_fixture_only_held_is_rejected(ctx):
+    """'open the drawer while holding the stove': gripping a fixture in place is possible."""
+    good = one(("libero_goal", 0), "L1", lambda c: c.witness["violations"][0]["text"].startswith("while "))
+    assert validate_case(good, ctx) == []
+    v = good.witness["violations"][0]
+    assert v["kind"] == "fixed" and v["text"].endswith("the stove")
+    held = "while holding the stove"
+    planted = replaced_text(good, v["text"], held, [{**v, "text": held}])
+    rejected(planted, ctx, "only holds or touches")
+
+
+def test_two_added_fixtures_are_coordinated_never_chained(ctx):
+    """'... together with the wooden cabinet together with the stove' is garbled."""
+    both = "together with the wooden cabinet and the stove"
+    good = one(("libero_spatial", 1), "L2", lambda c: both in c.instruction)
+    assert good.instruction.count("together with") == 1
+    assert validate_case(good, ctx) == []
+    chained = "together with the wooden cabinet together with the stove"
+    v1, v2 = good.witness["violations"]
+    planted = replaced_text(good, both, chained, [v1, {**v2, "text": "together with the stove"}])
+    rejected(planted, ctx, "repeats 'together with'")

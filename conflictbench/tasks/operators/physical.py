@@ -10,11 +10,17 @@ Rules of the family (re-checked by :mod:`conflictbench.tasks.validation.physical
 - **Plainly denied.** Each violation pairs an entity of the scene, named in the text, with an
   affordance the table sets to ``false`` (never ``null``): ``foldable`` (rigidity), ``graspable`` or
   ``movable`` (fixed), ``fits_in`` from the size classes (size), ``container`` (containment),
-  ``support``, ``openable`` (articulation), ``turnable`` (switch), ``pourable`` (pouring). The
+  ``openable`` (articulation), ``turnable`` (switch), ``pourable`` (pouring). The
   operator is stricter than the table where a reader could hesitate: only furniture-sized fixtures
   other than the work surface are "fixed" (a microwave or wine rack can be lifted by a person), a
   plate is never a holder ("in the plate" is common for "on the plate"), nothing with a door or
   covers opens, and the stove is never asked to open (read as an oven).
+- **No disputable kinds.** Nothing is asked to rest on top of something (a plate balances on a
+  bottle mouth, a box sits on a carton laid down): the ``support`` kind is never generated. A fixed
+  fixture is always MOVED (lifted, carried, put somewhere with the object), never only held or
+  touched: gripping a fixture in place is possible.
+- **Readable.** One step never repeats a connective: two fixtures added to one step are
+  coordinated ("together with the cabinet and the stove"), not chained.
 - **Levels.** L1: one violation in the one step. L2: two violations of that one step, each
   impossible on its own (different entity or affordance). L3: exactly one violation, in an original
   step or in an added step before them. L4: violations in at least two different steps.
@@ -39,7 +45,6 @@ KIND_NEEDS = {
     "fixed": ("graspable", "movable"),
     "size": ("fits_in",),
     "containment": ("container",),
-    "support": ("support",),
     "articulation": ("openable",),
     "switch": ("turnable",),
     "pouring": ("pourable",),
@@ -50,7 +55,6 @@ PREMISES = {
     "movable": "{E} is heavy furniture fixed in the scene and cannot be pushed anywhere",
     "fits_in": "{E} is larger than {H} and cannot fit inside it",
     "container": "{E} is sealed or solid: nothing can be put inside it",
-    "support": "{E} has a narrow or sloping top: nothing can rest on it",
     "openable": "{E} has no lid, door or drawer: there is nothing to open or close",
     "turnable": "{E} has no switch or knob: it cannot be turned on or off",
     "pourable": "{E} is a solid food: it cannot be poured",
@@ -68,17 +72,23 @@ RIGID_PLACE = (
 RIGID_ALONE = (("fold {X} in half", "fold {X} in half"), ("bend {X} in half", "bend {X} in half"))
 OPEN_PLACE = (("open {O} and put it {d}", "open {O}"), ("open up {O} and place it {d}", "open up {O}"))
 OPEN_ALONE = (("open {X}", "open {X}"), ("open up {X}", "open up {X}"))
+RIGID_PUSH = (
+    ("fold {O} in half and slide it {d}", "fold {O} in half"),
+    ("bend {O} in half and slide it {d}", "bend {O} in half"),
+)
+OPEN_PUSH = (("open {O} and slide it {d}", "open {O}"),)
 SWITCH_ALONE = (("switch on {X}", "switch on {X}"), ("turn on {X}", "turn on {X}"), ("turn {X} on", "turn {X} on"))
 POUR_PLACE = (("pour {O} {into}", "pour {O}"), ("pour {O} out {into}", "pour {O} out"))
 LIFT_ALONE = (("lift {X}", "lift {X}"), ("pick up {X}", "pick up {X}"), ("lift {X} and set it down again", "lift {X}"))
 INTO_ALONE = (("put {X} inside {H}", "{X} inside {H}"), ("stuff {X} inside {H}", "{X} inside {H}"))
-ONTO_ALONE = (("stand {X} on top of {H}", "{X} on top of {H}"), ("stack {X} on top of {H}", "{X} on top of {H}"))
 PICK_INTO = (("pick up {O} and put it inside {H}", "inside {H}"), ("grab {O} and place it inside {H}", "inside {H}"))
-PICK_ONTO = (("pick up {O} and stand it on top of {H}", "on top of {H}"),)
 TUCKED = ("{X} tucked inside {H}", "{X} packed inside {H}")
-RESTING = ("{X} resting on top of {H}", "{X} standing on top of {H}")
 TOGETHER = ("together with {X}",)
-HOLDING = ("while holding {X}", "while carrying {X}")
+CARRYING = ("while carrying {X}", "while lifting up {X}")
+GRASPING = ("fold ", "bend ", "open ", "pick up ", "grab ", "lift ", "take ")
+"""Body openers that leave the object in hand, so the next step may say "place it"."""
+CONNECTIVES = ("together with ", "while carrying ", "while lifting up ")
+"""Clause openers: a second added participant of the same step joins the first clause's list."""
 
 
 @dataclass(frozen=True)
@@ -153,12 +163,13 @@ def _food(model: TaskModel, e: str) -> bool:
 
 def _exclusions(model: TaskModel) -> set[str]:
     """What a violation never adds as a participant: the task's own objects and destinations (with
-    their fixtures and landmarks), so no step's goal is touched by another step's violation."""
+    their fixtures and landmarks, also those in a locating name: "the black bowl on the stove" is
+    never put down "together with the stove"), so no step's goal is touched by a violation."""
     out = model.targets() | {model.parent(t) for t in model.targets()}
-    for step in model.steps:
-        if step.dest:
-            text = model.dest_text(step.dest, step.prep)
-            out |= {e for e in model.names if model.name(e) in text}
+    texts = [model.name(t) for t in model.targets() if t in model.names]
+    texts += [model.dest_text(step.dest, step.prep) for step in model.steps if step.dest]
+    for text in texts:
+        out |= {e for e in model.names if model.name(e) in text}
     return out
 
 
@@ -181,11 +192,14 @@ def slot_options(model: TaskModel, index: int, slot: Slot) -> list[Option]:
     def add(kind, needs, role, wordings, entity, holder=None):
         out.append(Option(index, kind, needs, role, tuple(wordings), entity, holder))
 
-    if slot.kind in ("place", "pick") and one and info is not None:
+    if slot.kind in ("place", "pick", "push") and one and info is not None:
+        wordings = {"place": 0, "pick": 1, "push": 2}[slot.kind]
         if info.lacks("foldable"):
-            add("rigidity", "foldable", "body", RIGID_PLACE if slot.kind == "place" else RIGID_ALONE, o)
+            add("rigidity", "foldable", "body", (RIGID_PLACE, RIGID_ALONE, RIGID_PUSH)[wordings], o)
         if _opens_never(model, o):
-            add("articulation", "openable", "body", OPEN_PLACE if slot.kind == "place" else OPEN_ALONE, o)
+            add("articulation", "openable", "body", (OPEN_PLACE, OPEN_ALONE, OPEN_PUSH)[wordings], o)
+        if info.lacks("turnable") and slot.kind == "pick":  # "switch on X and put it ..." has no grasp for "it"
+            add("switch", "turnable", "body", SWITCH_ALONE, o)
         if slot.kind == "place" and slot.prep in ("in", "on") and info.lacks("pourable") and _food(model, o):
             add("pouring", "pourable", "body", POUR_PLACE, o)
         if slot.kind == "pick":
@@ -194,15 +208,11 @@ def slot_options(model: TaskModel, index: int, slot: Slot) -> list[Option]:
                     add("size", "fits_in", "body", PICK_INTO, o, h)
                 elif _sealed(model, h):
                     add("containment", "container", "body", PICK_INTO, h, o)
-                if _info(model, h).lacks("support"):
-                    add("support", "support", "body", PICK_ONTO, h, o)
     if slot.kind in ("place", "pick", "place_it") and not twin:
         for x in others:
             for h in slot.objects:
                 if _sealed(model, h) and x != h:
                     add("containment", "container", "with", tuple((w, w) for w in TUCKED), h, x)
-                if _info(model, h).lacks("support") and x != h:
-                    add("support", "support", "with", tuple((w, w) for w in RESTING), h, x)
                 if _too_big(model, h, x) and slot.kind != "pick":  # not "grab the book with the book in ..."
                     add("size", "fits_in", "with", tuple((w, w) for w in TUCKED), h, x)
     if slot.kind in ("place", "place_it", "push"):
@@ -222,7 +232,7 @@ def slot_options(model: TaskModel, index: int, slot: Slot) -> list[Option]:
     if slot.kind in ("open", "close", "turn_on", "turn_off"):
         parents = {model.parent(x) for x in slot.objects}
         for f in _heavy_fixtures(model, exclude | parents):
-            add("fixed", "graspable", "extra", tuple((w, w) for w in HOLDING), f)
+            add("fixed", "graspable", "extra", tuple((w, w) for w in CARRYING), f)
     return out
 
 
@@ -248,8 +258,6 @@ def aux_options(model: TaskModel) -> list[Option]:
                 out.append(Option(0, "size", "fits_in", "aux", INTO_ALONE, y, h))
             elif _sealed(model, h):
                 out.append(Option(0, "containment", "container", "aux", INTO_ALONE, h, y))
-            if _info(model, h).lacks("support"):
-                out.append(Option(0, "support", "support", "aux", ONTO_ALONE, h, y))
     return out
 
 
@@ -262,7 +270,7 @@ def _fill(model: TaskModel, text: str, slot: Slot, option: Option) -> str:
     """Put names into a wording: X is the entity acted on, H the holder or surface."""
     o = _object_name(model, slot.objects[0]) if slot.objects else ""
     x, h = option.entity, option.holder
-    if option.kind in ("containment", "support") and h:
+    if option.kind == "containment" and h:
         x, h = h, option.entity  # the participant goes inside or on top of the violating entity
     dest = slot.dest or slot.step.dest
     d = model.dest_text(dest, slot.step.prep) if dest else ""
@@ -278,8 +286,10 @@ def _apply(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], option: O
     if option.role in ("body", "aux"):
         m.frame, m.obj = body, model.name(option.entity) if option.role == "aux" else m.obj
         after = option.step + 1
-        if option.role == "body" and " it " in f" {body} " and after < len(frame) and frame[after].pronoun:
-            # "pick up X and put it inside Y, then place it ...": X or Y? The next step names X again.
+        grasps = body.startswith(GRASPING) and " it " not in f" {body} "
+        if option.role == "body" and not grasps and after < len(frame) and frame[after].pronoun:
+            # "pick up X and put it inside Y, then place it ...": X or Y? "switch on X, then place it":
+            # nothing was picked up. The next step names X again.
             mods.setdefault(after, Mods()).obj = _object_name(model, frame[after].objects[0])
     elif option.role == "obj":
         m.obj = coordinate([_object_name(model, o) for o in slot.objects] + [model.name(option.entity)])
@@ -287,11 +297,24 @@ def _apply(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], option: O
     elif option.role == "with":
         m.extras.append(("with " if not any(e.startswith("with ") for e in m.extras) else "and ") + body)
     else:
-        m.extras.append(body)
+        part = _join_extra(m.extras, body)
     v = {"step": option.step + 1, "kind": option.kind, "needs": option.needs, "entity": option.entity, "text": part}
     if option.holder and option.kind == "size":
         v["holder"] = option.holder
     return v
+
+
+def _join_extra(extras: list[str], clause: str) -> str:
+    """Add a trailing clause; a second added participant joins the first clause ("together with the
+    cabinet and the stove", never "together with the cabinet together with the stove" nor "while
+    carrying the cabinet while lifting up the stove"). Returns the clause as it now reads."""
+    opener = next((c for c in CONNECTIVES if clause.startswith(c)), None)
+    for i, old in enumerate(extras):
+        if opener and old.startswith(CONNECTIVES):
+            extras[i] = f"{old} and {clause.removeprefix(opener)}"
+            return extras[i]
+    extras.append(clause)
+    return clause
 
 
 def _premise(model: TaskModel, v: dict) -> str:
@@ -314,6 +337,12 @@ def _compatible(options: tuple[Option, ...]) -> bool:
     return len(keys) == len(options)
 
 
+def _apart(options: tuple[Option, ...]) -> bool:
+    """L4: violations in different steps, about different entities ("lift the cabinet, then ...
+    while carrying the cabinet" repeats one impossibility)."""
+    return len({o.step for o in options}) == len({o.entity for o in options}) == len(options)
+
+
 def _combos(model: TaskModel, level: str) -> list[tuple[list[Slot], tuple[Option, ...]]]:
     out: list[tuple[list[Slot], tuple[Option, ...]]] = []
     if level in ("L1", "L2"):
@@ -331,7 +360,7 @@ def _combos(model: TaskModel, level: str) -> list[tuple[list[Slot], tuple[Option
         if level == "L3":
             out += [(frame, (o,)) for o in options]
         else:
-            out += [(frame, c) for c in itertools.combinations(options, 2) if c[0].step != c[1].step]
+            out += [(frame, c) for c in itertools.combinations(options, 2) if _apart(c)]
     for aux in aux_options(model):
         for frame in plain:
             full = [_aux_slot(aux), *frame]
@@ -339,7 +368,7 @@ def _combos(model: TaskModel, level: str) -> list[tuple[list[Slot], tuple[Option
                 out.append((full, (aux,)))
                 continue
             for i, s in enumerate(frame):
-                out += [(full, (aux, o)) for o in slot_options(model, i + 1, s)]
+                out += [(full, (aux, o)) for o in slot_options(model, i + 1, s) if _apart((aux, o))]
     return out
 
 

@@ -3,8 +3,14 @@
 Per case (:func:`check_affordance`; the shared :mod:`.structure` rules already check that every
 subgoal is still asked, naming its original object and destination, and that added steps come first):
 
-- every violation names a ``kind`` (rigidity, fixed, size, containment, support, articulation,
-  switch, pouring) and the affordance that kind is about;
+- every violation names a ``kind`` (rigidity, fixed, size, containment, articulation, switch,
+  pouring) and the affordance that kind is about; ``support`` ("the plate standing on top of the
+  wine bottle") is rejected: a plate can balance on a bottle mouth, so it is never plainly
+  impossible;
+- a ``fixed`` violation moves the fixture: its text never uses a verb of only holding or touching
+  it ("while holding the stove"): gripping a fixture in place is possible;
+- no step repeats a connective ("together with the cabinet together with the stove"): two added
+  participants of one step are coordinated;
 - its entity is in the scene, and its ``text`` is in the instruction and names the entity;
 - the affordance table PLAINLY denies it (``false``; ``fixed`` ``true`` for "movable"); a size
   violation names a holder that is a real container a whole size class too small;
@@ -35,11 +41,14 @@ KIND_NEEDS = {
     "fixed": ("graspable", "movable"),
     "size": ("fits_in",),
     "containment": ("container",),
-    "support": ("support",),
     "articulation": ("openable",),
     "switch": ("turnable",),
     "pouring": ("pourable",),
 }
+DISPUTABLE_KINDS = {"support": "a plate can balance on a bottle, a box on a carton laid down"}
+HOLDING_ONLY = re.compile(r"\b(?:hold|grip|grasp|touch|clutch|squeeze)(?:s|es|ing|ed)?\b|\bheld\b")
+"""Verbs that keep a fixture where it is: no violation of "fixed"."""
+CONNECTIVES = ("together with", "along with", "as well as", "while")
 MIN_KINDS = 4
 MAX_SKELETON_SHARE = 0.25
 PLACEHOLDER = "<e>"
@@ -70,7 +79,9 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
     violations = case.witness.get("violations", [])
     for v in violations:
         entity, needs, kind, text = v.get("entity"), v.get("needs"), v.get("kind"), str(v.get("text", ""))
-        if kind not in KIND_NEEDS:
+        if kind in DISPUTABLE_KINDS:
+            out.append(f"violation: kind {kind!r} is disputable ({DISPUTABLE_KINDS[kind]})")
+        elif kind not in KIND_NEEDS:
             out.append(f"violation: unknown kind {kind!r} (one of {', '.join(KIND_NEEDS)})")
         elif needs not in KIND_NEEDS[kind]:
             out.append(f"violation: kind {kind!r} is about {' or '.join(KIND_NEEDS[kind])}, not {needs!r}")
@@ -87,8 +98,34 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
                 out.append(f"the instruction does not name {entity}")
         elif not names_in(text, entity_names(model, entity)):
             out.append(f"violation text {text!r} does not name {entity}")
+        if kind == "fixed" and HOLDING_ONLY.search(text):
+            out.append(f"fixed violation {text!r} only holds or touches the fixture: it must move it")
         out += _denied(model, v, present)
-    return out + _level_shape(case, violations)
+    return out + _repeated_connectives(case) + _level_shape(case, violations)
+
+
+def _step_spans(case: ConflictCase) -> list[str]:
+    """Each step's text with its clauses: from its body to the next step's body (the witness's
+    ``steps`` hold the bodies only)."""
+    starts, pos = [], 0
+    for body in case.witness.get("steps") or []:
+        i = case.instruction.find(str(body), pos)
+        if i < 0:
+            return [case.instruction]
+        starts.append(i)
+        pos = i + len(str(body))
+    ends = [*starts[1:], len(case.instruction)]
+    return [case.instruction[a:b] for a, b in zip(starts, ends, strict=True)] or [case.instruction]
+
+
+def _repeated_connectives(case: ConflictCase) -> list[str]:
+    out = []
+    for i, span in enumerate(_step_spans(case), start=1):
+        text = f" {normalise(span)} "
+        for phrase in CONNECTIVES:
+            if text.count(f" {phrase} ") > 1:
+                out.append(f"step {i} repeats {phrase!r}: coordinate the added participants instead")
+    return out
 
 
 def _level_shape(case: ConflictCase, violations: list) -> list[str]:
