@@ -142,12 +142,13 @@ def validate_case(case: ConflictCase, ctx: Context) -> list[str]:
     return out
 
 
-def validate_cases(cases: Iterable[ConflictCase], ctx: Context) -> list[tuple[str, str]]:
+def validate_cases(cases: Iterable[ConflictCase], ctx: Context, *, composition: bool = True) -> list[tuple[str, str]]:
     """(case_id, reason) for every rule a case breaks, then the rules about the suite as a whole
-    (:mod:`.suite_rules`); removed cases are skipped."""
+    (:mod:`.suite_rules`; ``composition=False`` for a part of a suite, such as an export); removed
+    cases are skipped."""
     cases = [c for c in cases if c.status != "removed"]
     failures: list[tuple[str, str]] = []
     for case in cases:
         for reason in validate_case(case, ctx):
             failures.append((case.case_id, reason))
-    return failures + suite_problems(cases, ctx)
+    return failures + suite_problems(cases, ctx, composition=composition)

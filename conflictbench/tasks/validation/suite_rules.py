@@ -1,6 +1,6 @@
 """Rules about the suite as a whole, not one case: no exact instruction twice within a LIBERO suite
 (the same words for two scenes of one suite test the same reading twice), and each family's own
-suite-level rules (a family module may define ``suite_problems(cases, models)``)."""
+composition rules for a whole suite (a family module may define ``suite_problems(cases, models)``)."""
 
 from __future__ import annotations
 
@@ -22,8 +22,12 @@ def duplicate_problems(cases: Sequence[ConflictCase]) -> list[tuple[str, str]]:
     return out
 
 
-def suite_problems(cases: Sequence[ConflictCase], ctx) -> list[tuple[str, str]]:
+def suite_problems(cases: Sequence[ConflictCase], ctx, *, composition: bool = True) -> list[tuple[str, str]]:
+    """Duplicates always; the families' composition rules (kinds per cell, skeleton shares) only for
+    a whole suite (``composition``), not for an export of some of its cases."""
     out = duplicate_problems(cases)
+    if not composition:
+        return out
     for family in FAMILIES:
         module = importlib.import_module(f"conflictbench.tasks.validation.{family}")
         check = getattr(module, "suite_problems", None)
