@@ -292,3 +292,20 @@ def test_the_interim_witness_shapes_are_findings_not_crashes(suite, ctx):
         ctx,
         "witness field 'steps' must list",
     )
+
+
+def test_no_old_case_id_is_reused_for_new_text(suite):
+    """Suite 1.1.0's ids (kept as id + a hash of the text): an id the new suite shares names the same text."""
+    import hashlib
+    from pathlib import Path
+
+    old = {}
+    for line in (Path(__file__).parent / "data" / "suite-1.1.0-ids.tsv").read_text().splitlines():
+        if not line.startswith("#"):
+            case_id, digest = line.split("\t")
+            old[case_id] = digest
+    assert len(old) == 1869  # 1,868 usable and one removed in review
+    shared = [c for c in suite.cases if c.case_id in old]
+    for c in shared:
+        assert hashlib.sha256(c.instruction.encode()).hexdigest()[:16] == old[c.case_id], c.case_id
+    assert suite.version == "2.0.0"
