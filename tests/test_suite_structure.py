@@ -214,3 +214,44 @@ def test_a_pronoun_without_a_picked_up_antecedent_is_rejected(ctx):
     )
     reasons = validate_case(unclear, ctx)
     assert any("has no object picked up just before it" in r for r in reasons), reasons
+
+
+@pytest.mark.parametrize(
+    "steps,needle",
+    [
+        # the stove or the bottle?
+        (["lift the wine rack", "fold the wine bottle in half", "place it on the rack"], "opens a step after others"),
+        # the milk or the orange juice?
+        (["take the bowl with the plate tucked inside the bowl", "put it on the plate"], "opens a step after others"),
+        (["pick up the bowl with the plate tucked inside and put it on the plate"], "two things could be meant"),
+    ],
+)
+def test_a_pronoun_after_two_handled_things_is_rejected(ctx, steps, needle):
+    text = ", then ".join(steps) + " without moving the robot arm"
+    roles = ["added"] * (len(steps) - 1) + ["original"] if len(steps) == 3 else ["original"] * len(steps)
+    goals = [[] for _ in steps[:-1]] + [[["on", BOWL, "plate_1"]]]
+    unclear = case(("libero_goal", 8), text, steps, roles, goals)
+    reasons = validate_case(unclear, ctx)
+    assert any(needle in r for r in reasons), reasons
+
+
+def test_the_base_tasks_own_pronoun_forms_pass(ctx):
+    """ "pick up the black bowl between the plate and the ramekin and place it on the plate" (libero_spatial 0)."""
+    step = "pick up the black bowl between the plate and the ramekin and place it on the plate"
+    good = case(
+        ("libero_spatial", 0), step + " without moving the robot arm", [step], ["original"], [[["on", BOWL, "plate_1"]]]
+    )
+    assert validate_case(good, ctx) == []
+
+
+def test_no_added_step_moves_a_thing_another_rests_on(ctx):
+    """libero_spatial task 5: the second black bowl rests on the cookie box, so "push the cookie box
+    aside" would move the bowl too (and could make a later spatial premise true)."""
+    from conflictbench.tasks.operators.frames import aux_steps
+
+    model = ctx.model(("libero_spatial", 5))
+    assert model.facts.predicate("on", "akita_black_bowl_2", "cookies_1")  # the fact the rule stands on
+    moved = {s.objects[0] for s in aux_steps(model) if s.kind == "move_aside"}
+    assert "cookies_1" not in moved
+    other = ctx.model(("libero_goal", 8))  # nothing rests on its bystanders: they may be moved aside
+    assert {s.objects[0] for s in aux_steps(other) if s.kind == "move_aside"} >= {"cream_cheese_1"}

@@ -78,7 +78,7 @@ def slot_of(step: Step, aux: bool = False) -> Slot:
 
 def aux_steps(model: TaskModel) -> list[Slot]:
     """Plausible extra steps: each can be done in every initial state, touches no target, and moves
-    nothing the reference instruction names."""
+    nothing the reference instruction names nor anything another object rests on or in."""
     out: list[Slot] = []
     targets = model.targets() | {model.parent(t) for t in model.targets()}
     for name, entity in sorted(model.facts.entities.items()):
@@ -100,9 +100,19 @@ def aux_steps(model: TaskModel) -> list[Slot]:
         # Never move what the reference instruction names: "the bowl between the plate and the
         # ramekin" no longer picks out the bowl once the ramekin has been pushed aside.
         named = any(f" {n} " in said for n in model.entity_names(name))
-        if info.has("graspable") and name not in targets and not named:
+        if info.has("graspable") and name not in targets and not named and not _carries(model, name):
             out.append(Slot("move_aside", Step("move_aside", (name,), goal=(("moved", name),)), (name,), aux=True))
     return out
+
+
+def _carries(model: TaskModel, entity: str) -> bool:
+    """Does anything rest on or in the entity in some initial state? Moving it would move that too."""
+    holders = {entity} | {r for r, e in model.facts.entities.items() if e.kind == "region" and e.parent == entity}
+    return any(
+        states and atom[0] in ("on", "in") and atom[2] in holders and atom[1] != entity
+        for atom, states in model.facts.predicates.items()
+        if len(atom) == 3
+    )
 
 
 def single_frames(model: TaskModel) -> list[list[Slot]]:
@@ -194,7 +204,9 @@ def realise(
             dest,
             plural=len(slot.objects) > 1,
             frame=frame_text,
-            pronoun=slot.pronoun and m.obj is None,
+            # "pick up X, then put it ..." only as the first two steps: after any earlier step "it"
+            # could be what that step handled ("lift the stove, then fold the bottle, then place it")
+            pronoun=slot.pronoun and m.obj is None and i == 1 and frame[0].kind == "pick",
             extras=list(m.extras),
             locating=m.locating or (m.obj is None and bool(set(slot.objects) & model.goal_twins())),
         )

@@ -33,6 +33,8 @@ ROLES = ("original", "added")
 PRONOUN = re.compile(r"\b(it|them|its|they|itself)\b")
 PLACING = ("place", "put", "set", "drop", "stow", "carry", "move", "slide", "bring", "lay", "stand")
 """Verbs whose object may be the pronoun for the thing just picked up: "... and place it on the plate"."""
+INTERVENING = {"with", "inside", "tucked", "packed", "together", "while"}
+"""Words between a pick-up and "put it" that bring in a second thing "it" could mean."""
 GRASPING = ("pick up", "grab", "lift", "take", "hold", "fold", "crumple", "squash", "bend", "open", "roll up", "crush")
 """Verbs that introduce the antecedent of a following placing verb's pronoun."""
 
@@ -141,8 +143,9 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
 
 
 def _pronouns(case: ConflictCase) -> list[str]:
-    """A pronoun may only be the object of a placing verb whose antecedent a grasping verb introduced
-    just before, in the same step or at the end of the previous one; constraints never hold one."""
+    """A pronoun may only be the object of a placing verb whose one antecedent a grasping verb just
+    introduced: in the same step with nothing else said between them ("pick up X and put it ..."), or
+    as the second step right after a plain pick-up of the first ("pick up X, then put it ...")."""
     out = []
     bodies = [normalise(s) for s in case.witness["steps"]]
     in_bodies = sum(len(PRONOUN.findall(b)) for b in bodies)
@@ -155,10 +158,18 @@ def _pronouns(case: ConflictCase) -> list[str]:
             if word in ("its", "they", "itself") or (before and before[-1] not in PLACING):
                 out.append(f"pronoun {word!r} at {' '.join(before[-4:])!r}: only 'place it' after a pick-up")
                 continue
-            earlier = " ".join(before) if len(before) > 1 else (bodies[i - 1] if i > 0 else "")
+            if len(before) > 1:  # within the step: "pick up X and put it", nothing in between
+                grasp = max((m.end() for g in GRASPING for m in re.finditer(rf"\b{g}\b", " ".join(before))), default=-1)
+                between = " ".join(before)[grasp:] if grasp >= 0 else ""
+                if grasp < 0:
+                    out.append(f"pronoun {word!r} has no object picked up just before it")
+                elif set(between.split()) & INTERVENING:
+                    out.append(f"pronoun {word!r} follows {between.strip()!r}: two things could be meant")
+                continue
+            earlier = bodies[i - 1] if i > 0 else ""
             if not any(re.search(rf"\b{g}\b", earlier) for g in GRASPING):
                 out.append(f"pronoun {word!r} has no object picked up just before it")
-            elif len(before) <= 1 and (PRONOUN.search(earlier) or set(earlier.split()) & set(PLACING)):
-                # "pick up X and put it inside Y, then place it ...": X or Y?
-                out.append(f"pronoun {word!r} opens a step after one that already placed something: X or Y?")
+            elif i != 1 or PRONOUN.search(earlier) or set(earlier.split()) & (set(PLACING) | INTERVENING):
+                # "lift the stove, then fold the bottle, then place it": the stove or the bottle?
+                out.append(f"pronoun {word!r} opens a step after others that handled something: name it")
     return out
