@@ -249,6 +249,25 @@ def test_l4_needs_factors_in_two_steps(ctx):
     _rejected(planted, ctx, "does not match the witness")
 
 
+def _on_placing_half(d):
+    return d.witness["steps"][0].startswith(("pick", "lift", "grab", "take")) and any(
+        r["step"] == 2 and r["literal"][0] == "keep" for r in d.witness["requirements"]
+    )
+
+
+@pytest.mark.sim
+def test_a_still_arm_on_the_placing_half_of_a_split_is_rejected(ctx):
+    case = _case(BOWL_ON_PLATE, "L3", ctx, where=_on_placing_half)
+    assert _reasons(case, ctx) == []  # a still or untouched held object contradicts placing it
+    reqs = [dict(r) for r in case.witness["requirements"]]
+    constraint = next(r for r in reqs if r["literal"][0] == "keep")
+    arm = "without moving the robot arm"
+    instruction = case.instruction.replace(constraint["text"], arm, 1)
+    constraint.update(text=arm, literal=["keep", "still", "robot"])
+    planted = dataclasses.replace(case, instruction=instruction, witness={**case.witness, "requirements": reqs})
+    _rejected(planted, ctx, "placing half of a split")
+
+
 # -- the operator ---------------------------------------------------------------------------------
 TASKS = [BOWL_ON_PLATE, MIDDLE_DRAWER, STOVE, TWO_BOWLS, ("libero_10", 0), ("libero_10", 3), ("libero_10", 9)]
 
@@ -272,6 +291,9 @@ def test_drafts_are_valid_simultaneous_and_about_the_steps_own_things(level, ctx
                 assert mode == "simultaneous" and constraint[0] == "keep"
                 assert constraint[2] in ("robot", goal[2])  # the moved or operated thing itself, or the arm
                 assert constraint[1] != "ungrasped"
+                step = reqs[constraint_id]["step"]
+                if step >= 2 and d.witness["steps"][step - 1].startswith(("place it", "put it")):
+                    assert constraint != ["keep", "still", "robot"], d.instruction  # carried over, then let go
             steps = Counter(reqs[c[1]]["step"] for c in d.witness["conflicts"])
             if level == "L2":
                 assert len(d.witness["conflicts"]) == 2 and len(steps) == 1

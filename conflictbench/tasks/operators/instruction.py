@@ -5,8 +5,11 @@ Rules (suite 2.0), each enforced again by :mod:`conflictbench.tasks.validation.i
 - Every contradiction is SIMULTANEOUS: a constraint that holds throughout a step against the
   step's own goal. Per step kind:
 
-  * moving steps (place, push, pick up, place it, move aside): keep the moved object still, never
-    touch the moved object, or keep the robot arm still;
+  * moving steps (place, push, pick up, move aside): keep the moved object still, never touch
+    the moved object, or keep the robot arm still;
+  * the placing half of a split ("pick up X, then place it ..."): keep the held object still or
+    never touch it, NEVER a still robot arm: the arm can carry X over the destination while
+    picking it up, and the placing half is then only opening the gripper;
   * state steps (open, close, turn on): keep the operated drawer, door or stove in the opposite
     state the whole time, never touch the operated thing itself, or keep the robot arm still.
 
@@ -76,6 +79,9 @@ KEEP = {  # the state kept, against a step that must bring about the opposite
     ),
 }
 MOVING = ("place", "push", "place_it", "pick", "move_aside")
+ARM_FREE = ("place_it",)
+"""Steps a still arm does not contradict: the arm may bring the held object over the destination in
+the pick-up before, so placing is only opening the gripper."""
 STATES = ("open", "close", "turn_on", "turn_off")
 LABELS = {
     "still": "goal vs. keeping the moved object still",
@@ -162,6 +168,8 @@ def _goal(slot: Slot, obj: str) -> list:
 
 
 def _constraint(model: TaskModel, slot: Slot, kind: str, rng: random.Random) -> Constraint | None:
+    if kind == "robot" and slot.kind in ARM_FREE:
+        return None
     if slot.kind in MOVING:
         obj = choose(rng, slot.objects)
         goal = _goal(slot, obj)
@@ -208,6 +216,8 @@ def _made(kind, literal, goal, phrases, x, premise) -> Constraint:
 
 
 def _kinds(slot: Slot) -> list[str]:
+    if slot.kind in ARM_FREE:
+        return ["still", "untouched"]
     if slot.kind in MOVING:
         return ["still", "untouched", "robot"]
     if slot.kind in STATES:

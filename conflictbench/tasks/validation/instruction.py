@@ -13,6 +13,10 @@ Rules:
 - each pair contradicts (:func:`~conflictbench.tasks.operators.contradictions.explain`), and its
   mode is the one the rule gives (``simultaneous`` or ``final_states``); a pair that an order of
   execution satisfies ("do it, then undo it") is rejected with that reason;
+- a still robot arm is never set against the placing half of a split pick-and-place (a step that
+  relocates what the step before it only picked up): the arm may carry the object over the
+  destination while picking it up, so placing is only opening the gripper (keeping the held object
+  still or untouched while placing it still contradicts);
 - no filler: no two pairs share a constraint literal in one step, and in L2 every pair sets a constraint
   against the one step's own goal, so each factor alone contradicts it.
 """
@@ -40,6 +44,20 @@ def _unique_name(model: TaskModel, entity: str, text: str) -> bool:
     return any(names_in(text, [n]) and denotes_only(model, n, entity) for n in model.entity_names(entity) if n)
 
 
+def placing_half(witness: dict, step: object) -> bool:
+    """Is the step (1-based) the placing half of a split: it relocates a thing that the original step
+    before it only picked up (no goal of its own)?"""
+    goals, roles = witness.get("step_goals", []), witness.get("step_roles", [])
+    entities = witness.get("step_entities", [])
+    if not isinstance(step, int) or not 2 <= step <= min(len(goals), len(roles), len(entities)):
+        return False
+    before = step - 2
+    if roles[before] != "original" or goals[before]:
+        return False
+    moved = {g[1] for g in goals[step - 1] if len(g) >= 2 and g[0] in ("on", "in")}
+    return bool(moved & set(entities[before]))
+
+
 def _requirement_problems(r: dict, case: ConflictCase, model: TaskModel) -> list[str]:
     rid, lit, text = r.get("id"), r.get("literal"), r.get("text", "")
     if not isinstance(lit, list) or len(lit) < 3 or lit[0] not in HEADS:
@@ -52,6 +70,11 @@ def _requirement_problems(r: dict, case: ConflictCase, model: TaskModel) -> list
         out.append(f"requirement {rid}: the constraint {text!r} uses a pronoun; name the entity in full")
     if "robot" in lit[2:] and not names_in(text, {"robot", "arm", "robot arm"}):
         out.append(f"requirement {rid}: its text does not name the robot arm")
+    if lit[:3] == ["keep", "still", "robot"] and placing_half(case.witness, r.get("step")):
+        out.append(
+            f"requirement {rid}: a still robot arm on the placing half of a split does not contradict it "
+            "(the arm can carry the object over the destination while picking it up, then open the gripper)"
+        )
     for e in literal_entities(lit):
         if e not in model.facts.entities and e not in model.problem.fixtures:
             out.append(f"requirement {rid}: {e!r} is not in the scene")
