@@ -13,7 +13,7 @@ import pytest
 from conflictbench.core import LEVELS
 from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.operators import spatial
-from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.scene.facts import DIRECTIONS, load_scene_facts
 from conflictbench.tasks.scene.task_model import build_model
 from conflictbench.tasks.suite.build import _to_case
 from conflictbench.tasks.validation.rules import new_context, validate_case
@@ -72,7 +72,7 @@ def test_drafts_pass_every_rule_and_directions_carry_their_margin(level, ctx):
             assert validate_case(case, ctx) == [], (case.instruction, validate_case(case, ctx))
             for r in case.witness["relations"]:
                 if r["relation"] in ("left_of", "right_of", "in_front_of", "behind"):
-                    assert r["margin_m"] >= 0.05
+                    assert r["margin_m"] >= 0.06
             produced += 1
     assert produced >= 10
 
@@ -184,7 +184,7 @@ def test_a_direction_false_by_less_than_the_camera_margin_is_rejected():
     pos = {k: v.copy() for k, v in m.facts.positions.items()}
     pos[subject][:, 1] = pos[landmark][:, 1] - sign * 0.04
     m.facts = dataclasses.replace(m.facts, positions=pos)
-    rejected(case, "is false by only 0.040 m; a camera needs 0.050 m", m)
+    rejected(case, "is false by only 0.040 m; a camera needs 0.060 m", m)
 
 
 def test_a_misstated_or_missing_margin_is_rejected():
@@ -239,3 +239,78 @@ def test_the_geometry_behind_the_margin_rule():
     assert np.allclose(clear, facts.positions[a][:, 1] - facts.positions[b][:, 1])
     false = facts.false_states("left_of", a, b)
     assert all(clear[s] >= facts.direction_margin(a) for s in false)
+
+
+# -- round 1 review: twin bowls, a camera margin with headroom, things riding on a moved thing ------------
+def _twin_relation(c):
+    return next((r for r in c.witness["relations"] if r["subject"]["entities"] == ["akita_black_bowl_1"]), None)
+
+
+def test_a_twinned_bowl_keeps_its_identifying_name_and_the_claim_is_about_it_alone():
+    found = 0
+    for level in LEVELS:
+        for case in cases(("libero_spatial", 1), level, limit=40):
+            r = _twin_relation(case)
+            if r:
+                assert r["text"].startswith("the black bowl next to the ramekin "), r["text"]
+                assert r["subject"]["phrase"] == "black bowl next to the ramekin"
+                found += 1
+            for r in case.witness["relations"]:  # no claim about "the black bowl" that could mean either
+                assert r["subject"]["entities"] != ["akita_black_bowl_1", "akita_black_bowl_2"], case.instruction
+    assert found >= 4
+
+
+def test_a_twin_relation_that_replaces_the_identifying_name_is_rejected():
+    case = find(("libero_spatial", 1), "L1", lambda c: _twin_relation(c) is not None)
+    r = _twin_relation(case)
+    short = r["text"].replace("the black bowl next to the ramekin ", "the black bowl ", 1)
+    short = short.replace("the black bowl that is ", "the black bowl ").replace(
+        "the black bowl which is ", "the black bowl "
+    )
+    planted = dataclasses.replace(
+        case,
+        instruction=case.instruction.replace(r["text"], short),
+        witness={**case.witness, "steps": [s.replace(r["text"], short) for s in case.witness["steps"]]},
+    )
+    # said honestly (both bowls), the claim could mean either bowl
+    both = with_relation(
+        planted, text=short, subject={"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]}
+    )
+    rejected(both, "is about a twinned entity but could mean")
+    # said as the scored bowl alone, the words no longer name it
+    one = with_relation(planted, text=short, subject={"phrase": "black bowl", "entities": ["akita_black_bowl_1"]})
+    rejected(one, "does not keep its identifying name 'the black bowl next to the ramekin'")
+    assert not any("twinned" in x for x in reasons(case))
+
+
+def test_a_relation_about_what_rests_on_a_thing_an_earlier_step_moves_is_rejected():
+    # libero_spatial 3: the scored bowl sits on the cookie box; sliding the box aside moves the bowl too
+    key = ("libero_spatial", 3)
+    case = find(key, "L3", lambda c: _twin_relation(c) is not None and c.witness["step_roles"][0] == "added")
+    r = _twin_relation(case)
+    steps = ["slide the cookie box to one side", case.witness["steps"][1]]
+    planted = dataclasses.replace(
+        case,
+        instruction=f"{steps[0]}, then {steps[1]}",
+        witness={**case.witness, "steps": steps, "step_entities": [["cookies_1"], case.witness["step_entities"][1]]},
+    )
+    assert r["step"] == 2
+    rejected(planted, "akita_black_bowl_1, which an earlier step moves or operates (akita_black_bowl_1)")
+
+
+def test_a_direction_false_by_five_centimetres_is_now_too_close_to_see():
+    key = ("libero_object", 4)
+    m = model(key)
+
+    def small_direction(c):  # a subject narrower than 6 cm, so the 6 cm floor is what applies
+        r = c.witness["relations"][0]
+        return r["relation"] in DIRECTIONS and m.facts.direction_margin(r["subject"]["entities"][0]) == 0.06
+
+    case = find(key, "L3", small_direction)
+    r = case.witness["relations"][0]
+    subject, landmark = r["subject"]["entities"][0], r["landmarks"][0]["entities"][0]
+    axis, sign = DIRECTIONS[r["relation"]]
+    pos = {k: v.copy() for k, v in m.facts.positions.items()}
+    pos[subject][:, axis] = pos[landmark][:, axis] - sign * 0.054  # the 5.0-5.4 cm readers called borderline
+    m.facts = dataclasses.replace(m.facts, positions=pos)
+    rejected(case, "is false by only 0.054 m; a camera needs 0.060 m", m)

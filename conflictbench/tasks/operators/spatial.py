@@ -5,15 +5,22 @@ ketchup to the left of the basket" where the ketchup starts to its right, "the b
 cookie box" where no bowl touches the box). The family's rules (checked again by
 :mod:`conflictbench.tasks.validation.spatial`, which every draft passes before it is yielded):
 
-- a claim is about every entity the subject's words could pick out (both black bowls of a
-  libero_spatial scene) and is false for all of them, under the lenient reading of
-  :meth:`.scene.facts.TaskFacts.holds`, in every initial state the case is paired with: all 50
-  where possible, otherwise the listed states (at least ``MIN_STATES``);
+- a claim is about every entity the subject's words could pick out and is false for all of them,
+  under the lenient reading of :meth:`.scene.facts.TaskFacts.holds`, in every initial state the
+  case is paired with: all 50 where possible, otherwise the listed states (at least
+  ``MIN_STATES``);
 - a direction is false by a margin a camera shows: the subject's centre lies past the landmark's
-  centre, on the other side, by at least max(5 cm, the subject's radius); the witness gives the
+  centre, on the other side, by at least max(6 cm, the subject's radius); the witness gives the
   smallest such clearance over the paired states as ``margin_m``;
+- an entity with an identical twin (the scored black bowl of libero_spatial) keeps its full
+  identifying name and the false relation is ADDED to it as a relative clause ("the black bowl next
+  to the ramekin that is behind the stove"), never put in its place: the claim is then about that
+  bowl alone, and nothing else in the words could let a robot take the other bowl; as the clause
+  could also be read as about the name's last noun ("the ramekin that is behind the stove"), it
+  must be false for the things the name mentions as well;
 - the claim is still false when its step is reached: no earlier step moves or operates its subject
-  or landmarks (or their fixtures), and its own step does not move its landmark;
+  or landmarks (or their fixtures, or a thing they rest on or in), and its own step does not move
+  its landmark;
 - readable: no "left"/"right" word in a phrase of a left/right claim (nor "front"/"back" for
   front/behind), "on"/"in" only with a real support or container at least the subject's size, a
   destination's description as a relative clause ("the plate that is behind the stove");
@@ -29,7 +36,7 @@ from conflictbench.core import ConflictCase
 from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
-from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, check_relation
+from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, check_relation, riders
 from conflictbench.tasks.validation.structure import check_structure
 from conflictbench.tasks.validation.text import names_in
 
@@ -60,15 +67,23 @@ NEGATED = {
 
 
 def subject_noun(model: TaskModel, entity: str) -> tuple[str, list[str]]:
-    """The plain noun phrase for an entity and every entity it could denote.
+    """The noun phrase for an entity and every entity it could denote.
 
-    An entity whose name carries the base task's own relation ("the black bowl between the plate
-    and the ramekin") is called by its category's noun, which then covers its twin as well.
+    An entity with a twin keeps its whole name, base relation included ("the black bowl between the
+    plate and the ramekin"): that name, and only it, picks out the bowl the episode scores.
     """
     name = model.name(entity)
-    noun = f"the {category(model.category_of(entity)).names[0]}"
-    phrase = noun if entity in model.goal_twins() else name
-    return phrase, sorted(model.candidates(phrase))
+    return name, sorted(model.candidates(name))
+
+
+def _named_in_identity(model: TaskModel, entity: str) -> set[str]:
+    """For a twin, the things its identifying name relates it to (the ramekin of "the black bowl
+    next to the ramekin"): a new claim about them would read as nonsense ("... that is left of the
+    ramekin") or could attach to them."""
+    if entity not in model.goal_twins():
+        return set()
+    name = model.name(entity)
+    return {e for e in model.names if e != entity and names_in(name, _names(model, e))}
 
 
 def _short(model: TaskModel, entity: str) -> str:
@@ -120,7 +135,10 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
     for relation in PHRASES:
         if relation in ("on", "in", "between") and not movable:
             continue  # "the cabinet between the bowl and the plate" reads oddly; fixtures sit on nothing
+        if relation in ("on", "in") and subject in model.goal_twins():
+            continue  # "the black bowl on the cookie box that is on the plate" contradicts its own name
         exclude = set(candidates) | {model.parent(c) for c in candidates} | set(avoid)
+        exclude |= _named_in_identity(model, subject)
         if relation in ("on", "in"):
             exclude |= set(holder_avoid)
         kind = "next_to" if relation == "between" else relation
@@ -136,7 +154,7 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
             if any(e in exclude or model.parent(e) in exclude for g in groups for e in g):
                 continue
             false = model.facts.states()
-            for cand in candidates:
+            for cand in candidates + sorted(_named_in_identity(model, subject)):
                 for combo in itertools.product(*groups):
                     if len(set(combo)) == len(combo):
                         false = false & model.facts.false_states(relation, cand, *combo)
@@ -150,6 +168,7 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
                         "landmark_groups": groups,
                         "landmark_text": " and ".join(phrases),
                         "false_states": false,
+                        "twin": subject in model.goal_twins(),
                     }
                 )
     return out
@@ -181,7 +200,9 @@ def _phrase(claim: dict, rng: random.Random, clause: bool = False) -> str:
     """ "the bowl behind the stove"; with ``clause`` a relative clause ("the bowl that is behind the
     stove"), where a bare modifier could be read as a destination or attach to the wrong noun."""
     rel = choose(rng, PHRASES[claim["relation"]])
-    if rel.startswith(("sitting", "resting")):
+    if claim.get("twin"):  # added to the identifying name, always as a relative clause
+        form = choose(rng, ("{s} that is {r} {l}", "{s} which is {r} {l}"))
+    elif rel.startswith(("sitting", "resting")):
         form = "{s} {r} {l}"
     elif clause:
         form = choose(rng, ("{s} that is {r} {l}", "{s} that is {r} {l}", "{s} which is {r} {l}"))
@@ -292,7 +313,8 @@ def _names(model: TaskModel, entity: str) -> set[str]:
 
 def _touched(model: TaskModel, slots: list[Slot]) -> set[str]:
     out = {e for slot in slots for e in acted_on(model, slot)}
-    return out | {model.parent(e) for e in out}
+    out |= {model.parent(e) for e in out}
+    return out | {o for e in out for o in riders(model, e)}
 
 
 def _usable(model: TaskModel, frame: list[Slot], index: int, part: str) -> bool:

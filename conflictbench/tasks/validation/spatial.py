@@ -10,11 +10,16 @@ and, for a direction, ``margin_m``. A relation is valid when:
   :meth:`.scene.facts.TaskFacts.holds`, for no combination of the entities its words could denote,
   in no initial state the case is paired with (all 50, or at least ``MIN_STATES`` listed ones).
 - **Visibly false**: a direction (left/right of, in front of, behind) is false by at least
-  ``max(5 cm, the subject's radius)`` past the landmark's centre, as recomputed from the scene
+  ``max(6 cm, the subject's radius)`` past the landmark's centre, as recomputed from the scene
   facts; the witness's ``margin_m`` is that smallest clearance over the paired states.
 - **Still false when reached**: no entity of the relation (subject or landmark, or their parent
   fixture) is moved or operated by an EARLIER step (the witness's ``step_entities`` and what the
-  steps' goals imply), and no landmark is moved or operated by the relation's own step.
+  steps' goals imply), nor rests on or in a thing such a step moves (:func:`riders`: a bowl on the
+  cookie box moves with the box), and no landmark is moved or operated by the relation's own step.
+- **The scored twin stays identified**: a relation about an entity with an identical twin (the two
+  black bowls of libero_spatial) is about that entity alone, and its text opens with the entity's
+  full identifying name ("the black bowl next to the ramekin that is behind the stove"): replacing
+  the base task's own relation would leave nothing that picks out the bowl the episode scores.
 - **Readable**: said inside its own step; no "left"/"right" (or "front"/"back") in a phrase of a
   relation on the same axis ("the left plate to the right of ..."); "on" only for a movable subject
   and a support at least as large, "in" only for a container at least as large; no claim twice.
@@ -49,6 +54,9 @@ SAME_AXIS_WORDS = {
     "behind": ("front", "back", "rear", "behind"),
 }
 """Words that, inside a subject or landmark phrase, make a direction read as a contradiction."""
+RIDER_RISE = 0.005
+"""A thing touching another counts as resting on it when its origin is this much higher (metres): a
+bowl on the cookie box sits 8 mm above the box's origin, a plate merely grazing a bowl 3 mm."""
 MARGIN_SLACK = 0.0015
 """Positions are stored in millimetres: a witness margin may differ from the recomputed one by this."""
 
@@ -97,6 +105,7 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
     clash = [w for p in phrases for w in SAME_AXIS_WORDS.get(rel, ()) if names_in(p, {w})]
     if clash:
         out.append(f"{rel.replace('_', ' ')} about {' / '.join(phrases)!r}: {clash[0]!r} reads as a contradiction")
+    out += _twin_named(model, r, text)
     out += _holder(model, rel, groups)
     out += _when_reached(r, groups, acted, model)
     combos = _product(groups)
@@ -125,6 +134,40 @@ def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states
         out.append(f"a {rel.replace('_', ' ')} relation needs its margin_m in the witness")
     elif smallest is not None and abs(said - smallest) > MARGIN_SLACK:
         out.append(f"witness margin_m {said} does not match the scene facts ({smallest:.3f} m)")
+    return out
+
+
+def _twin_named(model: TaskModel, r: dict, text: str) -> list[str]:
+    """A relation about a twinned entity keeps its identifying name and is about it alone."""
+    subject = set(r.get("subject", {}).get("entities", []))
+    twinned = {e for e in model.goal_twins() | model.unnamed if {e, model.parent(e)} & subject}
+    if not twinned:
+        return []
+    named = [e for e in twinned if e in model.goal_twins()]
+    if len(twinned) > 1 or not named:
+        return [f"relation text {text!r} is about a twinned entity but could mean {', '.join(sorted(twinned))}"]
+    name = model.name(named[0])
+    if not text.startswith(name) or str(r.get("subject", {}).get("phrase", "")) != name.removeprefix("the "):
+        return [f"relation text {text!r} about a twinned entity does not keep its identifying name {name!r}"]
+    return []
+
+
+def riders(model: TaskModel, entity: str) -> set[str]:
+    """Objects that rest on or in ``entity`` (or one of its regions) in some initial state: LIBERO's
+    on/in predicates, or a contact with the object's origin ``RIDER_RISE`` higher than ``entity``'s.
+    Moving ``entity`` moves them."""
+    facts = model.facts
+    bases = {entity} | {e for e, info in facts.entities.items() if info.kind == "region" and info.parent == entity}
+    out = set()
+    for o, info in facts.entities.items():
+        if info.kind != "object" or o == entity:
+            continue
+        if any(facts.predicate(rel, o, b) for rel in ("on", "in") for b in bases):
+            out.add(o)
+            continue
+        touch = sorted(facts.touching(o, entity))
+        if touch and (facts.positions[o][touch, 2] - facts.positions[entity][touch, 2] >= RIDER_RISE).any():
+            out.add(o)
     return out
 
 
@@ -169,8 +212,9 @@ def _when_reached(r: dict, groups: list[list[str]], acted: list[set[str]], model
 def acted_per_step(case: ConflictCase, model: TaskModel) -> list[set[str]]:
     """Per step, the entities it moves or operates: what the witness's ``step_entities`` says, what
     the step's goals imply (the moved objects; the operated region and its fixture), the object a
-    pick-up step lifts (the next step's), and for an added step everything it names outside its
-    relation phrases (a step the goals do not describe is read conservatively)."""
+    pick-up step lifts (the next step's), for an added step everything it names outside its
+    relation phrases (a step the goals do not describe is read conservatively), and whatever rests
+    on or in any of those."""
     w = case.witness
     steps = w.get("steps", [])
     said = w.get("step_entities") or [[] for _ in steps]
@@ -200,7 +244,8 @@ def acted_per_step(case: ConflictCase, model: TaskModel) -> list[set[str]]:
             for t in texts.get(i + 1, []):
                 rest = rest.replace(t, " ")
             here |= {e for e in model.facts.entities if names_in(rest, _own_names(model, e))}
-        acted.append(here | {model.parent(e) for e in here})
+        here |= {model.parent(e) for e in here}
+        acted.append(here | {o for e in here for o in riders(model, e)})
     return acted
 
 
