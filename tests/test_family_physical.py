@@ -98,7 +98,7 @@ def test_undecided_or_held_affordances_are_not_violations(ctx):
 
 
 def test_size_comes_from_the_table_sizes(ctx):
-    good = one(("libero_10", 5), "L1", lambda c: c.witness["violations"][0]["kind"] == "size")
+    good = one(("libero_10", 5), "L3", lambda c: c.witness["violations"][0]["kind"] == "size")
     v = good.witness["violations"][0]
     assert v["entity"] == "black_book_1" and v["holder"] == "white_yellow_mug_1"
     swapped = {**v, "entity": "white_yellow_mug_1", "holder": "black_book_1"}  # a mug is smaller than a book
@@ -173,23 +173,43 @@ def test_support_violations_are_rejected_as_disputable(ctx):
 
 
 def test_a_fixture_only_held_is_rejected(ctx):
-    """'open the drawer while holding the stove': gripping a fixture in place is possible."""
-    good = one(("libero_goal", 0), "L1", lambda c: c.witness["violations"][0]["text"].startswith("while "))
+    """'open the drawer while holding the cabinet': gripping a fixture in place is possible."""
+    good = one(("libero_goal", 0), "L1", lambda c: c.witness["violations"][0]["kind"] == "fixed")
     assert validate_case(good, ctx) == []
     v = good.witness["violations"][0]
-    assert v["kind"] == "fixed" and v["text"].endswith("the stove")
-    held = "while holding the stove"
+    held = v["text"].replace("lift", "hold").replace("pick up", "hold")
     planted = replaced_text(good, v["text"], held, [{**v, "text": held}])
     rejected(planted, ctx, "only holds or touches")
 
 
-def test_two_added_fixtures_are_coordinated_never_chained(ctx):
-    """'... together with the wooden cabinet together with the stove' is garbled."""
-    both = "together with the wooden cabinet and the stove"
-    good = one(("libero_spatial", 1), "L2", lambda c: both in c.instruction)
-    assert good.instruction.count("together with") == 1
-    assert validate_case(good, ctx) == []
-    chained = "together with the wooden cabinet together with the stove"
-    v1, v2 = good.witness["violations"]
-    planted = replaced_text(good, both, chained, [v1, {**v2, "text": "together with the stove"}])
-    rejected(planted, ctx, "repeats 'together with'")
+@pytest.mark.parametrize(
+    "joined",
+    [
+        "together with the wooden cabinet",
+        "while carrying the wooden cabinet",
+        "with the milk packed inside the ramekin",
+    ],
+)
+def test_a_participant_joined_after_the_goal_is_rejected(ctx, joined):
+    """'put the bowl on the plate together with the cabinet': the goal is met before the cabinet."""
+    good = one(("libero_spatial", 1), "L1")
+    body = good.witness["steps"][0]
+    planted = dataclasses.replace(good, instruction=f"{good.instruction} {joined}")
+    v = {"step": 1, "kind": "fixed", "needs": "graspable", "entity": "wooden_cabinet_1", "text": joined}
+    rejected(with_violations(planted, [v]), ctx, "joined participant")
+    assert body in planted.instruction
+
+
+def test_an_added_participant_of_a_goal_step_is_rejected(ctx):
+    """'open both the middle drawer and the plate': the drawer opens, the episode ends."""
+    good = one(("libero_goal", 0), "L1")
+    v = {**good.witness["violations"][0], "entity": "plate_1", "kind": "articulation", "needs": "openable"}
+    rejected(with_violations(good, [v]), ctx, "added participant")
+
+
+def test_pouring_and_boxes_as_holders_are_rejected(ctx):
+    good = one(("libero_object", 6), "L1")
+    v = good.witness["violations"][0]
+    rejected(with_violations(good, [{**v, "kind": "pouring", "needs": "pourable"}]), ctx, "is disputable")
+    boxed = {**v, "kind": "containment", "needs": "container", "entity": "butter_1"}
+    rejected(with_violations(good, [boxed]), ctx, "invites opening")

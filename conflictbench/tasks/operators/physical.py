@@ -38,7 +38,7 @@ from conflictbench.tasks.scene.affordances import category, fits_inside
 from conflictbench.tasks.scene.task_model import Step, TaskModel
 
 from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, slot_of, step_label
-from .phrasing import bare, choose, coordinate
+from .phrasing import bare, choose
 
 KIND_NEEDS = {
     "rigidity": ("foldable",),
@@ -47,7 +47,6 @@ KIND_NEEDS = {
     "containment": ("container",),
     "articulation": ("openable",),
     "switch": ("turnable",),
-    "pouring": ("pourable",),
 }
 PREMISES = {
     "foldable": "{E} is rigid and cannot be folded or bent",
@@ -57,38 +56,47 @@ PREMISES = {
     "container": "{E} is sealed or solid: nothing can be put inside it",
     "openable": "{E} has no lid, door or drawer: there is nothing to open or close",
     "turnable": "{E} has no switch or knob: it cannot be turned on or off",
-    "pourable": "{E} is a solid food: it cannot be poured",
 }
 CAP_PER_SIGNATURE = 4
 """Candidates kept per (kinds, roles) signature of a cell: keeps kinds and skeletons balanced."""
 
-# Wordings. {O}: the step's object as named by the task; {X}: the violating entity; {H}: a holder;
-# {d}: the step's destination phrase. Each entry is (text of the step body or clause, violating part).
-RIGID_PLACE = (
-    ("fold {O} in half and put it {d}", "fold {O} in half"),
-    ("bend {O} in half and place it {d}", "bend {O} in half"),
-    ("fold {O} flat and set it down {d}", "fold {O} flat"),
-)
+# Wordings. {O}: the step's object as named by the task; {X}: a bystander acted on; {H}: a holder;
+# {P}: the fixture a drawer belongs to; {d}: the step's destination phrase.
+MANNERS = {
+    "rigidity": (("fold {O} in half", "fold {S} in half"), ("bend {O} in half", "bend {S} in half")),
+    "articulation": (("open {O}", "open {S}"), ("open up {O}", "open up {S}")),
+    "switch": (("switch on {O}", "switch on {S}"), ("turn on {O}", "turn on {S}")),
+}
+"""Impossible manners of the step's OWN object, each done before the object is put down: (first, named
+in full; second, by its plain noun {S}). Never "it" after a manner verb: only a placing verb takes "it"."""
+SWITCH_HELD = (("pick up {O}, switch on {S}", "switch on {S}"), ("take {O}, turn on {S}", "turn on {S}"))
+"""A switch named first in a step that then puts the object down: picked up first, so "put it" has
+its antecedent ("pick up the ketchup, switch on the ketchup and put it in the basket")."""
+GRASPING_KINDS = ("rigidity", "articulation")
+"""Manners that grasp the object, so a later "put it" has its antecedent; "switch on X and put it"
+has none, so a switch comes second or in a pick-up step (whose next step names the object)."""
+MANNER_NEEDS = {"rigidity": "foldable", "articulation": "openable", "switch": "turnable"}
+TAILS = {
+    "place": ("put it {d}", "place it {d}", "set it down {d}"),
+    "place_it": ("put it {d}", "place it {d}", "set it down {d}"),
+    "push": ("slide it {d}",),
+    "pick": (),
+}
+"""What follows the manners in the same step: the original action on "it" (the one object handled)."""
+LIFT_FIRST = {
+    "open": (("lift {P} and open {O}", "lift {P}"), ("pick up {P} and open {O}", "pick up {P}")),
+    "close": (("lift {P} and close {O}", "lift {P}"), ("pick up {P} and close {O}", "pick up {P}")),
+}
+"""A fixture moved before it (or its drawer) is operated: the lift comes first, so it is reached."""
+PICK_INTO = (("put {O} inside {H}", "{O} inside {H}"), ("fit {O} inside {H}", "{O} inside {H}"))
+"""The pick-up half of a split step: the object must first go inside a container too small for it."""
 RIGID_ALONE = (("fold {X} in half", "fold {X} in half"), ("bend {X} in half", "bend {X} in half"))
-OPEN_PLACE = (("open {O} and put it {d}", "open {O}"), ("open up {O} and place it {d}", "open up {O}"))
 OPEN_ALONE = (("open {X}", "open {X}"), ("open up {X}", "open up {X}"))
-RIGID_PUSH = (
-    ("fold {O} in half and slide it {d}", "fold {O} in half"),
-    ("bend {O} in half and slide it {d}", "bend {O} in half"),
-)
-OPEN_PUSH = (("open {O} and slide it {d}", "open {O}"),)
 SWITCH_ALONE = (("switch on {X}", "switch on {X}"), ("turn on {X}", "turn on {X}"), ("turn {X} on", "turn {X} on"))
-POUR_PLACE = (("pour {O} {into}", "pour {O}"), ("pour {O} out {into}", "pour {O} out"))
 LIFT_ALONE = (("lift {X}", "lift {X}"), ("pick up {X}", "pick up {X}"), ("lift {X} and set it down again", "lift {X}"))
 INTO_ALONE = (("put {X} inside {H}", "{X} inside {H}"), ("stuff {X} inside {H}", "{X} inside {H}"))
-PICK_INTO = (("pick up {O} and put it inside {H}", "inside {H}"), ("grab {O} and place it inside {H}", "inside {H}"))
-TUCKED = ("{X} tucked inside {H}", "{X} packed inside {H}")
-TOGETHER = ("together with {X}",)
-CARRYING = ("while carrying {X}", "while lifting up {X}")
-GRASPING = ("fold ", "bend ", "open ", "pick up ", "grab ", "lift ", "take ")
-"""Body openers that leave the object in hand, so the next step may say "place it"."""
-CONNECTIVES = ("together with ", "while carrying ", "while lifting up ")
-"""Clause openers: a second added participant of the same step joins the first clause's list."""
+NOT_HOLDERS = ("box", "carton", "bag", "package")
+"""Words in a holder's name that invite opening it: never a sealed holder."""
 
 
 @dataclass(frozen=True)
@@ -99,16 +107,11 @@ class Option:
     kind: str
     needs: str
     role: str
-    """``body`` (rewrites the step), ``obj`` (adds a participant to the object), ``with`` (a "with
-    ..." property clause), ``extra`` (a trailing clause) or ``aux`` (a whole added step)."""
+    """``manner`` (an impossible manner of the step's own object, composable with a second one),
+    ``body`` (rewrites the step whole) or ``aux`` (a whole added step)."""
     wordings: tuple[tuple[str, str], ...]
     entity: str
     holder: str | None = None
-
-
-def short_name(model: TaskModel, entity: str) -> str:
-    """A bystander's name; a goal twin ("the black bowl between ...") keeps its locating phrase."""
-    return model.name(entity)
 
 
 def _info(model: TaskModel, entity: str):
@@ -116,7 +119,7 @@ def _info(model: TaskModel, entity: str):
 
 
 def _objects(model: TaskModel, exclude: set[str]) -> list[str]:
-    """Named, graspable things a clause may add as participants."""
+    """Named, graspable bystanders an added step may act on."""
     return [
         e
         for e in model.names
@@ -127,23 +130,25 @@ def _objects(model: TaskModel, exclude: set[str]) -> list[str]:
     ]
 
 
-def _heavy_fixtures(model: TaskModel, exclude: set[str]) -> list[str]:
+def _heavy_fixture(model: TaskModel, e: str) -> bool:
     """Furniture-sized fixtures a reader will agree no robot arm lifts: not the work surface."""
-    out = []
-    for e in model.names:
-        info = _info(model, e)
-        if e in exclude or info.size < 4 or info.has("fixed") is not True or not info.lacks("graspable"):
-            continue
-        if {"table", "floor"} & set(info.names):
-            continue
-        out.append(e)
-    return out
+    info = _info(model, e)
+    if info.size < 4 or info.has("fixed") is not True or not info.lacks("graspable"):
+        return False
+    return not {"table", "floor"} & set(info.names)
 
 
 def _sealed(model: TaskModel, e: str) -> bool:
-    """A holder nothing can be put inside: no container, nothing that opens, and not a plate."""
+    """A holder nothing can be put inside: no container, plainly never opening, no box, carton, bag
+    or package (those invite being opened), and not a plate ("in the plate" reads as "on")."""
     info = _info(model, e)
-    return info.lacks("container") and info.has("openable") is not True and info.category != "plate"
+    names = " ".join((*info.names, model.name(e)))
+    return (
+        info.lacks("container")
+        and info.lacks("openable")
+        and info.category != "plate"
+        and not any(w in names for w in NOT_HOLDERS)
+    )
 
 
 def _opens_never(model: TaskModel, e: str) -> bool:
@@ -157,14 +162,9 @@ def _too_big(model: TaskModel, item: str, holder: str) -> bool:
     return bool(holds) and fits_inside(model.category_of(item), model.category_of(holder)) is False
 
 
-def _food(model: TaskModel, e: str) -> bool:
-    return "food" in _info(model, e).hypernyms
-
-
 def _exclusions(model: TaskModel) -> set[str]:
-    """What a violation never adds as a participant: the task's own objects and destinations (with
-    their fixtures and landmarks, also those in a locating name: "the black bowl on the stove" is
-    never put down "together with the stove"), so no step's goal is touched by a violation."""
+    """What an added step never acts on: the task's own objects and destinations (with their
+    fixtures and landmarks, also those in a locating name), so no step's goal is touched."""
     out = model.targets() | {model.parent(t) for t in model.targets()}
     texts = [model.name(t) for t in model.targets() if t in model.names]
     texts += [model.dest_text(step.dest, step.prep) for step in model.steps if step.dest]
@@ -177,62 +177,33 @@ def _object_name(model: TaskModel, entity: str) -> str:
     return model.name(entity) if entity in model.names else model.dest_phrases[entity][1]
 
 
-def slot_options(model: TaskModel, index: int, slot: Slot) -> list[Option]:
-    """Every violation a step of a frame can carry (aux steps carry none: violating ones are built whole)."""
+def slot_options(model: TaskModel, index: int, slot: Slot, second: bool = False) -> list[Option]:
+    """Every violation an original step can carry: only what is reached BEFORE or WHILE its subgoal
+    is achieved (an episode ends at the original goal): a manner of its own object that comes first,
+    a too-small container the object must first go into, a fixture lifted before it is operated.
+    Never an added participant joined to the step ("together with", "both X and", "with X inside").
+    ``second``: also the manners that may only come second in a step (a switch)."""
     if slot.aux:
         return []
     out: list[Option] = []
-    exclude = _exclusions(model)
     o = slot.objects[0]
     one = len(slot.objects) == 1
     info = _info(model, o) if model.category_of(o) != "region" else None
-    twin = o in model.goal_twins()
-    others = _objects(model, exclude)
-
-    def add(kind, needs, role, wordings, entity, holder=None):
-        out.append(Option(index, kind, needs, role, tuple(wordings), entity, holder))
-
-    if slot.kind in ("place", "pick", "push") and one and info is not None:
-        wordings = {"place": 0, "pick": 1, "push": 2}[slot.kind]
-        if info.lacks("foldable"):
-            add("rigidity", "foldable", "body", (RIGID_PLACE, RIGID_ALONE, RIGID_PUSH)[wordings], o)
-        if _opens_never(model, o):
-            add("articulation", "openable", "body", (OPEN_PLACE, OPEN_ALONE, OPEN_PUSH)[wordings], o)
-        if info.lacks("turnable") and slot.kind == "pick":  # "switch on X and put it ..." has no grasp for "it"
-            add("switch", "turnable", "body", SWITCH_ALONE, o)
-        if slot.kind == "place" and slot.prep in ("in", "on") and info.lacks("pourable") and _food(model, o):
-            add("pouring", "pourable", "body", POUR_PLACE, o)
+    if slot.kind in TAILS and one and info is not None:
+        for kind, needs in MANNER_NEEDS.items():
+            denied = _opens_never(model, o) if kind == "articulation" else info.lacks(needs)
+            if not denied:
+                continue
+            if kind in GRASPING_KINDS or slot.kind == "pick" or second:
+                out.append(Option(index, kind, needs, "manner", MANNERS[kind], o))
+            else:
+                out.append(Option(index, kind, needs, "manner", SWITCH_HELD, o))
         if slot.kind == "pick":
-            for h in others:
+            for h in _objects(model, _exclusions(model)):
                 if _too_big(model, o, h):
-                    add("size", "fits_in", "body", PICK_INTO, o, h)
-                elif _sealed(model, h):
-                    add("containment", "container", "body", PICK_INTO, h, o)
-    if slot.kind in ("place", "pick", "place_it") and not twin:
-        for x in others:
-            for h in slot.objects:
-                if _sealed(model, h) and x != h:
-                    add("containment", "container", "with", tuple((w, w) for w in TUCKED), h, x)
-                if _too_big(model, h, x) and slot.kind != "pick":  # not "grab the book with the book in ..."
-                    add("size", "fits_in", "with", tuple((w, w) for w in TUCKED), h, x)
-    if slot.kind in ("place", "place_it", "push"):
-        needs = "movable" if slot.kind == "push" else "graspable"
-        for f in _heavy_fixtures(model, exclude):
-            add("fixed", needs, "extra", tuple((w, w) for w in TOGETHER), f)
-            if slot.kind != "place_it" and not (twin and slot.kind == "place"):
-                add("fixed", needs, "obj", (("", ""),), f)
-    if slot.kind in ("open", "close"):
-        for y in others:
-            if _opens_never(model, y):
-                add("articulation", "openable", "obj", (("", ""),), y)
-    if slot.kind in ("turn_on", "turn_off"):
-        for y in others:
-            if _info(model, y).lacks("turnable"):
-                add("switch", "turnable", "obj", (("", ""),), y)
-    if slot.kind in ("open", "close", "turn_on", "turn_off"):
-        parents = {model.parent(x) for x in slot.objects}
-        for f in _heavy_fixtures(model, exclude | parents):
-            add("fixed", "graspable", "extra", tuple((w, w) for w in CARRYING), f)
+                    out.append(Option(index, "size", "fits_in", "body", PICK_INTO, o, h))
+    if slot.kind in LIFT_FIRST and one and _heavy_fixture(model, model.parent(o)):
+        out.append(Option(index, "fixed", "graspable", "body", LIFT_FIRST[slot.kind], model.parent(o)))
     return out
 
 
@@ -241,8 +212,9 @@ def aux_options(model: TaskModel) -> list[Option]:
     targets = _exclusions(model)
     others = _objects(model, targets)
     out: list[Option] = []
-    for f in _heavy_fixtures(model, targets):
-        out.append(Option(0, "fixed", "graspable", "aux", LIFT_ALONE, f))
+    for f in model.names:
+        if f not in targets and _heavy_fixture(model, f):
+            out.append(Option(0, "fixed", "graspable", "aux", LIFT_ALONE, f))
     for y in others:
         info = _info(model, y)
         if info.lacks("foldable"):
@@ -267,54 +239,63 @@ def _aux_slot(option: Option) -> Slot:
 
 
 def _fill(model: TaskModel, text: str, slot: Slot, option: Option) -> str:
-    """Put names into a wording: X is the entity acted on, H the holder or surface."""
+    """Put names into a wording: X the bystander acted on, H the holder, P a drawer's fixture."""
     o = _object_name(model, slot.objects[0]) if slot.objects else ""
     x, h = option.entity, option.holder
     if option.kind == "containment" and h:
-        x, h = h, option.entity  # the participant goes inside or on top of the violating entity
+        x, h = h, option.entity  # the bystander goes inside the sealed entity
     dest = slot.dest or slot.step.dest
     d = model.dest_text(dest, slot.step.prep) if dest else ""
-    into = d.replace("in ", "into ", 1) if d.startswith("in ") else d.replace("on ", "onto ", 1)
-    return text.format(O=o, X=model.name(x), H=model.name(h) if h else "", d=d, into=into)
+    p = (
+        model.name(model.parent(slot.objects[0]))
+        if slot.objects and model.parent(slot.objects[0]) in model.names
+        else ""
+    )
+    thing = slot.objects and model.category_of(slot.objects[0]) != "region"
+    short = f"the {_info(model, slot.objects[0]).names[0]}" if thing else ""
+    return text.format(O=o, S=short, X=model.name(x), H=model.name(h) if h else "", P=p, d=d)
+
+
+def _rename_next(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], index: int) -> None:
+    """After a rewritten pick-up, the next step names its object: "it" only follows a plain pick-up
+    of that one object ("put the bowl inside the ramekin, then place it ...": bowl or ramekin?)."""
+    after = index + 1
+    if frame[index].kind == "pick" and after < len(frame) and frame[after].pronoun:
+        mods.setdefault(after, Mods()).obj = _object_name(model, frame[after].objects[0])
+
+
+def _apply_manners(model, frame, mods, options: list[Option], rng: random.Random) -> list[dict]:
+    """One step with one or two manners of its object: "open up the bowl, fold the bowl in half and
+    put it on the plate". Each violation's text runs from the step's start to its own manner."""
+    slot = frame[options[0].step]
+    first, *rest = [choose(rng, o.wordings) for o in options]
+    parts = [_fill(model, first[0], slot, options[0])] + [_fill(model, w[1], slot, options[0]) for w in rest]
+    tails = TAILS[slot.kind]
+    joiner = ", " if tails else " and "  # "fold X in half, open X and put it ..." / "fold X in half and open X"
+    texts = [joiner.join(parts[: i + 1]) for i in range(len(parts))]
+    body = texts[-1] + (" and " + _fill(model, rng.choice(tails), slot, options[0]) if tails else "")
+    mods.setdefault(options[0].step, Mods()).frame = body
+    _rename_next(model, frame, mods, options[0].step)
+    return [_violation(o, t) for o, t in zip(options, texts, strict=True)]
 
 
 def _apply(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], option: Option, rng: random.Random) -> dict:
     slot = frame[option.step]
     m = mods.setdefault(option.step, Mods())
     body, part = choose(rng, option.wordings)
-    body, part = _fill(model, body, slot, option), _fill(model, part, slot, option)
-    if option.role in ("body", "aux"):
-        m.frame, m.obj = body, model.name(option.entity) if option.role == "aux" else m.obj
-        after = option.step + 1
-        grasps = body.startswith(GRASPING) and " it " not in f" {body} "
-        if option.role == "body" and not grasps and after < len(frame) and frame[after].pronoun:
-            # "pick up X and put it inside Y, then place it ...": X or Y? "switch on X, then place it":
-            # nothing was picked up. The next step names X again.
-            mods.setdefault(after, Mods()).obj = _object_name(model, frame[after].objects[0])
-    elif option.role == "obj":
-        m.obj = coordinate([_object_name(model, o) for o in slot.objects] + [model.name(option.entity)])
-        part = model.name(option.entity)
-    elif option.role == "with":
-        m.extras.append(("with " if not any(e.startswith("with ") for e in m.extras) else "and ") + body)
+    m.frame = _fill(model, body, slot, option)
+    if option.role == "aux":
+        m.obj = model.name(option.entity)
     else:
-        part = _join_extra(m.extras, body)
-    v = {"step": option.step + 1, "kind": option.kind, "needs": option.needs, "entity": option.entity, "text": part}
+        _rename_next(model, frame, mods, option.step)
+    return _violation(option, _fill(model, part, slot, option))
+
+
+def _violation(option: Option, text: str) -> dict:
+    v = {"step": option.step + 1, "kind": option.kind, "needs": option.needs, "entity": option.entity, "text": text}
     if option.holder and option.kind == "size":
         v["holder"] = option.holder
     return v
-
-
-def _join_extra(extras: list[str], clause: str) -> str:
-    """Add a trailing clause; a second added participant joins the first clause ("together with the
-    cabinet and the stove", never "together with the cabinet together with the stove" nor "while
-    carrying the cabinet while lifting up the stove"). Returns the clause as it now reads."""
-    opener = next((c for c in CONNECTIVES if clause.startswith(c)), None)
-    for i, old in enumerate(extras):
-        if opener and old.startswith(CONNECTIVES):
-            extras[i] = f"{old} and {clause.removeprefix(opener)}"
-            return extras[i]
-    extras.append(clause)
-    return clause
 
 
 def _premise(model: TaskModel, v: dict) -> str:
@@ -323,23 +304,13 @@ def _premise(model: TaskModel, v: dict) -> str:
 
 
 def _compatible(options: tuple[Option, ...]) -> bool:
-    """Two violations of one step must each stand alone: one rewrite of the body at most, one added
-    object at most, different (entity, affordance) pairs, and no rewrite alongside an added object."""
-    roles = [o.role for o in options]
-    if roles.count("body") > 1 or roles.count("obj") > 1 or ("body" in roles and "obj" in roles):
-        return False
-    if "with" in roles and "extra" in roles:  # "... with X inside Y together with Z": whose Z?
-        return False
-    keys = {(o.entity, o.needs) for o in options}
-    added = [o.holder for o in options if o.role == "with"]
-    if len(added) != len(set(added)):
-        return False  # "with the sauce inside the ketchup and the sauce on top of it": one thing twice
-    return len(keys) == len(options)
+    """L2: two manners of the one object, of different kinds (each impossible on its own)."""
+    return all(o.role == "manner" for o in options) and len({o.kind for o in options}) == len(options)
 
 
 def _apart(options: tuple[Option, ...]) -> bool:
     """L4: violations in different steps, about different entities ("lift the cabinet, then ...
-    while carrying the cabinet" repeats one impossibility)."""
+    lift the cabinet and open its drawer" repeats one impossibility)."""
     return len({o.step for o in options}) == len({o.entity for o in options}) == len(options)
 
 
@@ -347,9 +318,12 @@ def _combos(model: TaskModel, level: str) -> list[tuple[list[Slot], tuple[Option
     out: list[tuple[list[Slot], tuple[Option, ...]]] = []
     if level in ("L1", "L2"):
         for frame in frames_for_level(model, level):
-            options = slot_options(model, 0, frame[0])
-            size = 1 if level == "L1" else 2
-            out += [(frame, c) for c in itertools.combinations(options, size) if _compatible(c)]
+            if level == "L1":
+                out += [(frame, (o,)) for o in slot_options(model, 0, frame[0])]
+                continue
+            seconds = slot_options(model, 0, frame[0], second=True)
+            pairs = itertools.product(slot_options(model, 0, frame[0]), seconds)
+            out += [(frame, c) for c in pairs if _compatible(c)]
         return out
     frames = frames_for_level(model, level)
     plain = [f for f in frames if not any(s.aux for s in f)]
@@ -392,8 +366,13 @@ def generate(model: TaskModel, level: str, rng: random.Random):
 
 def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.Random) -> Draft | None:
     mods: dict[int, Mods] = {}
-    order = {"aux": 0, "body": 0, "obj": 1, "with": 2, "extra": 3}
-    violations = [_apply(model, frame, mods, o, rng) for o in sorted(combo, key=lambda o: (o.step, order[o.role]))]
+    violations: list[dict] = []
+    for step in sorted({o.step for o in combo}):
+        here = [o for o in combo if o.step == step]  # in the combo's order: which manner is named first
+        if here[0].role == "manner":
+            violations += _apply_manners(model, frame, mods, here, rng)
+        else:
+            violations += [_apply(model, frame, mods, o, rng) for o in here]
     instruction, steps, _ = realise(model, frame, mods, rng)
     if any(v["text"] not in instruction for v in violations):
         return None

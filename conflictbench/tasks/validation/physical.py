@@ -7,6 +7,16 @@ subgoal is still asked, naming its original object and destination, and that add
   pouring) and the affordance that kind is about; ``support`` ("the plate standing on top of the
   wine bottle") is rejected: a plate can balance on a bottle mouth, so it is never plainly
   impossible;
+- observable: an episode ends as soon as the original goal holds, so a violation of an original,
+  goal-reaching step is about what that step acts on (its object, or a drawer's fixture), never an
+  added participant joined to it; the joining forms ("together with", "along with", "as well as",
+  "while ...", "with X tucked/packed inside Y", "both X and Y" where the base task has no "both")
+  are rejected wherever they appear;
+- ``pouring`` is rejected as disputable ("pour the butter into the basket" reads as tipping the
+  package in), and a ``containment`` holder must plainly never open and have no "box", "carton",
+  "bag" or "package" in its name (a box invites being opened);
+- a step right after a step with a violation never opens with "put it"/"place it": that step may
+  have handled two things;
 - a ``fixed`` violation moves the fixture: its text never uses a verb of only holding or touching
   it ("while holding the stove"): gripping a fixture in place is possible;
 - no step repeats a connective ("together with the cabinet together with the stove"): two added
@@ -45,7 +55,14 @@ KIND_NEEDS = {
     "switch": ("turnable",),
     "pouring": ("pourable",),
 }
-DISPUTABLE_KINDS = {"support": "a plate can balance on a bottle, a box on a carton laid down"}
+DISPUTABLE_KINDS = {
+    "support": "a plate can balance on a bottle, a box on a carton laid down",
+    "pouring": "pouring a packaged food reads as tipping the package in",
+}
+JOINED = re.compile(r"\b(?:together with|along with|as well as|while|tucked|packed)\b|\bwith\b.*\binside\b")
+"""Forms that join an added participant to a step: the robot can reach the goal before it."""
+NOT_HOLDERS = ("box", "carton", "bag", "package")
+PRONOUN_OPENER = re.compile(r"^(?:put|place|set|slide|drop|move) (?:it|them)\b")
 HOLDING_ONLY = re.compile(r"\b(?:hold|grip|grasp|touch|clutch|squeeze)(?:s|es|ing|ed)?\b|\bheld\b")
 """Verbs that keep a fixture where it is: no violation of "fixed"."""
 CONNECTIVES = ("together with", "along with", "as well as", "while")
@@ -101,7 +118,39 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
         if kind == "fixed" and HOLDING_ONLY.search(text):
             out.append(f"fixed violation {text!r} only holds or touches the fixture: it must move it")
         out += _denied(model, v, present)
-    return out + _repeated_connectives(case) + _level_shape(case, violations)
+    return out + _observable(case, model, violations) + _repeated_connectives(case) + _level_shape(case, violations)
+
+
+def _observable(case: ConflictCase, model: TaskModel, violations: list) -> list[str]:
+    """Violations reached before the original goal ends the episode; no joined participants; no
+    "put it" right after a step with a violation; containment only in plainly sealed holders."""
+    out: list[str] = []
+    text = normalise(case.instruction)
+    if JOINED.search(text):
+        out.append(f"joined participant {JOINED.search(text).group(0)!r}: the goal can be met before it is reached")
+    if re.search(r"\bboth\b", text) and not re.search(r"\bboth\b", normalise(model.task.language)):
+        out.append("'both X and Y' adds a participant: the goal can be met before it is reached")
+    roles = case.witness.get("step_roles") or []
+    goals = case.witness.get("step_goals") or []
+    acted = case.witness.get("step_entities") or []
+    bodies = [normalise(str(b)) for b in case.witness.get("steps") or []]
+    for v in violations:
+        i = int(v.get("step", 0)) - 1
+        if 0 <= i < len(roles) and roles[i] == "original" and i < len(goals) and goals[i]:
+            if i < len(acted) and v.get("entity") not in acted[i]:
+                out.append(
+                    f"step {i + 1} reaches its goal: {v.get('entity')} is an added participant, maybe never reached"
+                )
+        if 0 <= i + 1 < len(bodies) and PRONOUN_OPENER.match(bodies[i + 1]):
+            out.append(f"step {i + 2} opens with a pronoun after a step with a violation: name the object")
+        if v.get("kind") == "containment" and v.get("entity") in model.names:
+            info = category(model.category_of(v["entity"]))
+            names = " ".join((*info.names, model.name(v["entity"])))
+            if not info.lacks("openable") or any(w in names for w in NOT_HOLDERS):
+                out.append(
+                    f"containment in {v['entity']}: a box, carton, bag or package, or what may open, invites opening"
+                )
+    return out
 
 
 def _step_spans(case: ConflictCase) -> list[str]:
