@@ -358,7 +358,7 @@ def generate(model: TaskModel, level: str, rng: random.Random):
         picked += group[:CAP_PER_SIGNATURE]
     rng.shuffle(picked)
     for frame, combo in picked:
-        for _ in range(2):  # a second wording: scenes with few entities still fill their cell
+        for _ in range(3):  # more wordings: scenes with few entities still fill their cell
             draft = _draft(model, level, frame, combo, rng)
             if draft:
                 yield draft
