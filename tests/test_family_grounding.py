@@ -12,7 +12,14 @@ import pytest
 
 from conflictbench.core import LEVELS
 from conflictbench.tasks.scene.affordances import load_table
-from conflictbench.tasks.scene.lexicon import COLOURS, NEAR_COLOURS, colourings, denotations, near_synonyms
+from conflictbench.tasks.scene.lexicon import (
+    COLOURS,
+    NEAR_COLOURS,
+    close_colours,
+    colourings,
+    denotations,
+    near_synonyms,
+)
 
 # -- the tables (no simulator needed) ----------------------------------------------------------------
 KNOWN_NEAR_SYNONYMS = {
@@ -37,7 +44,21 @@ def test_the_known_near_synonyms_denote_their_category(cat, words):
 def test_attributes_are_known_colours_of_table_categories():
     for cat, colouring in colourings().items():
         assert cat in load_table()
-        assert set(colouring.colours) <= set(COLOURS) | {c for near in NEAR_COLOURS.values() for c in near}
+        assert set(colouring.colours) <= set(COLOURS) | set(NEAR_COLOURS)  # each has its close colours
+
+
+def test_wood_is_recorded_as_wood_and_its_tones_are_close_to_it():
+    assert colourings()["wooden_cabinet"].colours == ("wood",)
+    assert {"yellow", "orange", "tan", "beige", "brown", "gold"} <= close_colours("wood")
+    # only colours far from black, white and wood are left for a wrong attribute against them
+    taken = close_colours("black") | close_colours("white") | close_colours("wood")
+    assert [c for c in COLOURS if c not in taken] == ["red", "blue", "green", "purple", "pink"]
+
+
+def test_closeness_reads_both_ways():
+    for colour in NEAR_COLOURS:
+        for near in close_colours(colour):
+            assert colour in close_colours(near), (colour, near)
 
 
 # -- generated and planted cases -------------------------------------------------------------------
@@ -174,6 +195,21 @@ def test_a_wrong_attribute_must_be_clearly_wrong(phrase, reason, ctx):
     )
     ref = _role(case, "object")
     _rejected(_swap(case, ref["text"], phrase), ctx, reason)
+
+
+CABINET_TASK = ("libero_goal", 0)  # open the middle drawer of the (wooden) cabinet
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("colour", ["yellow", "orange"])
+def test_a_wood_tone_is_not_a_wrong_colour_for_a_wooden_cabinet(colour, ctx):
+    case = _case(
+        CABINET_TASK, "L1", ctx, lambda c: _role(c, "object")["source"] == "attribute" and c.factors == ("object",)
+    )
+    ref = _role(case, "object")
+    assert ref["concept"] == "wooden_cabinet" and ref["attribute"] in ("red", "blue", "green", "purple", "pink")
+    wrong = ref["text"].replace(ref["attribute"], colour)
+    _rejected(_swap(case, ref["text"], wrong, attribute=colour), ctx, "may denote something in the scene")
 
 
 @pytest.mark.sim

@@ -12,10 +12,12 @@ nouns is in that vocabulary, and none of its content words is a word of a presen
 
 A WRONG ATTRIBUTE ("the red bowl" where the only bowls are black) is the one referent that shares
 its head noun with something present. ``data/attributes.jsonl`` gives the visible colour of each
-LIBERO category whose colour is unambiguous; a wrong colour is one of :data:`COLOURS` that is not,
-and is not close to (:data:`NEAR_COLOURS`), the colour of ANY attribute-known thing in the scene,
-nor a word of any present name; and every present thing the noun could denote has a known colour
-(otherwise "the red X" could be a thing whose colour the table does not know).
+LIBERO category whose colour is unambiguous (wooden things are recorded as "wood", whose tones read
+as yellow, orange, tan, beige, brown or gold); a wrong colour is one of :data:`COLOURS` that is not,
+and is not close to (:func:`close_colours`, either way round), the colour of ANY attribute-known
+thing in the scene, nor a word of any present name; and every present thing the noun could denote
+has a known colour (otherwise "the red X" could be a thing whose colour the table does not know).
+Against black, white and wood that leaves red, blue, green, purple and pink.
 """
 
 from __future__ import annotations
@@ -41,15 +43,27 @@ NEAR_COLOURS = {
     "pink": {"red", "purple"},
     "orange": {"red", "yellow", "brown"},
     "yellow": {"orange", "cream", "gold"},
-    "white": {"cream", "grey", "silver", "beige"},
+    # a light ceramic can look cream, and cream reads as pale yellow
+    "white": {"cream", "grey", "silver", "beige", "yellow"},
     "black": {"grey", "brown", "dark"},
-    "brown": {"orange", "black", "wooden", "beige"},
+    "brown": {"orange", "black", "wooden", "beige", "yellow", "tan", "gold"},
+    # wood tones read as yellow, orange, tan, beige, brown or gold, depending on the grain and light
+    "wood": {"yellow", "orange", "tan", "beige", "brown", "gold", "wooden"},
     "grey": {"silver", "white", "black"},
     "blue": {"purple"},
     "purple": {"blue", "pink"},
     "green": set(),
 }
-"""Colours a reader could confuse: a wrong attribute is never one of these next to a present colour."""
+"""Colours a reader could confuse (the relation is read both ways by :func:`close_colours`): a wrong
+attribute is never one of these next to a present colour."""
+
+
+def close_colours(colour: str) -> set[str]:
+    """The colour and every colour a reader could take it for, either way round ("yellow" is close to
+    "wood" because wood is listed close to yellow)."""
+    return {colour} | NEAR_COLOURS.get(colour, set()) | {c for c, near in NEAR_COLOURS.items() if colour in near}
+
+
 SCENE_WORDS = (
     "robot",
     "robot arm",
@@ -300,7 +314,7 @@ def wrong_colours(noun: str, problem: BDDLProblem) -> list[str]:
     for cat in scene_categories(problem):
         if cat in known:
             for colour in known[cat].colours:
-                taken |= {colour} | NEAR_COLOURS.get(colour, set())
+                taken |= close_colours(colour)
         taken |= {w for phrase in (*category(cat).names, *category(cat).synonyms) for w in words(phrase)}
     return [c for c in COLOURS if c not in taken]
 
