@@ -8,13 +8,15 @@ an added step, which comes first, so the conflict is reached before the episode 
 
 Referents come from three sources, drawn per referent with weights :data:`SOURCE_WEIGHTS`
 (0.4 / 0.4 / 0.2, renormalised over the sources a slot can use). Wrong attributes exist only in the
-25 base tasks with a colour-known category (none in libero_object), so the built suite (seed 0) ends
-at about 43 % libero, 25 % attribute and 32 % out-of-domain referents, i.e. roughly 40/30/30:
+25 base tasks with a colour-known category (none in libero_object), and only in colours far from
+every present one, so the built suite (seed 0) ends at about 44 % libero, 22 % attribute and 35 %
+out-of-domain referents:
 
 - ``libero``: a LIBERO category absent from the scene that shares no name, synonym, near-synonym,
   hypernym or head noun with anything present (:func:`.lexicon.libero_absent`): "the moka pot";
-- ``attribute``: a WRONG COLOUR of a present category, clearly different from every present colour
-  (:func:`.lexicon.wrong_colours`): "the red bowl" where the bowls are black; it replaces an entity
+- ``attribute``: a WRONG COLOUR of a present category, far from every present colour and every
+  colour a reader could take one for (:func:`.lexicon.wrong_colours`; wood reads as yellow, orange,
+  tan, beige, brown or gold): "the red bowl" where the bowls are black; it replaces an entity
   of that very category, keeping any locating phrase after the noun;
 - ``out_of_domain``: an item of ``data/absent_referents.jsonl`` absent here: "the banana".
 
