@@ -213,3 +213,45 @@ def test_pouring_and_boxes_as_holders_are_rejected(ctx):
     rejected(with_violations(good, [{**v, "kind": "pouring", "needs": "pourable"}]), ctx, "is disputable")
     boxed = {**v, "kind": "containment", "needs": "container", "entity": "butter_1"}
     rejected(with_violations(good, [boxed]), ctx, "invites opening")
+
+
+@pytest.mark.parametrize("level", ["L1", "L2"])
+def test_a_size_manner_names_the_object_again(ctx, level):
+    """'squeeze the black bowl into the ramekin and put the black bowl on the plate': after a holder,
+    'it' could mean the ramekin, so the object is named in full; the holder is a plain, smaller container."""
+    sized = [c for c in cases(("libero_spatial", 8), level) if "size" in physical_kinds(c)]
+    assert sized
+    for case in sized:
+        assert validate_case(case, ctx) == [], case.instruction
+        v = next(v for v in case.witness["violations"] if v["kind"] == "size")
+        assert v["holder"] == "glazed_rim_porcelain_ramekin_1" and v["entity"] == "akita_black_bowl_1"
+        assert " it " not in f" {case.instruction} " and "inside the ramekin and" not in case.instruction
+        assert case.instruction.index("the ramekin") < case.instruction.rindex("on the plate")
+    # the ramekin is in the object's own name here: never the holder ("the bowl next to the ramekin into the ramekin")
+    assert not [c for lv in ("L1", "L2") for c in cases(("libero_spatial", 1), lv) if "size" in physical_kinds(c)]
+
+
+def physical_kinds(case):
+    return {v["kind"] for v in case.witness["violations"]}
+
+
+def test_a_size_manner_followed_by_it_is_rejected(ctx):
+    good = one(("libero_spatial", 8), "L1", lambda c: "size" in physical_kinds(c))
+    body = good.witness["steps"][0]
+    named = body[body.rindex(" and ") + 1 :].split(" on the plate")[0]  # "set the black bowl down"
+    pronoun = named.replace("the black bowl", "it")
+    rejected(replaced_text(good, named, pronoun, good.witness["violations"]), ctx, "pronoun")
+
+
+def test_a_box_is_never_a_size_holder():
+    """No holder with 'box', 'carton', 'bag' or 'package' in its name: it invites opening or stretching."""
+    from conflictbench.tasks.validation.physical import _denied
+
+    m = model(("libero_spatial", 8))
+    holder = "glazed_rim_porcelain_ramekin_1"
+    present = set(m.problem.objects) | set(m.problem.fixtures)
+    v = {"kind": "size", "needs": "fits_in", "entity": "akita_black_bowl_1", "holder": holder}
+    v["text"] = "squeeze the black bowl into the ramekin"
+    assert _denied(m, v, present) == []
+    m.names[holder] = "the ramekin box"
+    assert any("box, carton" in r for r in _denied(m, v, present))

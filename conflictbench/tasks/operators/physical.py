@@ -4,9 +4,11 @@ Rules of the family (re-checked by :mod:`conflictbench.tasks.validation.physical
 
 - **Whole original.** Every case still asks for every subgoal of its base task, naming the original
   object and destination. The violation is an impossible manner of that same step ("fold the black
-  bowl in half and put it on the plate"), an added participant or property of it ("put the bowl on
-  the plate together with the stove", "... with the butter tucked inside the ketchup"), or an added
-  step BEFORE the original ones ("lift the stove, then put the bowl on the plate").
+  bowl in half and put it on the plate"), a container a whole size class too small that the object
+  must first go into ("squeeze the black bowl into the ramekin and put the black bowl on the plate":
+  the object named again, never "it", after a holder), a fixture lifted before it is operated, or an
+  added step BEFORE the original ones ("lift the stove, then put the bowl on the plate"). Never an
+  added participant joined to the step ("together with the stove"): the goal is met before it.
 - **Plainly denied.** Each violation pairs an entity of the scene, named in the text, with an
   affordance the table sets to ``false`` (never ``null``): ``foldable`` (rigidity), ``graspable`` or
   ``movable`` (fixed), ``fits_in`` from the size classes (size), ``container`` (containment),
@@ -14,7 +16,8 @@ Rules of the family (re-checked by :mod:`conflictbench.tasks.validation.physical
   operator is stricter than the table where a reader could hesitate: only furniture-sized fixtures
   other than the work surface are "fixed" (a microwave or wine rack can be lifted by a person), a
   plate is never a holder ("in the plate" is common for "on the plate"), nothing with a door or
-  covers opens, and the stove is never asked to open (read as an oven).
+  covers opens, the stove is never asked to open (read as an oven), and no holder (sealed or too
+  small) is a box, carton, bag or package, nor a target or landmark of the task.
 - **No disputable kinds.** Nothing is asked to rest on top of something (a plate balances on a
   bottle mouth, a box sits on a carton laid down): the ``support`` kind is never generated. A fixed
   fixture is always MOVED (lifted, carried, put somewhere with the object), never only held or
@@ -83,6 +86,22 @@ TAILS = {
     "pick": (),
 }
 """What follows the manners in the same step: the original action on "it" (the one object handled)."""
+NAMED_TAILS = {
+    "place": ("put {S} {d}", "place {S} {d}", "set {S} down {d}"),
+    "place_it": ("put {S} {d}", "place {S} {d}", "set {S} down {d}"),
+    "push": ("slide {S} {d}",),
+    "pick": (),
+}
+"""The tails after a step that brought in a holder: "squeeze the bowl into the ramekin and put it ..."
+could mean the ramekin, so the object is named again."""
+SQUEEZE_INTO = (
+    ("squeeze {O} into {H}", "squeeze {S} into {H}"),
+    ("stuff {O} into {H}", "stuff {S} into {H}"),
+    ("fit {O} into {H}", "fit {S} into {H}"),
+)
+"""A size manner of the step's own object, done before it is put down: into a container a whole size
+class smaller ("squeeze the black bowl into the ramekin and put the black bowl on the plate"). Never
+"put X inside H": "put the bowl on the cookie box inside the ramekin" reads as one location."""
 LIFT_FIRST = {
     "open": (("lift {P} and open {O}", "lift {P}"), ("pick up {P} and open {O}", "pick up {P}")),
     "close": (("lift {P} and close {O}", "lift {P}"), ("pick up {P} and close {O}", "pick up {P}")),
@@ -162,6 +181,16 @@ def _too_big(model: TaskModel, item: str, holder: str) -> bool:
     return bool(holds) and fits_inside(model.category_of(item), model.category_of(holder)) is False
 
 
+def _small_holders(model: TaskModel, item: str) -> list[str]:
+    """Plain containers of the scene too small for the task's own object, never a target or landmark of
+    the task ("the bowl next to the ramekin into the ramekin") nor a box, carton, bag or package."""
+    return [
+        h
+        for h in _objects(model, _exclusions(model))
+        if _too_big(model, item, h) and not any(w in model.name(h) for w in NOT_HOLDERS)
+    ]
+
+
 def _exclusions(model: TaskModel) -> set[str]:
     """What an added step never acts on: the task's own objects and destinations (with their
     fixtures and landmarks, also those in a locating name), so no step's goal is touched."""
@@ -182,6 +211,7 @@ def slot_options(model: TaskModel, index: int, slot: Slot, second: bool = False)
     is achieved (an episode ends at the original goal): a manner of its own object that comes first,
     a too-small container the object must first go into, a fixture lifted before it is operated.
     Never an added participant joined to the step ("together with", "both X and", "with X inside").
+    A size manner names the object again after it ("... into the ramekin and put the bowl on the plate").
     ``second``: also the manners that may only come second in a step (a switch)."""
     if slot.aux:
         return []
@@ -198,10 +228,11 @@ def slot_options(model: TaskModel, index: int, slot: Slot, second: bool = False)
                 out.append(Option(index, kind, needs, "manner", MANNERS[kind], o))
             else:
                 out.append(Option(index, kind, needs, "manner", SWITCH_HELD, o))
-        if slot.kind == "pick":
-            for h in _objects(model, _exclusions(model)):
-                if _too_big(model, o, h):
-                    out.append(Option(index, "size", "fits_in", "body", PICK_INTO, o, h))
+        for h in _small_holders(model, o):
+            if slot.kind == "pick":
+                out.append(Option(index, "size", "fits_in", "body", PICK_INTO, o, h))
+            else:
+                out.append(Option(index, "size", "fits_in", "manner", SQUEEZE_INTO, o, h))
     if slot.kind in LIFT_FIRST and one and _heavy_fixture(model, model.parent(o)):
         out.append(Option(index, "fixed", "graspable", "body", LIFT_FIRST[slot.kind], model.parent(o)))
     return out
@@ -269,8 +300,11 @@ def _apply_manners(model, frame, mods, options: list[Option], rng: random.Random
     put it on the plate". Each violation's text runs from the step's start to its own manner."""
     slot = frame[options[0].step]
     first, *rest = [choose(rng, o.wordings) for o in options]
-    parts = [_fill(model, first[0], slot, options[0])] + [_fill(model, w[1], slot, options[0]) for w in rest]
-    tails = TAILS[slot.kind]
+    parts = [_fill(model, first[0], slot, options[0])] + [
+        _fill(model, w[1], slot, o) for w, o in zip(rest, options[1:])
+    ]
+    holder_named = any(o.holder for o in options)  # "it" could mean the holder: name the object again
+    tails = (NAMED_TAILS if holder_named else TAILS)[slot.kind]
     joiner = ", " if tails else " and "  # "fold X in half, open X and put it ..." / "fold X in half and open X"
     texts = [joiner.join(parts[: i + 1]) for i in range(len(parts))]
     body = texts[-1] + (" and " + _fill(model, rng.choice(tails), slot, options[0]) if tails else "")

@@ -23,7 +23,8 @@ subgoal is still asked, naming its original object and destination, and that add
   participants of one step are coordinated;
 - its entity is in the scene, and its ``text`` is in the instruction and names the entity;
 - the affordance table PLAINLY denies it (``false``; ``fixed`` ``true`` for "movable"); a size
-  violation names a holder that is a real container a whole size class too small;
+  violation names a holder that is a real container a whole size class too small, never a box,
+  carton, bag or package;
 - the level's shape: L1 one violation; L2 at least two in the one step, each about a different
   (entity, affordance); L3 exactly one; L4 violations in at least two different steps; no
   violation repeated.
@@ -83,6 +84,8 @@ def _denied(model: TaskModel, v: dict, present: set[str]) -> list[str]:
             return [f"{entity} may fit inside {holder}: the holder is no container a size class smaller"]
         if not names_in(v["text"], entity_names(model, holder)):
             return [f"violation text {v['text']!r} does not name {holder}"]
+        if holder in model.names and any(w in model.name(holder) for w in NOT_HOLDERS):
+            return [f"size holder {holder}: a box, carton, bag or package invites opening or stretching"]
         return []
     denied = info.has("fixed") is True if needs == "movable" else info.lacks(needs)
     if not denied:
