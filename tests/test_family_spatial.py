@@ -314,3 +314,49 @@ def test_a_direction_false_by_five_centimetres_is_now_too_close_to_see():
     pos[subject][:, axis] = pos[landmark][:, axis] - sign * 0.054  # the 5.0-5.4 cm readers called borderline
     m.facts = dataclasses.replace(m.facts, positions=pos)
     rejected(case, "is false by only 0.054 m; a camera needs 0.060 m", m)
+
+
+# -- round 1b review: a bare relation reads as a destination; a twin's bare noun is no landmark ----------
+def test_every_relation_is_a_relative_clause_or_participle_after_its_subject():
+    seen = 0
+    for key in TASKS:
+        for level in LEVELS:
+            for case in cases(key, level, limit=10):
+                for r in case.witness["relations"]:
+                    rest = r["text"].removeprefix("the " + r["subject"]["phrase"])
+                    assert rest.startswith((" that is ", " which is ", " sitting ", " resting ")), r["text"]
+                    seen += 1
+    assert seen >= 40
+
+
+def test_a_bare_relation_after_a_moved_object_is_rejected():
+    # "take the butter to the left of the milk and put it in the basket": the relation reads as where to put it
+    case = find(("libero_object", 4), "L1", lambda c: c.witness["relations"][0]["text"].split()[-1] != "basket")
+    r = case.witness["relations"][0]
+    bare_text = r["text"].replace(" that is ", " ", 1).replace(" which is ", " ", 1)
+    assert bare_text != r["text"]
+    planted = dataclasses.replace(
+        case,
+        instruction=case.instruction.replace(r["text"], bare_text),
+        witness={**case.witness, "steps": [s.replace(r["text"], bare_text) for s in case.witness["steps"]]},
+    )
+    rejected(with_relation(planted, text=bare_text), "is not a relative clause or participle")
+    assert not any("relative clause" in x for x in reasons(case))
+
+
+def test_no_landmark_is_a_twin_and_a_landmark_meaning_both_bowls_is_rejected():
+    key = ("libero_spatial", 1)
+    found = None
+    for level in LEVELS:
+        for case in cases(key, level, limit=40):
+            for r in case.witness["relations"]:
+                for lm in r["landmarks"]:
+                    assert not {"akita_black_bowl_1", "akita_black_bowl_2"} & set(lm["entities"]), case.instruction
+                if r["relation"] in DIRECTIONS and r["subject"]["entities"] == ["glazed_rim_porcelain_ramekin_1"]:
+                    found = found or case
+    case = found or find(key, "L3", lambda c: c.witness["relations"][0]["relation"] in DIRECTIONS)
+    # "move the ramekin that is left of the black bowl out of the way": which black bowl?
+    planted = with_relation(
+        case, landmarks=[{"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]}]
+    )
+    rejected(planted, "landmark 'black bowl' could mean any of akita_black_bowl_1, akita_black_bowl_2")

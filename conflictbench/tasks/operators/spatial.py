@@ -22,8 +22,12 @@ cookie box" where no bowl touches the box). The family's rules (checked again by
   or landmarks (or their fixtures, or a thing they rest on or in), and its own step does not move
   its landmark;
 - readable: no "left"/"right" word in a phrase of a left/right claim (nor "front"/"back" for
-  front/behind), "on"/"in" only with a real support or container at least the subject's size, a
-  destination's description as a relative clause ("the plate that is behind the stove");
+  front/behind), "on"/"in" only with a real support or container at least the subject's size;
+- never a destination: every description is a relative clause or a participle ("the butter that
+  is to the left of the milk", "the bowl sitting on the plate"), whatever the verb, since after a
+  motion verb a bare one ("take the butter to the left of the milk") reads as where to put it;
+- landmarks resolve: each denotes one thing; a twin (either black bowl) is never a landmark, as
+  its bare noun means both and its full name inside another description reads as a tangle;
 - L2: two parts of the one step (object and destination), or two different claims about one part.
 """
 
@@ -86,11 +90,11 @@ def _named_in_identity(model: TaskModel, entity: str) -> set[str]:
     return {e for e in model.names if e != entity and names_in(name, _names(model, e))}
 
 
-def _short(model: TaskModel, entity: str) -> str:
-    """A landmark's words: twins go by their plain noun (the claim then covers both)."""
-    if entity in model.goal_twins():
-        return f"the {category(model.category_of(entity)).names[0]}"
-    return model.name(entity)
+def _is_twin(model: TaskModel, entity: str) -> bool:
+    """Whether ``entity`` (or its holder) has an identical twin: its bare noun would denote both,
+    and its full name ("the black bowl next to the ramekin") buried inside another thing's
+    description reads as a tangle, so a twin is never a landmark."""
+    return bool({entity, model.parent(entity)} & (model.goal_twins() | model.unnamed))
 
 
 def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str]) -> list[tuple[str, str]]:
@@ -104,7 +108,7 @@ def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str])
     if relation in ("on", "in"):
         for ent, (prep, np_) in model.dest_phrases.items():
             holder_name = model.parent(ent)
-            if ent in exclude or holder_name in exclude or ent in model.unnamed or not np_.startswith("the "):
+            if ent in exclude or holder_name in exclude or _is_twin(model, ent) or not np_.startswith("the "):
                 continue
             if ent not in model.facts.entities:
                 continue
@@ -114,11 +118,11 @@ def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str])
             if (
                 relation == "on" and prep == "on" and holder.has("support") is True and ent not in model.fixtures()
             ) or (relation == "in" and prep == "in" and holder.has("container")):
-                out.append((ent, _short(model, ent) if ent in model.names else np_))
+                out.append((ent, model.name(ent) if ent in model.names else np_))
         return out
     for ent in model.names:
-        if ent not in exclude and ent not in model.unnamed and ent in model.facts.entities:
-            out.append((ent, _short(model, ent)))
+        if ent not in exclude and not _is_twin(model, ent) and ent in model.facts.entities:
+            out.append((ent, model.name(ent)))
     return out
 
 
@@ -188,26 +192,15 @@ def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
     return None
 
 
-def _separates(slot: Slot, obj: str) -> bool:
-    """Whether the step's frames can close the object phrase before the destination ("pick up X
-    and put it ..."), so a bare locating modifier cannot be read as where to put it."""
-    if slot.kind in ("pick", "move_aside"):  # "slide the box next to the stove to one side": where to?
-        return slot.kind == "pick"
-    return any("{o} and" in f for f in frames_for(slot.kind, slot.prep, "", obj))
-
-
-def _phrase(claim: dict, rng: random.Random, clause: bool = False) -> str:
-    """ "the bowl behind the stove"; with ``clause`` a relative clause ("the bowl that is behind the
-    stove"), where a bare modifier could be read as a destination or attach to the wrong noun."""
+def _phrase(claim: dict, rng: random.Random) -> str:
+    """ "the bowl that is behind the stove", "the bowl sitting on the plate": always a relative
+    clause or a participle, since after a motion verb ("take the butter to the left of the milk")
+    a bare relation reads as where to put the thing, a destination the robot can satisfy."""
     rel = choose(rng, PHRASES[claim["relation"]])
-    if claim.get("twin"):  # added to the identifying name, always as a relative clause
-        form = choose(rng, ("{s} that is {r} {l}", "{s} which is {r} {l}"))
-    elif rel.startswith(("sitting", "resting")):
+    if rel.startswith(("sitting", "resting")) and not claim.get("twin"):
         form = "{s} {r} {l}"
-    elif clause:
-        form = choose(rng, ("{s} that is {r} {l}", "{s} that is {r} {l}", "{s} which is {r} {l}"))
     else:
-        form = choose(rng, ("{s} {r} {l}", "{s} that is {r} {l}", "{s} {r} {l}"))
+        form = choose(rng, ("{s} that is {r} {l}", "{s} that is {r} {l}", "{s} which is {r} {l}"))
     return form.format(s=claim["subject"], r=rel, l=claim["landmark_text"])
 
 
@@ -221,7 +214,7 @@ def _apply(
         else:
             mods.dest = (mods.dest or "").replace(earlier, text)
         return text
-    text = _phrase(claim, rng, clause=part != "object" or not _separates(slot, claim["subject"]))
+    text = _phrase(claim, rng)
     if part == "object":
         mods.locating = True
     if part in ("object", "target"):

@@ -20,6 +20,11 @@ and, for a direction, ``margin_m``. A relation is valid when:
   black bowls of libero_spatial) is about that entity alone, and its text opens with the entity's
   full identifying name ("the black bowl next to the ramekin that is behind the stove"): replacing
   the base task's own relation would leave nothing that picks out the bowl the episode scores.
+- **Never a destination**: the relation follows its subject as a relative clause or a participle
+  ("the butter that is to the left of the milk", "the bowl sitting on the plate"); after a motion
+  verb a bare one ("take the butter to the left of the milk") reads as where to put it.
+- **Landmarks resolve**: each landmark phrase denotes one thing (an object, or a fixture with its
+  regions); a twin's bare noun ("the black bowl" beside its identical twin) is never a landmark.
 - **Readable**: said inside its own step; no "left"/"right" (or "front"/"back") in a phrase of a
   relation on the same axis ("the left plate to the right of ..."); "on" only for a movable subject
   and a support at least as large, "in" only for a container at least as large; no claim twice.
@@ -35,6 +40,8 @@ from conflictbench.tasks.scene.task_model import TaskModel
 
 from .text import names_in
 
+CLAUSE_OPENERS = (" that is ", " which is ", " sitting ", " resting ", " standing ")
+"""How a relation's text goes on after its subject: a clause or participle, never a bare modifier."""
 MIN_STATES = 25
 """A claim false in fewer of the 50 initial states is not used (the case would pair too rarely)."""
 RELATION_WORDS = {
@@ -106,6 +113,8 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
     if clash:
         out.append(f"{rel.replace('_', ' ')} about {' / '.join(phrases)!r}: {clash[0]!r} reads as a contradiction")
     out += _twin_named(model, r, text)
+    out += _as_clause(r, text)
+    out += _landmarks_single(model, r)
     out += _holder(model, rel, groups)
     out += _when_reached(r, groups, acted, model)
     combos = _product(groups)
@@ -150,6 +159,27 @@ def _twin_named(model: TaskModel, r: dict, text: str) -> list[str]:
     if not text.startswith(name) or str(r.get("subject", {}).get("phrase", "")) != name.removeprefix("the "):
         return [f"relation text {text!r} about a twinned entity does not keep its identifying name {name!r}"]
     return []
+
+
+def _as_clause(r: dict, text: str) -> list[str]:
+    """The relation follows its subject as a relative clause or a participle: after a motion verb a
+    bare one ("take the butter to the left of the milk") reads as where to put the thing."""
+    subject = "the " + str(r.get("subject", {}).get("phrase", ""))
+    rest = text[len(subject) :] if text.startswith(subject) else None
+    if rest is None or not rest.startswith(CLAUSE_OPENERS):
+        return [f"relation text {text!r} is not a relative clause or participle after {subject!r}"]
+    return []
+
+
+def _landmarks_single(model: TaskModel, r: dict) -> list[str]:
+    """Each landmark phrase denotes one thing (an object, or a fixture with its regions): "the black
+    bowl" where two identical bowls stand leaves the relation unresolved."""
+    out = []
+    for lm in r.get("landmarks", []):
+        things = {model.parent(e) for e in lm.get("entities", [])}
+        if len(things) > 1:
+            out.append(f"landmark {lm.get('phrase')!r} could mean any of {', '.join(sorted(things))}")
+    return out
 
 
 def riders(model: TaskModel, entity: str) -> set[str]:
