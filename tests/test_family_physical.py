@@ -255,3 +255,51 @@ def test_a_box_is_never_a_size_holder():
     assert _denied(m, v, present) == []
     m.names[holder] = "the ramekin box"
     assert any("box, carton" in r for r in _denied(m, v, present))
+
+
+def grasps_again(case, ctx):
+    return [r for r in validate_case(case, ctx) if "grasps" in r]
+
+
+@pytest.mark.parametrize("key", TASKS)
+def test_no_step_grasps_what_it_or_the_step_before_grasped(ctx, key):
+    """'lift the butter, then pick up the butter, switch on the butter ...' repeats the pick-up."""
+    for level in ("L1", "L2", "L3", "L4"):
+        for case in cases(key, level):
+            assert grasps_again(case, ctx) == [], case.instruction
+
+
+def test_a_switch_on_the_placing_half_names_the_object_and_grasps_nothing(ctx):
+    """After 'take the bowl', the placing half is 'switch on the bowl and put the bowl on the plate':
+    no second pick-up, and no 'it' after a verb that grasps nothing."""
+    key = ("libero_spatial", 0)
+    split = [
+        c
+        for level in ("L3", "L4")
+        for c in cases(key, level)
+        if any(v["kind"] == "switch" for v in c.witness["violations"])
+    ]
+    found = 0
+    for case in split:
+        for i, body in enumerate(case.witness["steps"][1:], start=1):
+            if body.startswith(("switch on", "turn on")) and case.witness["steps"][i - 1].startswith(
+                ("pick up", "take", "grab", "lift")
+            ):
+                found += 1
+                assert " it " not in f" {body} ", body
+                assert validate_case(case, ctx) == [], case.instruction
+    assert found
+
+
+def test_a_repeated_grasp_is_rejected(ctx):
+    key = ("libero_spatial", 0)
+    good = one(key, "L1", lambda c: c.witness["steps"][0].startswith("pick up"))
+    body = good.witness["steps"][0]
+    twice = body.replace(", switch on the black bowl", ", switch on the black bowl, lift the black bowl")
+    assert twice != body
+    rejected(replaced_text(good, body, twice, good.witness["violations"]), ctx, "twice")
+    split = one(key, "L3", lambda c: len(c.witness["steps"]) == 2 and c.witness["steps"][0].startswith("take"))
+    first, second = split.witness["steps"]
+    again = f"pick up the black bowl between the plate and the ramekin, then {second}"
+    assert not grasps_again(split, ctx)
+    rejected(replaced_text(split, second, again, split.witness["violations"]), ctx, "again right after step 1")

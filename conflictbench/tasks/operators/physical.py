@@ -22,6 +22,9 @@ Rules of the family (re-checked by :mod:`conflictbench.tasks.validation.physical
   bottle mouth, a box sits on a carton laid down): the ``support`` kind is never generated. A fixed
   fixture is always MOVED (lifted, carried, put somewhere with the object), never only held or
   touched: gripping a fixture in place is possible.
+- **One pick-up per object.** No step grasps its object twice, nor grasps what the step before just
+  picked up: after "take the bowl", the placing half is "switch on the bowl and put the bowl on the
+  plate", never "pick up the bowl, switch on the bowl and ...".
 - **Readable.** One step never repeats a connective: two fixtures added to one step are
   coordinated ("together with the cabinet and the stove"), not chained.
 - **Levels.** L1: one violation in the one step. L2: two violations of that one step, each
@@ -224,7 +227,9 @@ def slot_options(model: TaskModel, index: int, slot: Slot, second: bool = False)
             denied = _opens_never(model, o) if kind == "articulation" else info.lacks(needs)
             if not denied:
                 continue
-            if kind in GRASPING_KINDS or slot.kind == "pick" or second:
+            if kind in GRASPING_KINDS or slot.kind in ("pick", "place_it") or second:
+                # the placing half of a split is never "pick up X, switch on X ...": its object was
+                # just picked up, so a second grasp would repeat the step before
                 out.append(Option(index, kind, needs, "manner", MANNERS[kind], o))
             else:
                 out.append(Option(index, kind, needs, "manner", SWITCH_HELD, o))
@@ -303,8 +308,11 @@ def _apply_manners(model, frame, mods, options: list[Option], rng: random.Random
     parts = [_fill(model, first[0], slot, options[0])] + [
         _fill(model, w[1], slot, o) for w, o in zip(rest, options[1:])
     ]
-    holder_named = any(o.holder for o in options)  # "it" could mean the holder: name the object again
-    tails = (NAMED_TAILS if holder_named else TAILS)[slot.kind]
+    # "it" needs a grasping verb just before it and one thing handled: after a holder ("it" could
+    # mean the ramekin) or a switch that grasps nothing ("switch on X and put it"), name the object
+    grasped = options[0].kind in GRASPING_KINDS or options[0].wordings == SWITCH_HELD
+    named = any(o.holder for o in options) or not grasped
+    tails = (NAMED_TAILS if named else TAILS)[slot.kind]
     joiner = ", " if tails else " and "  # "fold X in half, open X and put it ..." / "fold X in half and open X"
     texts = [joiner.join(parts[: i + 1]) for i in range(len(parts))]
     body = texts[-1] + (" and " + _fill(model, rng.choice(tails), slot, options[0]) if tails else "")

@@ -19,6 +19,9 @@ subgoal is still asked, naming its original object and destination, and that add
   have handled two things;
 - a ``fixed`` violation moves the fixture: its text never uses a verb of only holding or touching
   it ("while holding the stove"): gripping a fixture in place is possible;
+- no object is grasped twice in a row: a step never grasps (picks up, lifts, takes, grabs) the same
+  object twice, and two consecutive steps never both grasp the same object ("lift the butter, then
+  pick up the butter, switch on the butter and put it in the basket" repeats the pick-up);
 - no step repeats a connective ("together with the cabinet together with the stove"): two added
   participants of one step are coordinated;
 - its entity is in the scene, and its ``text`` is in the instruction and names the entity;
@@ -66,6 +69,8 @@ NOT_HOLDERS = ("box", "carton", "bag", "package")
 PRONOUN_OPENER = re.compile(r"^(?:put|place|set|slide|drop|move) (?:it|them)\b")
 HOLDING_ONLY = re.compile(r"\b(?:hold|grip|grasp|touch|clutch|squeeze)(?:s|es|ing|ed)?\b|\bheld\b")
 """Verbs that keep a fixture where it is: no violation of "fixed"."""
+GRASP = re.compile(r"\b(?:pick up|lift|take|grab)\s+(?:the\s+)?")
+"""Verbs that grasp their object: one grasp per object in a row."""
 CONNECTIVES = ("together with", "along with", "as well as", "while")
 MIN_KINDS = 4
 MAX_SKELETON_SHARE = 0.25
@@ -121,7 +126,8 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
         if kind == "fixed" and HOLDING_ONLY.search(text):
             out.append(f"fixed violation {text!r} only holds or touches the fixture: it must move it")
         out += _denied(model, v, present)
-    return out + _observable(case, model, violations) + _repeated_connectives(case) + _level_shape(case, violations)
+    out += _observable(case, model, violations) + _regrasps(case, model)
+    return out + _repeated_connectives(case) + _level_shape(case, violations)
 
 
 def _observable(case: ConflictCase, model: TaskModel, violations: list) -> list[str]:
@@ -153,6 +159,37 @@ def _observable(case: ConflictCase, model: TaskModel, violations: list) -> list[
                 out.append(
                     f"containment in {v['entity']}: a box, carton, bag or package, or what may open, invites opening"
                 )
+    return out
+
+
+def _grasped(body: str, model: TaskModel) -> list[set[str]]:
+    """For each grasping verb in a step, the entities its object phrase may denote: those with the
+    longest name that opens the phrase ("the black bowl" alone denotes both twin bowls)."""
+    names = [(normalise(n), e) for e in model.facts.entities for n in model.entity_names(e)]
+    out = []
+    for match in GRASP.finditer(body):
+        rest = f"{body[match.end() :]} "
+        hits = [(len(n), e) for n, e in names if n and rest.startswith(f"{n} ")]
+        if hits:
+            longest = max(length for length, _ in hits)
+            out.append({e for length, e in hits if length == longest})
+    return out
+
+
+def _regrasps(case: ConflictCase, model: TaskModel) -> list[str]:
+    """A step grasping an object twice, or right after the step before grasped it: a repeated pick-up."""
+    out: list[str] = []
+    before: set[str] = set()
+    for i, body in enumerate((normalise(str(b)) for b in case.witness.get("steps") or []), start=1):
+        grasps = _grasped(body, model)
+        here: set[str] = set()
+        for objects in grasps:
+            if objects & here:
+                out.append(f"step {i} grasps {sorted(objects & here)[0]} twice: one pick-up per object")
+            elif objects & before:
+                out.append(f"step {i} grasps {sorted(objects & before)[0]} again right after step {i - 1}")
+            here |= objects
+        before = here
     return out
 
 
