@@ -249,23 +249,68 @@ def test_l4_needs_factors_in_two_steps(ctx):
     _rejected(planted, ctx, "does not match the witness")
 
 
-def _on_placing_half(d):
-    return d.witness["steps"][0].startswith(("pick", "lift", "grab", "take")) and any(
-        r["step"] == 2 and r["literal"][0] == "keep" for r in d.witness["requirements"]
+def _on_pick_half(d):
+    steps = d.witness["steps"]
+    return (
+        len(steps) == 2
+        and steps[0].startswith(("pick up", "lift"))
+        and any(r["step"] == 1 and r["literal"][:2] == ["keep", "still"] for r in d.witness["requirements"])
     )
 
 
-@pytest.mark.sim
-def test_a_still_arm_on_the_placing_half_of_a_split_is_rejected(ctx):
-    case = _case(BOWL_ON_PLATE, "L3", ctx, where=_on_placing_half)
-    assert _reasons(case, ctx) == []  # a still or untouched held object contradicts placing it
+def _moved_constraint(case, step, literal=None):
     reqs = [dict(r) for r in case.witness["requirements"]]
     constraint = next(r for r in reqs if r["literal"][0] == "keep")
-    arm = "without moving the robot arm"
-    instruction = case.instruction.replace(constraint["text"], arm, 1)
-    constraint.update(text=arm, literal=["keep", "still", "robot"])
-    planted = dataclasses.replace(case, instruction=instruction, witness={**case.witness, "requirements": reqs})
-    _rejected(planted, ctx, "placing half of a split")
+    constraint["step"] = step
+    if literal:
+        constraint["literal"] = literal
+    return dataclasses.replace(case, witness={**case.witness, "requirements": reqs})
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("robot", [False, True])
+def test_any_constraint_on_the_placing_half_of_a_split_is_rejected(ctx, robot):
+    case = _case(BOWL_ON_PLATE, "L3", ctx, where=_on_pick_half)
+    assert _reasons(case, ctx) == []  # a still object against lifting it
+    moved = _moved_constraint(case, 2)
+    if robot:
+        reqs = moved.witness["requirements"]
+        arm = "without moving the robot arm"
+        constraint = next(r for r in reqs if r["literal"][0] == "keep")
+        instruction = moved.instruction.replace(constraint["text"], arm, 1)
+        constraint.update(text=arm, literal=["keep", "still", "robot"])
+        moved = dataclasses.replace(moved, instruction=instruction)
+    _rejected(moved, ctx, "placing half of a split")
+
+
+@pytest.mark.sim
+def test_a_still_object_against_grabbing_it_is_rejected(ctx):
+    case = _case(BOWL_ON_PLATE, "L3", ctx, where=_on_pick_half)
+    verb = case.witness["steps"][0].split(" the ")[0]  # "pick up" or "lift"
+    steps = ["grab" + case.witness["steps"][0][len(verb) :], *case.witness["steps"][1:]]
+    planted = dataclasses.replace(
+        case, instruction=case.instruction.replace(verb, "grab", 1), witness={**case.witness, "steps": steps}
+    )
+    _rejected(planted, ctx, "need not move")
+
+
+@pytest.mark.sim
+def test_untouched_on_a_pushing_step_is_rejected(ctx):
+    def pushed_still(d):
+        first = d.witness["steps"][0]
+        return first.startswith(("push", "slide", "move")) and any(
+            r["step"] == 1 and r["literal"][:2] == ["keep", "still"] and r["literal"][2] != "robot"
+            for r in d.witness["requirements"]
+        )
+
+    from conflictbench.tasks.libero.base_tasks import base_task
+    from conflictbench.tasks.suite.build import _to_case
+
+    key = ("libero_object", 0)
+    case = _to_case(base_task(*key), next(d for d in _drafts(key, "L3", ctx, limit=400) if pushed_still(d)))
+    assert _reasons(case, ctx) == []  # keeping the pushed thing still contradicts pushing it
+    literal = next(r["literal"] for r in case.witness["requirements"] if r["literal"][0] == "keep")
+    _rejected(_moved_constraint(case, 1, ["keep", "untouched", literal[2]]), ctx, "pushing step")
 
 
 # -- the operator ---------------------------------------------------------------------------------
@@ -292,8 +337,12 @@ def test_drafts_are_valid_simultaneous_and_about_the_steps_own_things(level, ctx
                 assert constraint[2] in ("robot", goal[2])  # the moved or operated thing itself, or the arm
                 assert constraint[1] != "ungrasped"
                 step = reqs[constraint_id]["step"]
-                if step >= 2 and d.witness["steps"][step - 1].startswith(("place it", "put it")):
-                    assert constraint != ["keep", "still", "robot"], d.instruction  # carried over, then let go
+                body = d.witness["steps"][step - 1]
+                assert not (step >= 2 and body.startswith(("place it", "put it", "set it"))), d.instruction
+                if constraint[1] == "untouched":
+                    assert not body.startswith(("push", "slide", "shove", "move")), d.instruction
+                if goal[:2] == ["do", "lift"] and constraint[2] != "robot":
+                    assert body.startswith(("pick up", "lift")), d.instruction
             steps = Counter(reqs[c[1]]["step"] for c in d.witness["conflicts"])
             if level == "L2":
                 assert len(d.witness["conflicts"]) == 2 and len(steps) == 1

@@ -6,10 +6,16 @@ Rules (suite 2.0), each enforced again by :mod:`conflictbench.tasks.validation.i
   step's own goal. Per step kind:
 
   * moving steps (place, push, pick up, move aside): keep the moved object still, never touch
-    the moved object, or keep the robot arm still;
-  * the placing half of a split ("pick up X, then place it ..."): keep the held object still or
-    never touch it, NEVER a still robot arm: the arm can carry X over the destination while
-    picking it up, and the placing half is then only opening the gripper;
+    the moved object, or keep the robot arm still, except:
+  * pushing steps (push, slide, shove, move aside), "move X onto Y" and closing a drawer or door:
+    never "untouched", since the thing can be pushed with another held object; a place step constrained "untouched" is
+    written with a carrying verb (put, place, pick up ... and put), never "move";
+  * the pick-up half of a split: a still or untouched object only with a verb that entails
+    lifting ("pick up", "lift"): grabbing or taking need not move the object;
+  * the placing half of a split ("pick up X, then place it ..."): NO constraint at all; every
+    wording is disputable there ("put it down without touching the sauce" reads as releasing it,
+    "while keeping the book fixed" as setting it down securely, and a still arm can be met by
+    carrying X over the destination while picking it up);
   * state steps (open, close, turn on): keep the operated drawer, door or stove in the opposite
     state the whole time, never touch the operated thing itself, or keep the robot arm still.
 
@@ -40,7 +46,7 @@ from conflictbench.tasks.scene.task_model import TaskModel
 
 from .contradictions import EXCLUSIVE, already
 from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
-from .phrasing import bare, choose
+from .phrasing import bare, choose, frames_for
 
 # Each kind: (phrases that attach to the step, phrases that stand as a second imperative).
 # Phrases never contain "it": a constraint names its entity.
@@ -78,10 +84,11 @@ KEEP = {  # the state kept, against a step that must bring about the opposite
         ("keep {x} switched on the whole time", "make sure {x} stays on throughout"),
     ),
 }
-MOVING = ("place", "push", "place_it", "pick", "move_aside")
-ARM_FREE = ("place_it",)
-"""Steps a still arm does not contradict: the arm may bring the held object over the destination in
-the pick-up before, so placing is only opening the gripper."""
+MOVING = ("place", "push", "pick", "move_aside")
+PUSHING = ("push", "move_aside")
+"""Steps an "untouched" constraint does not contradict: the thing can be pushed with a held object."""
+LIFTING = ("pick up {o}", "lift {o}")
+"""Pick-up frames for a still or untouched object: "grab"/"take" need not move it."""
 STATES = ("open", "close", "turn_on", "turn_off")
 LABELS = {
     "still": "goal vs. keeping the moved object still",
@@ -168,7 +175,7 @@ def _goal(slot: Slot, obj: str) -> list:
 
 
 def _constraint(model: TaskModel, slot: Slot, kind: str, rng: random.Random) -> Constraint | None:
-    if kind == "robot" and slot.kind in ARM_FREE:
+    if kind not in _kinds(slot):
         return None
     if slot.kind in MOVING:
         obj = choose(rng, slot.objects)
@@ -216,10 +223,12 @@ def _made(kind, literal, goal, phrases, x, premise) -> Constraint:
 
 
 def _kinds(slot: Slot) -> list[str]:
-    if slot.kind in ARM_FREE:
-        return ["still", "untouched"]
+    if slot.kind in PUSHING:
+        return ["still", "robot"]
     if slot.kind in MOVING:
         return ["still", "untouched", "robot"]
+    if slot.kind == "close":
+        return ["keep", "robot"]  # a drawer or door can be pushed shut with a held object
     if slot.kind in STATES:
         return ["keep", "untouched", "robot"]
     return []
@@ -239,6 +248,21 @@ def _phrase(made: list[Constraint], rng: random.Random) -> list[str]:
     if all(withouts) and rng.random() < 0.5:
         return [choose(rng, withouts[0]), "and " + choose(rng, withouts[1])]
     return [choose(rng, first.attached), ", and " + choose(rng, second.standalone)]
+
+
+def _frame(model: TaskModel, slot: Slot, made: list[Constraint], rng: random.Random) -> str | None:
+    """A verb frame the constraints need: a lifting verb for a still or untouched pick-up, a carrying
+    verb (never "move X onto Y", which pushing meets) for an untouched place step; else ``None``."""
+    kinds = {c.kind for c in made}
+    if slot.kind == "pick" and kinds & {"still", "untouched"}:
+        return choose(rng, LIFTING)
+    if slot.kind == "place" and "untouched" in kinds:
+        obj = model.name(slot.objects[0]) if slot.objects[0] in model.names else ""
+        options = [f for f in frames_for("place", slot.prep, slot.dest, obj) if not f.startswith("move ")]
+        closed = [f for f in options if "{o} and" in f]  # a locating modifier cannot read as the destination
+        locating = bool(set(slot.objects) & model.goal_twins())
+        return choose(rng, closed if locating and closed else options)
+    return None
 
 
 def generate(model: TaskModel, level: str, rng: random.Random):
@@ -269,7 +293,7 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
     written: list[tuple[int, str, Constraint]] = []
     for index, made in sorted(by_step.items()):
         texts = _phrase(made, rng)
-        mods[index] = Mods(extras=texts)
+        mods[index] = Mods(extras=texts, frame=_frame(model, frame[index], made, rng))
         for text, constraint in zip(texts, made):
             written.append((index, text.removeprefix(", and ").removeprefix("and ").removeprefix("but "), constraint))
     instruction, steps, clauses = realise(model, frame, mods, rng)
