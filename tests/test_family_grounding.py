@@ -236,3 +236,61 @@ def test_the_referent_is_in_its_own_step(ctx):
     case = _case(BOWL_TASK, "L3", ctx, lambda c: c.witness["referents"][0]["step"] == 2)
     refs = [{**case.witness["referents"][0], "step": 1}]
     _rejected(dataclasses.replace(case, witness={**case.witness, "referents": refs}), ctx, "not in the text of step 1")
+
+
+CADDY_TASK = ("libero_10", 5)  # pick up the book and place it in the back compartment of the caddy
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("word", ["bucket", "bin", "tub", "crate", "organizer", "container"])
+def test_a_receptacle_word_for_the_caddy_is_not_absent(word, ctx):
+    case = _case(CADDY_TASK, "L1", ctx, lambda c: c.factors == ("receptacle",))
+    ref = _role(case, "receptacle")
+    _rejected(_swap(case, ref["text"], f"the {word}", source="out_of_domain", concept=""), ctx, "not absent")
+
+
+@pytest.mark.sim
+def test_generated_receptacles_are_no_word_for_a_present_open_receptacle(ctx):
+    from conflictbench.tasks.scene.lexicon import head, receptacle_words
+
+    for key in [CADDY_TASK, BASKET_TASK, ("libero_goal", 6)]:
+        taken = receptacle_words(_model(key).problem)
+        for level in ("L1", "L3"):
+            for case in _cases(key, level, limit=40):
+                for r in case.witness["referents"]:
+                    if r["role"] == "receptacle" and r["source"] != "attribute":
+                        assert head(r["text"]) not in taken, case.instruction
+
+
+def _pick_half_referent(case):
+    steps = case.witness["steps"]
+    return (
+        len(steps) == 2
+        and not case.witness["step_goals"][0]
+        and any(r["step"] == 1 and r["role"] == "object" for r in case.witness["referents"])
+    )
+
+
+@pytest.mark.sim
+def test_the_placing_half_places_the_picked_up_referent(ctx):
+    case = _case(CADDY_TASK, "L3", ctx, _pick_half_referent)
+    placing = case.witness["steps"][1]
+    assert " it " in f" {placing} "  # "take the avocado, then put it in ..."
+    named = placing.replace(" it ", " the book ", 1)
+    planted = dataclasses.replace(
+        case,
+        instruction=case.instruction.replace(placing, named),
+        witness={**case.witness, "steps": [case.witness["steps"][0], named]},
+    )
+    _rejected(planted, ctx, "the absent thing is never needed")
+
+
+@pytest.mark.sim
+def test_no_pick_half_referent_where_the_placing_half_names_its_object(ctx):
+    for level in ("L3", "L4"):
+        for case in _cases(CADDY_TASK, level, limit=200):
+            w = case.witness
+            for r in w["referents"]:
+                i = r["step"] - 1
+                if r["role"] == "object" and w["step_roles"][i] == "original" and not w["step_goals"][i]:
+                    assert r["step"] == 1 and w["steps"][1].split()[1] in ("it", "them"), case.instruction

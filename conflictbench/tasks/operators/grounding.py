@@ -20,6 +20,11 @@ out-of-domain referents:
   of that very category, keeping any locating phrase after the noun;
 - ``out_of_domain``: an item of ``data/absent_referents.jsonl`` absent here: "the banana".
 
+A receptacle referent is never a word a reader could map onto an open receptacle present
+(:func:`.lexicon.receptacle_problem`: no "bucket" beside a desk caddy). When the object of a split's
+pick-up half is replaced, the placing half refers to it by "it" ("take the avocado, then put it in
+the top drawer"); frames whose placing half would name the original object instead do not replace it.
+
 Levels: L1 one step, one referent; L2 one step, the object AND its destination or receptacle
 (two different roles, so both change what can be grounded); L3 several steps, one referent in an
 original step; L4 referents in two different steps. A replacement fits: a receptacle is a size class
@@ -34,7 +39,15 @@ import random
 from dataclasses import dataclass
 
 from conflictbench.tasks.scene.affordances import category
-from conflictbench.tasks.scene.lexicon import absent_concepts, absent_for, colourings, libero_absent, wrong_colours
+from conflictbench.tasks.scene.lexicon import (
+    absent_concepts,
+    absent_for,
+    colourings,
+    libero_absent,
+    receptacle_problem,
+    wrong_colours,
+)
+from conflictbench.tasks.scene.lexicon import concept as absent_concept
 from conflictbench.tasks.scene.task_model import TaskModel
 
 from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
@@ -153,11 +166,21 @@ def _rank(model: TaskModel, role: str, referent: Referent) -> str:
     return hashlib.sha256(key.encode()).hexdigest()
 
 
+def referent_synonyms(concept: str, source: str) -> tuple[str, ...]:
+    if source == "libero":
+        return tuple(category(concept).synonyms)
+    known = absent_concept(concept) if source == "out_of_domain" else None
+    return tuple(known.synonyms) if known else ()
+
+
 def _candidates(model: TaskModel, pool: list[Referent], slot: Slot, role: str, entity: str) -> list[Referent]:
     out = []
     for r in pool:
         if _ability(slot, role) not in r.can:
             continue
+        if role == "receptacle" and r.source != "attribute":
+            if receptacle_problem(r.phrase, referent_synonyms(r.concept, r.source), model.problem):
+                continue  # "the bucket" reads as the desk caddy: the only open, bin-like receptacle
         if r.source == "attribute":
             target = model.category_of(entity) if role == "object" and slot.kind not in ("open", "close") else None
             if r.category not in {target, _holder(model, entity)}:
@@ -210,8 +233,17 @@ def _premise(refs: list[Referent]) -> str:
     return "the scene holds no " + ", no ".join(names[:-1]) + f" and no {names[-1]}"
 
 
+def _usable(frame: list[Slot], index: int, role: str) -> bool:
+    """The object of a split's pick-up half only where the placing half says "it" (the first two
+    steps): a placing half that names the object again would name the ORIGINAL one, so the absent
+    thing would never be needed."""
+    if role != "object" or frame[index].kind != "pick":
+        return True
+    return index == 0 and len(frame) > 1 and frame[1].kind == "place_it" and frame[1].pronoun
+
+
 def _combos(model: TaskModel, level: str, frame: list[Slot]) -> list[list[tuple[int, str]]]:
-    slot_roles = [(i, r) for i, slot in enumerate(frame) for r in _roles(model, slot)]
+    slot_roles = [(i, r) for i, slot in enumerate(frame) for r in _roles(model, slot) if _usable(frame, i, r)]
     original = [(i, r) for i, r in slot_roles if not frame[i].aux]
     if level in ("L1", "L3"):
         return [[sr] for sr in original]

@@ -273,6 +273,27 @@ def absence_problem(phrase: str, synonyms: Iterable[str], problem: BDDLProblem) 
     return None
 
 
+def receptacle_words(problem: BDDLProblem) -> set[str]:
+    """Words a reader could map onto an OPEN receptacle present (basket, caddy, bowl, mug ...): its
+    denotations, with the receptacle words of synonyms.jsonl ("bucket" for the desk caddy)."""
+    out: set[str] = set()
+    for cat in scene_categories(problem):
+        info = category(cat)
+        if info.has("container") is True and info.has("openable") is False:
+            out |= denotations(cat)
+    return out
+
+
+def receptacle_problem(phrase: str, synonyms: Iterable[str], problem: BDDLProblem) -> str | None:
+    """Why ``phrase`` as a receptacle could be read as an open receptacle present, else ``None``."""
+    taken = receptacle_words(problem)
+    for candidate in (phrase, *synonyms):
+        c = candidate.lower()
+        if c in taken or (words(c) and words(c)[-1] in taken):
+            return f"a reader could take {candidate!r} for an open receptacle in the scene"
+    return None
+
+
 def absent_for(problem: BDDLProblem, role: str) -> list[AbsentConcept]:
     """The out-of-domain absent referents usable in ``role`` for this scene, in table order."""
     return [c for c in absent_concepts() if role in c.roles and absence_problem(c.phrase, c.synonyms, problem) is None]

@@ -11,6 +11,12 @@ Per referent the witness gives ``step``, ``role``, ``text``, ``concept``, ``sour
   synonym, near-synonym, part, hypernym or head noun with anything present), ``attribute`` (a wrong
   colour of a present category, clearly different from every colour present), ``out_of_domain``
   (an item of the absent-referent table, judged the same way as ``libero``);
+- a ``receptacle`` referent (other than a wrong colour) is no word a reader could map onto an open
+  receptacle present (:func:`~conflictbench.tasks.scene.lexicon.receptacle_problem`: "the bucket"
+  reads as the desk caddy);
+- a referent that replaces the object of a split's pick-up half is the object of the placing half
+  right after it: that step says "it" or names the referent, never the original object (then the
+  absent thing is never needed);
 - at L2 the two referents replace two DIFFERENT roles of the one step: the object and its
   destination or receptacle; no referent repeats a concept of another.
 """
@@ -18,10 +24,14 @@ Per referent the witness gives ``step``, ``role``, ``text``, ``concept``, ``sour
 from __future__ import annotations
 
 from conflictbench.core import ConflictCase
+from conflictbench.tasks.operators.grounding import referent_synonyms
 from conflictbench.tasks.scene.affordances import load_table
-from conflictbench.tasks.scene.lexicon import absence_problem, attribute_problem, scene_categories
+from conflictbench.tasks.scene.lexicon import absence_problem, attribute_problem, receptacle_problem, scene_categories
 from conflictbench.tasks.scene.lexicon import concept as absent_concept
 from conflictbench.tasks.scene.task_model import TaskModel
+
+from .structure import PRONOUN
+from .text import normalise
 
 ROLES = ("object", "destination", "receptacle")
 SOURCES = ("libero", "attribute", "out_of_domain")
@@ -63,6 +73,23 @@ def _stands_in_for(r: dict, case: ConflictCase, model: TaskModel) -> str | None:
     return None
 
 
+def _placing_problem(r: dict, case: ConflictCase, model: TaskModel) -> str | None:
+    """A replaced pick-up object must be what the placing half right after it places."""
+    w, index = case.witness, int(r["step"]) - 1
+    if r.get("role") != "object" or index + 1 >= len(w["steps"]) or w["step_goals"][index]:
+        return None  # not a pick-up half (that step achieves nothing by itself)
+    placed = {str(g[1]) for g in w["step_goals"][index + 1] if len(g) >= 2}
+    if r.get("replaces") not in placed:
+        return None
+    after = normalise(w["steps"][index + 1])
+    if PRONOUN.search(after) or str(r.get("text", "")) in w["steps"][index + 1]:
+        return None
+    return (
+        f"step {index + 2} places {after!r}, not the referent {r.get('text')!r} that step {index + 1} picks up: "
+        "the absent thing is never needed"
+    )
+
+
 def check_absent(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
     out = []
     refs = case.witness.get("referents", [])
@@ -83,6 +110,11 @@ def check_absent(case: ConflictCase, model: TaskModel, states: frozenset) -> lis
         if text not in case.witness["steps"][int(r["step"]) - 1]:
             out.append(f"referent {text!r} is not in the text of step {r['step']}")
         why = _stands_in_for(r, case, model) or _source_problem(r, text.removeprefix("the "), model)
+        if not why and r.get("role") == "receptacle" and r.get("source") != "attribute":
+            phrase, concept = text.removeprefix("the "), str(r.get("concept", ""))
+            synonyms = referent_synonyms(concept, str(r.get("source")))
+            why = receptacle_problem(phrase, synonyms, model.problem)
+        why = why or _placing_problem(r, case, model)
         if why:
             out.append(f"referent {text!r} is not absent or not a referent of the task: {why}")
     concepts = [(r.get("concept"), r.get("text")) for r in refs if isinstance(r, dict)]
