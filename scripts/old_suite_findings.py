@@ -38,7 +38,7 @@ RULES = [  # (label, substring of the validator's reason); the first that matche
     ("instruction: a constraint on a goal the step does not ask for", "is not what step"),
     ("grounding: a landmark, not the object, destination or receptacle", "role"),
     ("grounding: referent not absent (a synonym, part or kind of something present)", "not absent"),
-    ("spatial: false by less than a camera shows (< 5 cm or the subject's radius)", "false by only"),
+    ("spatial: false by less than a camera shows (< 6 cm or the subject's radius)", "false by only"),
     ("spatial: an earlier step moves the relation's entities", "earlier step"),
     ("spatial: a landmark its own step moves", "which that same step"),
     ("spatial: a bare relation a motion verb turns into a destination", "not a relative clause"),
