@@ -78,7 +78,7 @@ def scene_sheet(model: TaskModel) -> str:
     return "\n".join(lines)
 
 
-def case_sheet(case: ConflictCase, prior: str = "") -> str:
+def case_sheet(case: ConflictCase, prior: str = "", model: TaskModel | None = None) -> str:
     w = case.witness
     keep = {k: v for k, v in w.items() if k not in ("type", "steps", "step_goals", "step_entities")}
     lines = [
@@ -92,6 +92,17 @@ def case_sheet(case: ConflictCase, prior: str = "") -> str:
     ]
     if case.init_states is not None:
         lines.append(f"Paired only with initial states {list(case.init_states)}")
+        if model is not None and 0 not in case.init_states:  # the scene's positions are state 0's
+            first = case.init_states[0]
+            lines.append(
+                f"Positions in initial state {first}, centimetres: "
+                + "; ".join(
+                    f"{model.names.get(e, e)} ({x * 100:.0f}, {y * 100:.0f}, {z * 100:.0f})"
+                    for e, p in sorted(model.facts.positions.items())
+                    for x, y, z in [p[first]]
+                    if model.facts.entities[e].kind != "region"
+                )
+            )
     if prior:
         lines.append(f"A first reader flagged it: {prior}")
     return "\n".join(lines)
@@ -122,7 +133,7 @@ def write_batches(
         parts = [brief_text(), f"\n## Cases ({len(batch)})\n"]
         for key in sorted(by_task):
             parts.append(scene_sheet(models[key]))
-            parts += [case_sheet(c, (priors or {}).get(c.case_id, "")) for c in by_task[key]]
+            parts += [case_sheet(c, (priors or {}).get(c.case_id, ""), models[key]) for c in by_task[key]]
         path = out_dir / f"batch-{start // size + 1:03d}.md"
         path.write_text("\n\n".join(parts) + "\n", encoding="utf-8")
         paths.append(path)
