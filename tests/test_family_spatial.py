@@ -360,3 +360,43 @@ def test_no_landmark_is_a_twin_and_a_landmark_meaning_both_bowls_is_rejected():
         case, landmarks=[{"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]}]
     )
     rejected(planted, "landmark 'black bowl' could mean any of akita_black_bowl_1, akita_black_bowl_2")
+
+
+@pytest.mark.sim
+def test_a_relation_true_of_the_other_bowl_is_rejected():
+    """libero_spatial task 2: "the black bowl from table center that is to the right of the ramekin"
+    is false for the scored bowl but could describe the OTHER black bowl: a reader may take it for that one."""
+    import dataclasses
+
+    from conflictbench.tasks.suite.file import load_suite
+    from conflictbench.tasks.validation.rules import new_context, validate_case
+
+    ctx = new_context()
+    twinned = [
+        c
+        for c in load_suite().cases
+        if c.family == "spatial"
+        and c.suite == "libero_spatial"
+        and any("also_false_for" in r and len(r["landmarks"]) == 1 for r in c.witness["relations"])
+    ]
+    assert twinned, "the generator lists the twin a twinned relation must also be false for"
+    case = twinned[0]
+    r = next(r for r in case.witness["relations"] if "also_false_for" in r and len(r["landmarks"]) == 1)
+    model = ctx.model((case.suite, case.task_id))
+    twin = r["also_false_for"][0]
+    landmark = r["landmarks"][0]["entities"][0]
+    # Find a direction true for the twin in every state and false for the scored bowl: plant it.
+    for rel in ("left_of", "right_of", "in_front_of", "behind"):
+        if model.facts.holds(rel, twin, landmark) == model.facts.states():
+            break
+    else:
+        pytest.skip("no direction holds for the twin in every state here")
+    planted = dataclasses.replace(
+        case, witness={**case.witness, "relations": [{**r, "relation": rel}] + case.witness["relations"][1:]}
+    )
+    assert any("holds for the twin" in reason for reason in validate_case(planted, ctx))
+    missing = dataclasses.replace(
+        case,
+        witness={**case.witness, "relations": [{k: v for k, v in r.items() if k != "also_false_for"}]},
+    )
+    assert any("also_false_for" in reason for reason in validate_case(missing, ctx))

@@ -54,7 +54,7 @@ def test_the_shipped_suite_validates_completely_and_quickly(suite):
     failures = validate_cases(suite.cases, new_context())
     elapsed = time.perf_counter() - start
     assert failures == []
-    assert elapsed < 60
+    assert elapsed < 20  # about a second here: `suite validate` stays fast
 
 
 def test_volume_and_coverage(suite):
@@ -64,7 +64,7 @@ def test_volume_and_coverage(suite):
     for family in FAMILIES:
         for level in LEVELS:
             assert sum(1 for c in usable if (c.family, c.level) == (family, level)) >= 50, (family, level)
-    keys = [(c.suite, c.task_id, normalise(c.instruction)) for c in suite.cases]
+    keys = [(c.suite, normalise(c.instruction)) for c in suite.cases]  # no text twice within a LIBERO suite
     assert len(keys) == len(set(keys))
 
 

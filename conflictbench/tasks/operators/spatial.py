@@ -40,7 +40,7 @@ from conflictbench.core import ConflictCase
 from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
-from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, check_relation, riders
+from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, check_relation, riders, twins_of
 from conflictbench.tasks.validation.structure import check_structure
 from conflictbench.tasks.validation.text import names_in
 
@@ -158,7 +158,8 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
             if any(e in exclude or model.parent(e) in exclude for g in groups for e in g):
                 continue
             false = model.facts.states()
-            for cand in candidates + sorted(_named_in_identity(model, subject)):
+            twins = sorted(twins_of(model, {subject}))  # false for the other bowl too: else it reads as that one
+            for cand in candidates + sorted(_named_in_identity(model, subject)) + twins:
                 for combo in itertools.product(*groups):
                     if len(set(combo)) == len(combo):
                         false = false & model.facts.false_states(relation, cand, *combo)
@@ -173,6 +174,7 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
                         "landmark_text": " and ".join(phrases),
                         "false_states": false,
                         "twin": subject in model.goal_twins(),
+                        "also_false_for": twins,
                     }
                 )
     return out
@@ -373,6 +375,7 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
             "subject": {"phrase": bare(c["subject"]), "entities": sorted(c["candidates"])},
             "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in c["landmark_phrases"]],
             **({"margin_m": _margin(model, c, states)} if c["relation"] in DIRECTIONS else {}),
+            **({"also_false_for": c["also_false_for"]} if c["also_false_for"] else {}),
         }
         for i, part, c, text in chosen
     ]

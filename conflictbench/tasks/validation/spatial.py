@@ -124,7 +124,39 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
         true_in = facts.holds(rel, *combo) & states
         if true_in:
             out.append(f"{rel}{tuple(combo)} holds in initial state(s) {sorted(true_in)[:5]}")
+    out += _false_for_twins(model, r, rel, groups, states)
     return out
+
+
+def _false_for_twins(model: TaskModel, r: dict, rel: str, groups: list[list[str]], states: frozenset) -> list[str]:
+    """About a twinned bowl, the relation is false for its twin too: "the black bowl from table centre
+    that is to the right of the ramekin" would otherwise describe the OTHER bowl, and a reader could
+    take it for that one."""
+    subject = set(r.get("subject", {}).get("entities", []))
+    twins = sorted(twins_of(model, subject))
+    if not twins:
+        return []
+    if sorted(r.get("also_false_for", [])) != twins:
+        return [f"relation about a twinned bowl must list its twin(s) {twins} in also_false_for"]
+    out = []
+    for twin in twins:
+        for combo in _product([[twin], *groups[1:]]):
+            true_in = model.facts.holds(rel, *combo) & states
+            if true_in:
+                out.append(f"{rel}{tuple(combo)} holds for the twin in initial state(s) {sorted(true_in)[:5]}")
+    return out
+
+
+def twins_of(model: TaskModel, subject: set[str]) -> set[str]:
+    """The identical twins of a twinned subject (same category, not the subject)."""
+    if not subject & model.goal_twins():
+        return set()
+    cats = {model.category_of(e) for e in subject}
+    return {
+        e
+        for e, info in model.facts.entities.items()
+        if e not in subject and info.kind == "object" and model.category_of(e) in cats
+    }
 
 
 def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states: frozenset) -> list[str]:
