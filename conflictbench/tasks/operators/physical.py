@@ -32,6 +32,8 @@ Rules of the family (re-checked by :mod:`conflictbench.tasks.validation.physical
   step or in an added step before them. L4: violations in at least two different steps.
 - **Varied.** Every violation records its ``kind``; each kind has several wordings, and the
   candidates of one cell are capped per (kinds, roles) signature so no kind or skeleton dominates.
+
+The wordings and premise texts live in :mod:`.physical_wordings`.
 """
 
 from __future__ import annotations
@@ -45,6 +47,22 @@ from conflictbench.tasks.scene.task_model import Step, TaskModel
 
 from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, slot_of, step_label
 from .phrasing import bare, choose
+from .physical_wordings import (
+    GRASPING_KINDS,
+    INTO_ALONE,
+    LIFT_ALONE,
+    LIFT_FIRST,
+    MANNERS,
+    NAMED_TAILS,
+    OPEN_ALONE,
+    PICK_INTO,
+    PREMISES,
+    RIGID_ALONE,
+    SQUEEZE_INTO,
+    SWITCH_ALONE,
+    SWITCH_HELD,
+    TAILS,
+)
 
 KIND_NEEDS = {
     "rigidity": ("foldable",),
@@ -54,69 +72,9 @@ KIND_NEEDS = {
     "articulation": ("openable",),
     "switch": ("turnable",),
 }
-PREMISES = {
-    "foldable": "{E} is rigid and cannot be folded or bent",
-    "graspable": "{E} is heavy furniture fixed in the scene: the robot cannot pick it up or carry it",
-    "movable": "{E} is heavy furniture fixed in the scene and cannot be pushed anywhere",
-    "fits_in": "{E} is larger than {H} and cannot fit inside it",
-    "container": "{E} is sealed or solid: nothing can be put inside it",
-    "openable": "{E} has no lid, door or drawer: there is nothing to open or close",
-    "turnable": "{E} has no switch or knob: it cannot be turned on or off",
-}
+MANNER_NEEDS = {"rigidity": "foldable", "articulation": "openable", "switch": "turnable"}
 CAP_PER_SIGNATURE = 4
 """Candidates kept per (kinds, roles) signature of a cell: keeps kinds and skeletons balanced."""
-
-# Wordings. {O}: the step's object as named by the task; {X}: a bystander acted on; {H}: a holder;
-# {P}: the fixture a drawer belongs to; {d}: the step's destination phrase.
-MANNERS = {
-    "rigidity": (("fold {O} in half", "fold {S} in half"), ("bend {O} in half", "bend {S} in half")),
-    "articulation": (("open {O}", "open {S}"), ("open up {O}", "open up {S}")),
-    "switch": (("switch on {O}", "switch on {S}"), ("turn on {O}", "turn on {S}")),
-}
-"""Impossible manners of the step's OWN object, each done before the object is put down: (first, named
-in full; second, by its plain noun {S}). Never "it" after a manner verb: only a placing verb takes "it"."""
-SWITCH_HELD = (("pick up {O}, switch on {S}", "switch on {S}"), ("take {O}, turn on {S}", "turn on {S}"))
-"""A switch named first in a step that then puts the object down: picked up first, so "put it" has
-its antecedent ("pick up the ketchup, switch on the ketchup and put it in the basket")."""
-GRASPING_KINDS = ("rigidity", "articulation")
-"""Manners that grasp the object, so a later "put it" has its antecedent; "switch on X and put it"
-has none, so a switch comes second or in a pick-up step (whose next step names the object)."""
-MANNER_NEEDS = {"rigidity": "foldable", "articulation": "openable", "switch": "turnable"}
-TAILS = {
-    "place": ("put it {d}", "place it {d}", "set it down {d}"),
-    "place_it": ("put it {d}", "place it {d}", "set it down {d}"),
-    "push": ("slide it {d}",),
-    "pick": (),
-}
-"""What follows the manners in the same step: the original action on "it" (the one object handled)."""
-NAMED_TAILS = {
-    "place": ("put {S} {d}", "place {S} {d}", "set {S} down {d}"),
-    "place_it": ("put {S} {d}", "place {S} {d}", "set {S} down {d}"),
-    "push": ("slide {S} {d}",),
-    "pick": (),
-}
-"""The tails after a step that brought in a holder: "squeeze the bowl into the ramekin and put it ..."
-could mean the ramekin, so the object is named again."""
-SQUEEZE_INTO = (
-    ("squeeze {O} into {H}", "squeeze {S} into {H}"),
-    ("stuff {O} into {H}", "stuff {S} into {H}"),
-    ("fit {O} into {H}", "fit {S} into {H}"),
-)
-"""A size manner of the step's own object, done before it is put down: into a container a whole size
-class smaller ("squeeze the black bowl into the ramekin and put the black bowl on the plate"). Never
-"put X inside H": "put the bowl on the cookie box inside the ramekin" reads as one location."""
-LIFT_FIRST = {
-    "open": (("lift {P} and open {O}", "lift {P}"), ("pick up {P} and open {O}", "pick up {P}")),
-    "close": (("lift {P} and close {O}", "lift {P}"), ("pick up {P} and close {O}", "pick up {P}")),
-}
-"""A fixture moved before it (or its drawer) is operated: the lift comes first, so it is reached."""
-PICK_INTO = (("put {O} inside {H}", "{O} inside {H}"), ("fit {O} inside {H}", "{O} inside {H}"))
-"""The pick-up half of a split step: the object must first go inside a container too small for it."""
-RIGID_ALONE = (("fold {X} in half", "fold {X} in half"), ("bend {X} in half", "bend {X} in half"))
-OPEN_ALONE = (("open {X}", "open {X}"), ("open up {X}", "open up {X}"))
-SWITCH_ALONE = (("switch on {X}", "switch on {X}"), ("turn on {X}", "turn on {X}"), ("turn {X} on", "turn {X} on"))
-LIFT_ALONE = (("lift {X}", "lift {X}"), ("pick up {X}", "pick up {X}"), ("lift {X} and set it down again", "lift {X}"))
-INTO_ALONE = (("put {X} inside {H}", "{X} inside {H}"), ("stuff {X} inside {H}", "{X} inside {H}"))
 NOT_HOLDERS = ("box", "carton", "bag", "package")
 """Words in a holder's name that invite opening it: never a sealed holder."""
 

@@ -29,6 +29,8 @@ cookie box" where no bowl touches the box). The family's rules (checked again by
 - landmarks resolve: each denotes one thing; a twin (either black bowl) is never a landmark, as
   its bare noun means both and its full name inside another description reads as a tangle;
 - L2: two parts of the one step (object and destination), or two different claims about one part.
+
+Finding the claims themselves (:func:`claims`, landmark selection) lives in :mod:`.spatial_claims`.
 """
 
 from __future__ import annotations
@@ -37,27 +39,17 @@ import itertools
 import random
 
 from conflictbench.core import ConflictCase
-from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
-from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, check_relation, riders, twins_of
+from conflictbench.tasks.validation.spatial import MIN_STATES, check_relation, riders
 from conflictbench.tasks.validation.structure import check_structure
 from conflictbench.tasks.validation.text import names_in
 
 from .frames import Draft, Mods, Slot, acted_on, frame_witness, frames_for_level, realise, step_label
 from .phrasing import bare, choose, frames_for
+from .spatial_claims import PHRASES, _names, claims, subject_noun
 
-__all__ = ["MIN_STATES", "OPERATORS", "claims", "generate"]
-PHRASES = {
-    "left_of": ("to the left of", "on the left side of", "left of"),
-    "right_of": ("to the right of", "on the right side of", "right of"),
-    "in_front_of": ("in front of",),
-    "behind": ("behind",),
-    "next_to": ("next to", "beside", "right next to"),
-    "on": ("on", "on top of", "sitting on", "resting on"),
-    "in": ("in", "inside"),
-    "between": ("between",),
-}
+__all__ = ["MIN_STATES", "OPERATORS", "claims", "generate", "subject_noun"]
 NEGATED = {
     "left_of": "to the left of",
     "right_of": "to the right of",
@@ -68,116 +60,6 @@ NEGATED = {
     "in": "in",
     "between": "between",
 }
-
-
-def subject_noun(model: TaskModel, entity: str) -> tuple[str, list[str]]:
-    """The noun phrase for an entity and every entity it could denote.
-
-    An entity with a twin keeps its whole name, base relation included ("the black bowl between the
-    plate and the ramekin"): that name, and only it, picks out the bowl the episode scores.
-    """
-    name = model.name(entity)
-    return name, sorted(model.candidates(name))
-
-
-def _named_in_identity(model: TaskModel, entity: str) -> set[str]:
-    """For a twin, the things its identifying name relates it to (the ramekin of "the black bowl
-    next to the ramekin"): a new claim about them would read as nonsense ("... that is left of the
-    ramekin") or could attach to them."""
-    if entity not in model.goal_twins():
-        return set()
-    name = model.name(entity)
-    return {e for e in model.names if e != entity and names_in(name, _names(model, e))}
-
-
-def _is_twin(model: TaskModel, entity: str) -> bool:
-    """Whether ``entity`` (or its holder) has an identical twin: its bare noun would denote both,
-    and its full name ("the black bowl next to the ramekin") buried inside another thing's
-    description reads as a tangle, so a twin is never a landmark."""
-    return bool({entity, model.parent(entity)} & (model.goal_twins() | model.unnamed))
-
-
-def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str]) -> list[tuple[str, str]]:
-    """(entity, noun phrase) usable as the relation's landmark for ``subject``.
-
-    "on" needs a real support and "in" a container at least as large as the subject: "the bowl on
-    the ketchup" would be absurd rather than false.
-    """
-    out = []
-    size = category(model.category_of(subject)).size if model.category_of(subject) != "region" else 4
-    if relation in ("on", "in"):
-        for ent, (prep, np_) in model.dest_phrases.items():
-            holder_name = model.parent(ent)
-            if ent in exclude or holder_name in exclude or _is_twin(model, ent) or not np_.startswith("the "):
-                continue
-            if ent not in model.facts.entities:
-                continue
-            holder = category(model.category_of(holder_name))
-            if holder.size < size:
-                continue
-            if (
-                relation == "on" and prep == "on" and holder.has("support") is True and ent not in model.fixtures()
-            ) or (relation == "in" and prep == "in" and holder.has("container")):
-                out.append((ent, model.name(ent) if ent in model.names else np_))
-        return out
-    for ent in model.names:
-        if ent not in exclude and not _is_twin(model, ent) and ent in model.facts.entities:
-            out.append((ent, model.name(ent)))
-    return out
-
-
-def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holder_avoid: frozenset = frozenset()):
-    """Every false relation about ``subject``, with the states where it is false for all candidates.
-
-    ``avoid``: entities no landmark may be (moved by this step or an earlier one, which would make
-    the claim stale or read oddly); ``holder_avoid``: entities no "on"/"in" holder may be (the
-    step's own destination: "pick up the sauce in the basket, then put it in the basket").
-    """
-    noun, candidates = subject_noun(model, subject)
-    movable = model.facts.entities[subject].kind == "object"
-    out = []
-    for relation in PHRASES:
-        if relation in ("on", "in", "between") and not movable:
-            continue  # "the cabinet between the bowl and the plate" reads oddly; fixtures sit on nothing
-        if relation in ("on", "in") and subject in model.goal_twins():
-            continue  # "the black bowl on the cookie box that is on the plate" contradicts its own name
-        exclude = set(candidates) | {model.parent(c) for c in candidates} | set(avoid)
-        exclude |= _named_in_identity(model, subject)
-        if relation in ("on", "in"):
-            exclude |= set(holder_avoid)
-        kind = "next_to" if relation == "between" else relation
-        marks = [np_ for ent, np_ in _landmarks(model, kind, subject, exclude) if model.parent(ent) not in exclude]
-        options = [list(p) for p in itertools.combinations(marks, 2)] if relation == "between" else [[m] for m in marks]
-        for phrases in options:
-            axis_words = SAME_AXIS_WORDS.get(relation, ())
-            if any(w in f" {p} ".split() for p in (noun, *phrases) for w in axis_words):
-                continue  # "the left plate to the right of ..." reads as a contradiction in words
-            groups = [sorted(model.candidates(p)) for p in phrases]
-            if not all(groups) or any(set(g) & set(candidates) for g in groups):
-                continue
-            if any(e in exclude or model.parent(e) in exclude for g in groups for e in g):
-                continue
-            false = model.facts.states()
-            twins = sorted(twins_of(model, {subject}))  # false for the other bowl too: else it reads as that one
-            for cand in candidates + sorted(_named_in_identity(model, subject)) + twins:
-                for combo in itertools.product(*groups):
-                    if len(set(combo)) == len(combo):
-                        false = false & model.facts.false_states(relation, cand, *combo)
-            if len(false) >= MIN_STATES:
-                out.append(
-                    {
-                        "relation": relation,
-                        "subject": noun,
-                        "candidates": candidates,
-                        "landmark_phrases": phrases,
-                        "landmark_groups": groups,
-                        "landmark_text": " and ".join(phrases),
-                        "false_states": false,
-                        "twin": subject in model.goal_twins(),
-                        "also_false_for": twins,
-                    }
-                )
-    return out
 
 
 def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
@@ -300,10 +182,6 @@ def _stale(model: TaskModel, frame: list[Slot]) -> bool:
         if any(names_in(later, _names(model, e)) for e in moved):
             return True
     return False
-
-
-def _names(model: TaskModel, entity: str) -> set[str]:
-    return {n for n in model.entity_names(entity) if model.candidates(n) <= {entity, model.parent(entity)}}
 
 
 def _touched(model: TaskModel, slots: list[Slot]) -> set[str]:
