@@ -246,55 +246,61 @@ def _twin_relation(c):
     return next((r for r in c.witness["relations"] if r["subject"]["entities"] == ["akita_black_bowl_1"]), None)
 
 
-def test_a_twinned_bowl_keeps_its_identifying_name_and_the_claim_is_about_it_alone():
-    found = 0
+def test_no_generated_relation_is_about_a_twinned_bowl():
+    """Readers attached "the black bowl next to the ramekin that is behind the stove" to the ramekin as
+    often as to the bowl, so a twin gets no spatial claim (its plate or an added step carries it)."""
+    seen = 0
     for level in LEVELS:
         for case in cases(("libero_spatial", 1), level, limit=40):
-            r = _twin_relation(case)
-            if r:
-                assert r["text"].startswith("the black bowl next to the ramekin "), r["text"]
-                assert r["subject"]["phrase"] == "black bowl next to the ramekin"
-                found += 1
-            for r in case.witness["relations"]:  # no claim about "the black bowl" that could mean either
-                assert r["subject"]["entities"] != ["akita_black_bowl_1", "akita_black_bowl_2"], case.instruction
-    assert found >= 4
+            for r in case.witness["relations"]:
+                assert _twin_relation(case) is None and "akita_black_bowl_2" not in r["subject"]["entities"]
+                seen += 1
+    assert seen >= 20
 
 
-def test_a_twin_relation_that_replaces_the_identifying_name_is_rejected():
-    case = find(("libero_spatial", 1), "L1", lambda c: _twin_relation(c) is not None)
-    r = _twin_relation(case)
-    short = r["text"].replace("the black bowl next to the ramekin ", "the black bowl ", 1)
-    short = short.replace("the black bowl that is ", "the black bowl ").replace(
-        "the black bowl which is ", "the black bowl "
+def _planted_twin(key, relation="behind"):
+    """A libero_spatial L1 case whose relation is moved onto the scored (twinned) bowl."""
+    case = find(key, "L1", lambda c: len(c.witness["relations"][0]["landmarks"]) == 1)
+    r = dict(case.witness["relations"][0])
+    r.update(relation=relation, subject={"phrase": "black bowl", "entities": ["akita_black_bowl_1"]})
+    return dataclasses.replace(case, witness={**case.witness, "relations": [r]})
+
+
+def test_a_relation_about_a_twinned_bowl_is_rejected():
+    rejected(_planted_twin(("libero_spatial", 1)), "a relation about a twinned object")
+
+
+def test_an_in_relation_about_a_drawers_contents_is_rejected():
+    case = find(("libero_goal", 8), "L1", lambda c: True)
+    r = dict(case.witness["relations"][0])
+    r.update(
+        relation="in", landmarks=[{"phrase": "top drawer of the cabinet", "entities": ["wooden_cabinet_1_top_region"]}]
     )
-    planted = dataclasses.replace(
-        case,
-        instruction=case.instruction.replace(r["text"], short),
-        witness={**case.witness, "steps": [s.replace(r["text"], short) for s in case.witness["steps"]]},
-    )
-    # said honestly (both bowls), the claim could mean either bowl
-    both = with_relation(
-        planted, text=short, subject={"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]}
-    )
-    rejected(both, "is about a twinned entity but could mean")
-    # said as the scored bowl alone, the words no longer name it
-    one = with_relation(planted, text=short, subject={"phrase": "black bowl", "entities": ["akita_black_bowl_1"]})
-    rejected(one, "does not keep its identifying name 'the black bowl next to the ramekin'")
-    assert not any("twinned" in x for x in reasons(case))
+    planted = dataclasses.replace(case, witness={**case.witness, "relations": [r]})
+    rejected(planted, "the camera cannot see inside a closed drawer")
+    for level in LEVELS:  # and the generator never writes one
+        for c in cases(("libero_goal", 8), level, limit=40):
+            for rel in c.witness["relations"]:
+                assert not (rel["relation"] == "in" and "drawer" in rel["landmarks"][0]["phrase"]), c.instruction
 
 
 def test_a_relation_about_what_rests_on_a_thing_an_earlier_step_moves_is_rejected():
     # libero_spatial 3: the scored bowl sits on the cookie box; sliding the box aside moves the bowl too
-    key = ("libero_spatial", 3)
-    case = find(key, "L3", lambda c: _twin_relation(c) is not None and c.witness["step_roles"][0] == "added")
-    r = _twin_relation(case)
-    steps = ["slide the cookie box to one side", case.witness["steps"][1]]
+    planted = _planted_twin(("libero_spatial", 3))
+    r = dict(planted.witness["relations"][0], step=2)
+    steps = ["slide the cookie box to one side", planted.witness["steps"][0]]
     planted = dataclasses.replace(
-        case,
-        instruction=f"{steps[0]}, then {steps[1]}",
-        witness={**case.witness, "steps": steps, "step_entities": [["cookies_1"], case.witness["step_entities"][1]]},
+        planted,
+        instruction=f"{steps[0]}, then {planted.instruction}",
+        witness={
+            **planted.witness,
+            "steps": steps,
+            "relations": [r],
+            "step_roles": ["added", "original"],
+            "step_goals": [[], planted.witness["step_goals"][0]],
+            "step_entities": [["cookies_1"], planted.witness["step_entities"][0]],
+        },
     )
-    assert r["step"] == 2
     rejected(planted, "akita_black_bowl_1, which an earlier step moves or operates (akita_black_bowl_1)")
 
 
@@ -360,43 +366,3 @@ def test_no_landmark_is_a_twin_and_a_landmark_meaning_both_bowls_is_rejected():
         case, landmarks=[{"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]}]
     )
     rejected(planted, "landmark 'black bowl' could mean any of akita_black_bowl_1, akita_black_bowl_2")
-
-
-@pytest.mark.sim
-def test_a_relation_true_of_the_other_bowl_is_rejected():
-    """libero_spatial task 2: "the black bowl from table center that is to the right of the ramekin"
-    is false for the scored bowl but could describe the OTHER black bowl: a reader may take it for that one."""
-    import dataclasses
-
-    from conflictbench.tasks.suite.file import load_suite
-    from conflictbench.tasks.validation.rules import new_context, validate_case
-
-    ctx = new_context()
-    twinned = [
-        c
-        for c in load_suite().cases
-        if c.family == "spatial"
-        and c.suite == "libero_spatial"
-        and any("also_false_for" in r and len(r["landmarks"]) == 1 for r in c.witness["relations"])
-    ]
-    assert twinned, "the generator lists the twin a twinned relation must also be false for"
-    case = twinned[0]
-    r = next(r for r in case.witness["relations"] if "also_false_for" in r and len(r["landmarks"]) == 1)
-    model = ctx.model((case.suite, case.task_id))
-    twin = r["also_false_for"][0]
-    landmark = r["landmarks"][0]["entities"][0]
-    # Find a direction true for the twin in every state and false for the scored bowl: plant it.
-    for rel in ("left_of", "right_of", "in_front_of", "behind"):
-        if model.facts.holds(rel, twin, landmark) == model.facts.states():
-            break
-    else:
-        pytest.skip("no direction holds for the twin in every state here")
-    planted = dataclasses.replace(
-        case, witness={**case.witness, "relations": [{**r, "relation": rel}] + case.witness["relations"][1:]}
-    )
-    assert any("holds for the twin" in reason for reason in validate_case(planted, ctx))
-    missing = dataclasses.replace(
-        case,
-        witness={**case.witness, "relations": [{k: v for k, v in r.items() if k != "also_false_for"}]},
-    )
-    assert any("also_false_for" in reason for reason in validate_case(missing, ctx))

@@ -191,6 +191,13 @@ def test_review_sheets_then_merge_the_verdicts(tmp_path, capsys):
     assert code == 2 and "needs another reader" in err
     code, _, err = run(capsys, *again, "--reviewer", "reader-2")
     assert code == 0 and len(reviews.read_text().splitlines()) == 4
+    # A round-2 recheck names the cases round 1 removed: --only includes removed ones.
+    source.write_text("".join(json.dumps({**c.to_dict(), "status": "removed"}) + "\n" for c in cases))
+    (tmp_path / "ids.txt").write_text(cases[1].case_id + "\n")
+    only = ["review-sheets", "--suite", str(source), "--only", str(tmp_path / "ids.txt"), "--out", str(tmp_path / "r2")]
+    code, _, err = run(capsys, *only)
+    assert code == 0 and "wrote 1 cases in 1 batch(es)" in err
+    assert cases[1].case_id in (tmp_path / "r2" / "batch-001.md").read_text()
     bad = tmp_path / "bad.jsonl"
     bad.write_text(json.dumps({"case_id": cases[0].case_id, "verdict": "fine"}) + "\n")
     code, _, err = run(capsys, "review-merge", str(bad), "--reviewer", "reader-3", "--reviews", str(reviews))

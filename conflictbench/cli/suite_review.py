@@ -22,7 +22,9 @@ def review_sheets(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--out", required=True, help="directory for the batch sheets (batch-NNN.md)")
     parser.add_argument("--size", type=int, default=60, help="cases per batch (default 60)")
     parser.add_argument("--suite", help="suite file (default: the shipped suite)")
-    parser.add_argument("--only", help="a file of case ids (one per line), e.g. the flagged ones for round 2")
+    parser.add_argument(
+        "--only", help="a file of case ids (one per line), removed ones included: e.g. the flagged ones for round 2"
+    )
     parser.add_argument("--priors", help="round-1 decisions (JSON Lines) whose notes the sheets show")
     parser.add_argument("--seed", type=int, default=0, help="seed of the batches' shuffle")
     args = parser.parse_args(argv)
@@ -32,7 +34,8 @@ def review_sheets(argv: Sequence[str], plugins: Plugins) -> int:
 
     suite = load_suite(args.suite, families=plugins.families())
     cases = [c for c in suite.cases if c.status != "removed"]
-    if args.only:
+    if args.only:  # named cases, removed ones too: a round-2 recheck reads what round 1 removed
+        cases = list(suite.cases)
         wanted = set(_read(Path(args.only)).split())
         unknown = wanted - {c.case_id for c in cases}
         if unknown:

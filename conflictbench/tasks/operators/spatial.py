@@ -66,6 +66,10 @@ def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
     if part == "object":
         if len(slot.objects) != 1 or slot.kind not in ("place", "push", "pick", "move_aside"):
             return None
+        if slot.objects[0] in model.goal_twins():
+            # "the black bowl between the plate and the ramekin that is left of the stove": readers
+            # attach the clause to the ramekin as often as to the bowl. A twin gets no spatial claim.
+            return None
         return slot.objects[0]
     if part == "dest" and slot.dest and slot.kind in ("place", "place_it", "push"):
         holder = model.parent(slot.dest)

@@ -70,6 +70,8 @@ def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str])
                 continue
             if ent not in model.facts.entities:
                 continue
+            if relation == "in" and "drawer" in np_:
+                continue  # a closed drawer hides its contents: "the plate inside the drawer" cannot be seen false
             holder = category(model.category_of(holder_name))
             if holder.size < size:
                 continue

@@ -30,8 +30,10 @@ SUITE_VERSION = "2.0.0"
 unsatisfiable contradictions, camera-visible spatial margins, broader grounding and physical families,
 every case reviewed)."""
 DEFAULT_SEED = 0
-PER_CELL = {"instruction": 3, "grounding": 3, "spatial": 3, "physical": 3}
-"""Cases kept per (base task, family, level); fewer where a task offers fewer valid candidates."""
+PER_CELL = {"instruction": 3, "grounding": 3, "spatial": 3, "physical": 3, "physical/L2": 5}
+"""Cases kept per (base task, family, level); ``family/level`` overrides a family's number for one
+level (physical L2: few one-step tasks offer two violations that each stand alone, so the ones that
+do give more); fewer where a task offers fewer valid candidates."""
 MAX_CANDIDATES = 400
 """Candidates drawn per (task, family, level, operator) before selection: bounds build time."""
 SUITE_ABBREV = {"libero_spatial": "spa", "libero_object": "obj", "libero_goal": "goal", "libero_10": "l10"}
@@ -144,7 +146,10 @@ def generate_task_cases(
                 return not validate_case(_to_case(task, d), ctx)
 
             picked = _select(
-                drafts, per_cell.get(family, 3), _rng(seed, task.suite, task.task_id, family, level), accept
+                drafts,
+                per_cell.get(f"{family}/{level}", per_cell.get(family, 3)),
+                _rng(seed, task.suite, task.task_id, family, level),
+                accept,
             )
             for d in picked:
                 taken.add(normalise(d.instruction))

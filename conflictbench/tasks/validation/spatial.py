@@ -112,6 +112,7 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
     clash = [w for p in phrases for w in SAME_AXIS_WORDS.get(rel, ()) if names_in(p, {w})]
     if clash:
         out.append(f"{rel.replace('_', ' ')} about {' / '.join(phrases)!r}: {clash[0]!r} reads as a contradiction")
+    out += _unseen_or_unattached(model, r, rel)
     out += _twin_named(model, r, text)
     out += _as_clause(r, text)
     out += _landmarks_single(model, r)
@@ -175,6 +176,20 @@ def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states
         out.append(f"a {rel.replace('_', ' ')} relation needs its margin_m in the witness")
     elif smallest is not None and abs(said - smallest) > MARGIN_SLACK:
         out.append(f"witness margin_m {said} does not match the scene facts ({smallest:.3f} m)")
+    return out
+
+
+def _unseen_or_unattached(model: TaskModel, r: dict, rel: str) -> list[str]:
+    """Two forms readers could not judge: a claim about what is inside a drawer (a closed drawer
+    hides its contents from the camera) and a claim about a twinned object ("the black bowl between
+    the plate and the ramekin that is left of the stove": the clause attaches to the ramekin as
+    readily as to the bowl)."""
+    out = []
+    if rel == "in" and any("drawer" in str(lm.get("phrase", "")) for lm in r.get("landmarks", [])):
+        out.append("an 'in' relation about a drawer's contents: the camera cannot see inside a closed drawer")
+    subject = set(r.get("subject", {}).get("entities", []))
+    if subject & model.goal_twins():
+        out.append("a relation about a twinned object: its clause could attach to the twin's identifying landmark")
     return out
 
 
