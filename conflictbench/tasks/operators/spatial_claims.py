@@ -11,8 +11,9 @@ from __future__ import annotations
 import itertools
 
 from conflictbench.tasks.scene.affordances import category
+from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
-from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, twins_of
+from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, has_own_front, twins_of
 from conflictbench.tasks.validation.text import names_in
 
 PHRASES = {
@@ -82,6 +83,8 @@ def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str])
         return out
     for ent in model.names:
         if ent not in exclude and not _is_twin(model, ent) and ent in model.facts.entities:
+            if relation in DIRECTIONS and has_own_front(model, ent):
+                continue  # "in front of the cabinet": its drawers' side or the camera's? Readers split.
             out.append((ent, model.name(ent)))
     return out
 

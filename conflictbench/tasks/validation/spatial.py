@@ -179,12 +179,24 @@ def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states
     return out
 
 
+def has_own_front(model: TaskModel, entity: str) -> bool:
+    """A fixture with drawers or a door faces its own way: "in front of the cabinet" may mean its
+    drawers' side rather than the camera's, so no direction is claimed against it."""
+    holder = model.parent(entity)
+    info = model.facts.entities.get(holder)
+    return info is not None and info.kind == "fixture" and category(model.category_of(holder)).has("openable") is True
+
+
 def _unseen_or_unattached(model: TaskModel, r: dict, rel: str) -> list[str]:
     """Two forms readers could not judge: a claim about what is inside a drawer (a closed drawer
     hides its contents from the camera) and a claim about a twinned object ("the black bowl between
     the plate and the ramekin that is left of the stove": the clause attaches to the ramekin as
     readily as to the bowl)."""
     out = []
+    if rel in DIRECTIONS and any(
+        has_own_front(model, e) for lm in r.get("landmarks", []) for e in lm.get("entities", [])
+    ):
+        out.append(f"a {rel.replace('_', ' ')} relation to a fixture that faces its own way (drawers or a door)")
     if rel == "in" and any("drawer" in str(lm.get("phrase", "")) for lm in r.get("landmarks", [])):
         out.append("an 'in' relation about a drawer's contents: the camera cannot see inside a closed drawer")
     subject = set(r.get("subject", {}).get("entities", []))
