@@ -1,6 +1,6 @@
 """Scene facts: what is true in a base task's fixed initial states, and the geometry of relations.
 
-The facts are derived once from the simulator (:mod:`.scene_build`) and shipped as package data
+The facts are derived once from the simulator (:mod:`conflictbench.sim.scene_facts`) and shipped as package data
 (``data/scene_facts.jsonl``), so validating the suite never starts MuJoCo. What is stored is raw:
 positions, contacts, and LIBERO's own predicates per state. The spatial vocabulary (left of, in
 front of, next to, between, on, in) is computed here from those raw facts, with the tolerances
