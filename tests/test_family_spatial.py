@@ -381,3 +381,21 @@ def test_no_direction_against_a_fixture_that_faces_its_own_way():
     r.update(landmarks=[{"phrase": "wooden cabinet", "entities": ["wooden_cabinet_1"]}])
     planted = dataclasses.replace(case, witness={**case.witness, "relations": [r]})
     rejected(planted, "a fixture that faces its own way")
+
+
+def test_no_next_to_between_two_things_of_one_kind():
+    """ "the right plate which is beside the left plate": two plates read as side by side at any gap."""
+    key = ("libero_10", 4)
+    for level in LEVELS:
+        for c in cases(key, level, limit=40):
+            for r in c.witness["relations"]:
+                if r["relation"] == "next_to":
+                    assert not ("plate" in r["subject"]["phrase"] and "plate" in r["landmarks"][0]["phrase"])
+    case = find(key, "L3", lambda c: True)
+    r = dict(case.witness["relations"][0])
+    r.update(
+        relation="next_to",
+        subject={"phrase": "right plate", "entities": ["plate_2"]},
+        landmarks=[{"phrase": "left plate", "entities": ["plate_1"]}],
+    )
+    rejected(dataclasses.replace(case, witness={**case.witness, "relations": [r]}), "two things of one kind")

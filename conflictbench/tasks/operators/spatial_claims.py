@@ -13,7 +13,7 @@ import itertools
 from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
-from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, has_own_front, twins_of
+from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, has_own_front, same_kind_pair, twins_of
 from conflictbench.tasks.validation.text import names_in
 
 PHRASES = {
@@ -120,6 +120,8 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
                 continue
             if any(e in exclude or model.parent(e) in exclude for g in groups for e in g):
                 continue
+            if relation == "next_to" and same_kind_pair(model, subject, groups[0]):
+                continue  # "the right plate beside the left plate": a pair reads as side by side at any gap
             false = model.facts.states()
             twins = sorted(twins_of(model, {subject}))  # false for the other bowl too: else it reads as that one
             for cand in candidates + sorted(_named_in_identity(model, subject)) + twins:

@@ -187,15 +187,21 @@ def has_own_front(model: TaskModel, entity: str) -> bool:
     return info is not None and info.kind == "fixture" and category(model.category_of(holder)).has("openable") is True
 
 
+def same_kind_pair(model: TaskModel, subject: str, landmarks) -> bool:
+    """Two things of one kind (the left and the right plate) read as "beside each other" at any gap."""
+    return any(model.category_of(subject) == model.category_of(e) for e in landmarks)
+
+
 def _unseen_or_unattached(model: TaskModel, r: dict, rel: str) -> list[str]:
     """Two forms readers could not judge: a claim about what is inside a drawer (a closed drawer
     hides its contents from the camera) and a claim about a twinned object ("the black bowl between
     the plate and the ramekin that is left of the stove": the clause attaches to the ramekin as
     readily as to the bowl)."""
     out = []
-    if rel in DIRECTIONS and any(
-        has_own_front(model, e) for lm in r.get("landmarks", []) for e in lm.get("entities", [])
-    ):
+    marks = [e for lm in r.get("landmarks", []) for e in lm.get("entities", [])]
+    if rel == "next_to" and any(same_kind_pair(model, s, marks) for s in r.get("subject", {}).get("entities", [])):
+        out.append("a 'next to' relation between two things of one kind: a pair reads as side by side")
+    if rel in DIRECTIONS and any(has_own_front(model, e) for e in marks):
         out.append(f"a {rel.replace('_', ' ')} relation to a fixture that faces its own way (drawers or a door)")
     if rel == "in" and any("drawer" in str(lm.get("phrase", "")) for lm in r.get("landmarks", [])):
         out.append("an 'in' relation about a drawer's contents: the camera cannot see inside a closed drawer")
