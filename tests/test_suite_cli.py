@@ -152,6 +152,20 @@ def test_build_with_another_seed_differs(tmp_path, capsys):
     assert other.version == load_suite().version
     assert {c.case_id for c in other.cases} != {c.case_id for c in load_suite().cases}
     assert json.loads(out.read_text().splitlines()[0])["seed"] == 1
+    assert {c.status for c in other.cases} == {"pending"} and other.accepted() == []  # nobody has read them
+
+
+@pytest.mark.sim  # LIBERO's base tasks
+def test_review_mistakes_are_one_line_and_exit_2(tmp_path, capsys):
+    unknown = tmp_path / "v.jsonl"
+    unknown.write_text(json.dumps({"case_id": "nope-ins-L1-00000000", "verdict": "valid", "note": "x"}) + "\n")
+    target = tmp_path / "review.jsonl"
+    code, _, err = run(capsys, "review-merge", str(unknown), "--reviewer", "r", "--reviews", str(target))
+    assert code == 2 and "name cases the suite does not have" in err and not target.exists()
+    code, _, err = run(capsys, "review-merge", str(tmp_path / "missing.jsonl"), "--reviewer", "r")
+    assert code == 2 and "cannot read" in err
+    code, _, err = run(capsys, "validate", str(tmp_path))  # a directory
+    assert code == 2 and "cannot read the suite file" in err
 
 
 @pytest.mark.sim  # LIBERO's base tasks (the sheets carry each scene's facts)

@@ -21,6 +21,15 @@ def ctx():
     return new_context()
 
 
+def _acted_on(i, goals, roles):
+    """What step i moves: its goal's object; a pick-up half, the next step's; an added step, the cream cheese."""
+    if goals[i]:
+        return [g[1] for g in goals[i]]
+    if roles[i] == "original" and i + 1 < len(goals) and goals[i + 1]:
+        return [g[1] for g in goals[i + 1]]
+    return ["cream_cheese_1"]
+
+
 def case(key, instruction, steps, roles, goals, *, family="instruction", level=None, **witness) -> ConflictCase:
     """A hand-written instruction-family case: a still robot arm in the last step contradicts its goal."""
     last = len(steps)
@@ -30,7 +39,7 @@ def case(key, instruction, steps, roles, goals, *, family="instruction", level=N
         "steps": steps,
         "step_roles": roles,
         "step_goals": goals,
-        "step_entities": [[g[1] for g in goal_list] or ["cream_cheese_1"] for goal_list in goals],
+        "step_entities": [_acted_on(i, goals, roles) for i in range(len(steps))],
         "requirements": [
             {"id": "r1", "step": last, "text": steps[-1], "literal": ["goal", *goal]},
             {"id": "r2", "step": last, "text": "without moving the robot arm", "literal": ["keep", "still", "robot"]},
@@ -57,12 +66,21 @@ def case(key, instruction, steps, roles, goals, *, family="instruction", level=N
 def test_a_whole_observable_case_passes(ctx):
     good = case(
         ("libero_goal", 8),
+        "push the cream cheese aside, then put the bowl on the plate without moving the robot arm",
+        ["push the cream cheese aside", "put the bowl on the plate"],
+        ["added", "original"],
+        [[], [["on", BOWL, "plate_1"]]],
+    )
+    assert validate_case(good, ctx) == []
+    # the same constraint on the placing half of a split pick-and-place is refused (the bowl is in hand)
+    split = case(
+        ("libero_goal", 8),
         "pick up the bowl, then put it on the plate without moving the robot arm",
         ["pick up the bowl", "put it on the plate"],
         ["original", "original"],
         [[], [["on", BOWL, "plate_1"]]],
     )
-    assert validate_case(good, ctx) == []
+    assert any("placing half" in r for r in validate_case(split, ctx)), validate_case(split, ctx)
 
 
 def test_an_added_step_after_the_original_task_is_rejected(ctx):

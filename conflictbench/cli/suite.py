@@ -97,15 +97,16 @@ def _stats(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--markdown", action="store_true", help="print a Markdown table (as in the README)")
     parser.add_argument("--reviews", help="review decisions for the removal rates (default: the shipped ones)")
     args = parser.parse_args(argv)
+    from conflictbench.tasks.suite.review import load_reviews
+
     suite = _load(args.file, plugins)
+    decisions = load_reviews(args.reviews) if args.reviews or not args.file else []  # a bad file: before any output
     print(stats_table(suite.cases, plugins.families(), args.markdown), end="")
     status = Counter(c.status for c in suite.cases)
     tasks = len({(c.suite, c.task_id) for c in suite.accepted()})
     print(f"statuses: {', '.join(f'{k} {v}' for k, v in sorted(status.items()))}; base tasks used: {tasks}")
-    from conflictbench.tasks.suite.review import load_reviews
     from conflictbench.tasks.suite.stats import composition_lines, removal_lines
 
-    decisions = load_reviews(args.reviews) if args.reviews or not args.file else []
     print("\n".join(composition_lines(suite.cases) + removal_lines(suite.cases, plugins.families(), decisions)))
     return 0
 
@@ -126,8 +127,8 @@ def _sample(argv: Sequence[str], plugins: Plugins) -> int:
     if args.out:
         _write(Path(args.out), "\n".join(lines) + "\n")
         print(
-            f"wrote {len(lines)} cases to review to {args.out}; fill in decision (accepted/revised/removed) and note, "
-            "then append the lines to conflictbench/tasks/data/review.jsonl and rebuild",
+            f"wrote {len(lines)} cases to {args.out}; to have them read, give their ids to "
+            "`conflictbench suite review-sheets --only`, then `review-merge` the verdicts (--round 2 for a recheck)",
             file=sys.stderr,
         )
     else:

@@ -43,10 +43,12 @@ def review_sheets(argv: Sequence[str], plugins: Plugins) -> int:
         cases = [c for c in cases if c.case_id in wanted]
     priors = {}
     if args.priors:
-        for line in _read(Path(args.priors)).splitlines():
-            if line.strip():
-                row = json.loads(line)
-                priors[row["case_id"]] = row.get("note", "")
+        from conflictbench.tasks.suite.review_sheets import read_verdicts
+
+        for row in read_verdicts(Path(args.priors)):
+            if not isinstance(row, dict) or not isinstance(row.get("case_id"), str):
+                raise UserError(f"{args.priors}: every line needs a case_id (and the first reader's note)")
+            priors[row["case_id"]] = str(row.get("note", ""))
     ctx = new_context(None, plugins.conflict_operators().values())
     models = {(c.suite, c.task_id): ctx.model((c.suite, c.task_id)) for c in cases}
     paths = write_batches(cases, models, Path(args.out), args.size, seed=args.seed, priors=priors)
@@ -60,13 +62,19 @@ def review_merge(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--reviewer", required=True, help="who read them (never the cases' author)")
     parser.add_argument("--round", type=int, default=1, help="1: first reading; 2: recheck of flagged cases")
     parser.add_argument("--reviews", help="decisions file to append to (default: the shipped one)")
+    parser.add_argument("--suite", help="the suite the verdicts are about (default: the shipped one)")
     args = parser.parse_args(argv)
+    from conflictbench.tasks.suite.file import load_suite
     from conflictbench.tasks.suite.review import load_reviews, parse_reviews, review_path
     from conflictbench.tasks.suite.review_sheets import decisions_from_verdicts, read_verdicts
 
     target = Path(args.reviews) if args.reviews else review_path()
     rows = [r for path in args.verdicts for r in read_verdicts(Path(path))]
     new = decisions_from_verdicts(rows, args.reviewer, args.round)
+    known = {c.case_id for c in load_suite(args.suite, families=plugins.families()).cases}
+    unknown = sorted({d["case_id"] for d in new} - known)
+    if unknown:  # appended, it would stop the next build ("not produced by the generator")
+        raise UserError(f"{len(unknown)} verdict(s) name cases the suite does not have, e.g. {unknown[0]}")
     earlier = load_reviews(target) if target.exists() else []
     same_reader = {d.case_id for d in earlier if d.reviewer == args.reviewer} & {d["case_id"] for d in new}
     if args.round > 1 and same_reader:
@@ -74,7 +82,10 @@ def review_merge(argv: Sequence[str], plugins: Plugins) -> int:
     text = "".join(json.dumps(d, ensure_ascii=False) + "\n" for d in new)
     old = _read(target) if target.exists() else ""
     parse_reviews(old + text, str(target))  # refuses a second decision for a case in one round
-    target.write_text(old + text, encoding="utf-8")
+    try:
+        target.write_text(old + text, encoding="utf-8")
+    except OSError as exc:
+        raise UserError(f"cannot write {target}: {exc.strerror}") from None
     print(f"appended {len(new)} decision(s) to {target}", file=sys.stderr)
     return 0
 
@@ -82,5 +93,5 @@ def review_merge(argv: Sequence[str], plugins: Plugins) -> int:
 def _read(path: Path) -> str:
     try:
         return path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"cannot read {path}: {exc.strerror}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"cannot read {path}: {getattr(exc, 'strerror', None) or exc}") from None

@@ -200,10 +200,10 @@ def build_cases(
         ctx.models[task.key] = model
         cases += generate_task_cases(model, entries, seed, ctx, per_cell, taken[task.suite])
     # The shipped decisions are about the shipped cases (seed 0); another seed writes other cases,
-    # which nobody has reviewed yet, unless a decisions file for them is named. Where decisions
-    # apply, a case nobody has decided on is pending: no run plays an unreviewed case.
-    if reviews_path is not None or seed == DEFAULT_SEED:
-        cases = apply_reviews(cases, load_reviews(reviews_path), ctx, require_review=True)
+    # which nobody has reviewed yet, unless a decisions file for them is named. A case nobody has
+    # decided on is pending: no run plays an unreviewed case.
+    shipped = reviews_path is not None or seed == DEFAULT_SEED
+    cases = apply_reviews(cases, load_reviews(reviews_path) if shipped else [], ctx, require_review=True)
     return sorted(cases, key=_sort_key)
 
 

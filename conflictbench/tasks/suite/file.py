@@ -160,6 +160,8 @@ def read_suite(path: str | Path, *, require_header: bool = False, families: tupl
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise SuiteFormatError(f"suite file not found: {path}") from None
+    except OSError as exc:  # a directory, no permission
+        raise SuiteFormatError(f"cannot read the suite file {path}: {exc.strerror}") from None
     except UnicodeDecodeError:
         raise SuiteFormatError(f"{path}: not UTF-8 text") from None
     return parse_suite(text, source=str(path), require_header=require_header, families=families)

@@ -109,7 +109,11 @@ def load_reviews(path: str | Path | None = None) -> list[Decision]:
         if path:
             raise ReviewError(f"review file not found: {p}")
         return []
-    return parse_reviews(p.read_text(encoding="utf-8"), str(p))
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ReviewError(f"cannot read the review file {p}: {getattr(exc, 'strerror', None) or exc}") from None
+    return parse_reviews(text, str(p))
 
 
 def latest(decisions: Iterable[Decision]) -> list[Decision]:

@@ -142,16 +142,19 @@ def write_batches(
 
 def decisions_from_verdicts(rows: Iterable[dict], reviewer: str, round_: int) -> list[dict]:
     """A reader's verdicts as review decisions: valid -> accepted; wrong or questionable -> removed."""
+    if not reviewer.strip():
+        raise UserError("--reviewer must name who read the cases")
     out = []
     for row in rows:
-        verdict = row.get("verdict")
-        if verdict not in VERDICTS or not row.get("case_id") or not str(row.get("note", "")).strip():
-            raise UserError(f"a verdict needs case_id, verdict ({', '.join(VERDICTS)}) and a note: {row}")
+        fields = (row.get("case_id"), row.get("verdict"), row.get("note")) if isinstance(row, dict) else ()
+        if len(fields) != 3 or not all(isinstance(f, str) and f.strip() for f in fields) or fields[1] not in VERDICTS:
+            raise UserError(f"a verdict needs case_id, verdict ({', '.join(VERDICTS)}) and a note, as strings: {row}")
+        case_id, verdict, note = fields
         out.append(
             {
-                "case_id": row["case_id"],
+                "case_id": case_id,
                 "decision": "accepted" if verdict == "valid" else "removed",
-                "note": f"{verdict}: {row['note'].strip()}",
+                "note": f"{verdict}: {note.strip()}",
                 "reviewer": reviewer,
                 "round": round_,
             }
@@ -160,8 +163,12 @@ def decisions_from_verdicts(rows: Iterable[dict], reviewer: str, round_: int) ->
 
 
 def read_verdicts(path: Path) -> list[dict]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"cannot read {path}: {getattr(exc, 'strerror', None) or exc}") from None
     rows = []
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         if line.strip():
             try:
                 rows.append(json.loads(line))

@@ -16,10 +16,12 @@ and, for a direction, ``margin_m``. A relation is valid when:
   fixture) is moved or operated by an EARLIER step (the witness's ``step_entities`` and what the
   steps' goals imply), nor rests on or in a thing such a step moves (:func:`riders`: a bowl on the
   cookie box moves with the box), and no landmark is moved or operated by the relation's own step.
-- **The scored twin stays identified**: a relation about an entity with an identical twin (the two
-  black bowls of libero_spatial) is about that entity alone, and its text opens with the entity's
-  full identifying name ("the black bowl next to the ramekin that is behind the stove"): replacing
-  the base task's own relation would leave nothing that picks out the bowl the episode scores.
+- **Nothing a reader cannot judge**: no relation about an entity with an identical twin (the two
+  black bowls of libero_spatial: "the black bowl next to the ramekin that is behind the stove"
+  attaches to the ramekin as readily as to the bowl), none about a drawer's hidden contents, no
+  direction against a fixture that faces its own way (a cabinet's drawers), no "next to" between
+  two things of one kind. (The older twin checks below, identifying name and ``also_false_for``,
+  still judge such a relation in a user's own suite file, with the reason it fails.)
 - **Never a destination**: the relation follows its subject as a relative clause or a participle
   ("the butter that is to the left of the milk", "the bowl sitting on the plate"); after a motion
   verb a bare one ("take the butter to the left of the milk") reads as where to put it.

@@ -112,6 +112,7 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
     base = {_atom(a) for s in model.steps for a in s.goal}
     asked: set[tuple[str, ...]] = set()
     replaced = _replaced(case, wtype)
+    out += _entities_named(case, model, replaced)
     for i, (role, literals) in enumerate(zip(roles, goals)):
         if role == "added" and literals:
             out.append(f"step {i + 1} is marked added but achieves the base task's goal {literals}")
@@ -139,6 +140,27 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
     missing = sorted(base - asked)
     if missing:
         out.append(f"the instruction drops the base task's subgoal(s) {[list(m) for m in missing]}")
+    return out
+
+
+def _entities_named(case: ConflictCase, model: TaskModel, replaced: dict[int, set[str]]) -> list[str]:
+    """What the witness says each step acts on, the step's text names (or the step before, for "put
+    it ..."; or a grounding referent stands in for it): other rules trust ``step_entities``."""
+    w, out = case.witness, []
+    steps, said = w["steps"], w.get("step_entities")
+    if said is None:
+        return []
+    if not (isinstance(said, list) and len(said) == len(steps)):
+        return [f"witness field 'step_entities' must list each of the {len(steps)} step(s)' entities"]
+    for i, entities in enumerate(said):
+        text = steps[i] if i == 0 else f"{steps[i - 1]} {steps[i]}"  # "pick up X, then put it ..."
+        stand_ins = replaced.get(i + 1, set()) | replaced.get(i, set())
+        stand_ins |= {model.parent(x) for x in stand_ins}  # "open the backpack": for the drawer and its cabinet
+        for e in entities if isinstance(entities, list) else []:
+            if e in stand_ins or e not in model.facts.entities and e not in model.problem.fixtures:
+                continue
+            if not names_in(text, model.entity_names(e) | model.entity_names(model.parent(e))):
+                out.append(f"step {i + 1} is said to act on {e}, which it does not name")
     return out
 
 
