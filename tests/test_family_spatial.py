@@ -267,7 +267,11 @@ def _planted_twin(key, relation="behind"):
 
 
 def test_a_relation_about_a_twinned_bowl_is_rejected():
-    rejected(_planted_twin(("libero_spatial", 1)), "a relation about a twinned object")
+    planted = _planted_twin(("libero_spatial", 1))
+    rejected(planted, "a relation about a twinned object")
+    # the unnamed twin too ("the black bowl" meant as the OTHER bowl)
+    other = with_relation(planted, subject={"phrase": "black bowl", "entities": ["akita_black_bowl_2"]})
+    rejected(other, "a relation about a twinned object")
 
 
 def test_an_in_relation_about_a_drawers_contents_is_rejected():

@@ -12,12 +12,9 @@ cookie box" where no bowl touches the box). The family's rules (checked again by
 - a direction is false by a margin a camera shows: the subject's centre lies past the landmark's
   centre, on the other side, by at least max(6 cm, the subject's radius); the witness gives the
   smallest such clearance over the paired states as ``margin_m``;
-- an entity with an identical twin (the scored black bowl of libero_spatial) keeps its full
-  identifying name and the false relation is ADDED to it as a relative clause ("the black bowl next
-  to the ramekin that is behind the stove"), never put in its place: the claim is then about that
-  bowl alone, and nothing else in the words could let a robot take the other bowl; as the clause
-  could also be read as about the name's last noun ("the ramekin that is behind the stove"), it
-  must be false for the things the name mentions as well;
+- no claim about an entity with an identical twin (the black bowls of libero_spatial): readers
+  attached "the black bowl next to the ramekin that is behind the stove" to the ramekin as readily
+  as to the bowl, so the plate or an added step carries the relation instead;
 - the claim is still false when its step is reached: no earlier step moves or operates its subject
   or landmarks (or their fixtures, or a thing they rest on or in), and its own step does not move
   its landmark;
@@ -85,7 +82,7 @@ def _phrase(claim: dict, rng: random.Random) -> str:
     clause or a participle, since after a motion verb ("take the butter to the left of the milk")
     a bare relation reads as where to put the thing, a destination the robot can satisfy."""
     rel = choose(rng, PHRASES[claim["relation"]])
-    if rel.startswith(("sitting", "resting")) and not claim.get("twin"):
+    if rel.startswith(("sitting", "resting")):
         form = "{s} {r} {l}"
     else:
         form = choose(rng, ("{s} that is {r} {l}", "{s} that is {r} {l}", "{s} which is {r} {l}"))
@@ -257,7 +254,6 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
             "subject": {"phrase": bare(c["subject"]), "entities": sorted(c["candidates"])},
             "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in c["landmark_phrases"]],
             **({"margin_m": _margin(model, c, states)} if c["relation"] in DIRECTIONS else {}),
-            **({"also_false_for": c["also_false_for"]} if c["also_false_for"] else {}),
         }
         for i, part, c, text in chosen
     ]

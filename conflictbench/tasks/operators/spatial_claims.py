@@ -13,8 +13,7 @@ import itertools
 from conflictbench.tasks.scene.affordances import category
 from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
-from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, has_own_front, same_kind_pair, twins_of
-from conflictbench.tasks.validation.text import names_in
+from conflictbench.tasks.validation.spatial import MIN_STATES, SAME_AXIS_WORDS, has_own_front, same_kind_pair
 
 PHRASES = {
     "left_of": ("to the left of", "on the left side of", "left of"),
@@ -30,23 +29,10 @@ PHRASES = {
 
 
 def subject_noun(model: TaskModel, entity: str) -> tuple[str, list[str]]:
-    """The noun phrase for an entity and every entity it could denote.
-
-    An entity with a twin keeps its whole name, base relation included ("the black bowl between the
-    plate and the ramekin"): that name, and only it, picks out the bowl the episode scores.
-    """
+    """The noun phrase for an entity and every entity it could denote (never a twinned bowl: the
+    operator makes no claim about one)."""
     name = model.name(entity)
     return name, sorted(model.candidates(name))
-
-
-def _named_in_identity(model: TaskModel, entity: str) -> set[str]:
-    """For a twin, the things its identifying name relates it to (the ramekin of "the black bowl
-    next to the ramekin"): a new claim about them would read as nonsense ("... that is left of the
-    ramekin") or could attach to them."""
-    if entity not in model.goal_twins():
-        return set()
-    name = model.name(entity)
-    return {e for e in model.names if e != entity and names_in(name, _names(model, e))}
 
 
 def _is_twin(model: TaskModel, entity: str) -> bool:
@@ -102,10 +88,7 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
     for relation in PHRASES:
         if relation in ("on", "in", "between") and not movable:
             continue  # "the cabinet between the bowl and the plate" reads oddly; fixtures sit on nothing
-        if relation in ("on", "in") and subject in model.goal_twins():
-            continue  # "the black bowl on the cookie box that is on the plate" contradicts its own name
         exclude = set(candidates) | {model.parent(c) for c in candidates} | set(avoid)
-        exclude |= _named_in_identity(model, subject)
         if relation in ("on", "in"):
             exclude |= set(holder_avoid)
         kind = "next_to" if relation == "between" else relation
@@ -123,8 +106,7 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
             if relation == "next_to" and same_kind_pair(model, subject, groups[0]):
                 continue  # "the right plate beside the left plate": a pair reads as side by side at any gap
             false = model.facts.states()
-            twins = sorted(twins_of(model, {subject}))  # false for the other bowl too: else it reads as that one
-            for cand in candidates + sorted(_named_in_identity(model, subject)) + twins:
+            for cand in candidates:
                 for combo in itertools.product(*groups):
                     if len(set(combo)) == len(combo):
                         false = false & model.facts.false_states(relation, cand, *combo)
@@ -138,8 +120,6 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
                         "landmark_groups": groups,
                         "landmark_text": " and ".join(phrases),
                         "false_states": false,
-                        "twin": subject in model.goal_twins(),
-                        "also_false_for": twins,
                     }
                 )
     return out

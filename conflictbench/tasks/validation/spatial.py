@@ -20,8 +20,7 @@ and, for a direction, ``margin_m``. A relation is valid when:
   black bowls of libero_spatial: "the black bowl next to the ramekin that is behind the stove"
   attaches to the ramekin as readily as to the bowl), none about a drawer's hidden contents, no
   direction against a fixture that faces its own way (a cabinet's drawers), no "next to" between
-  two things of one kind. (The older twin checks below, identifying name and ``also_false_for``,
-  still judge such a relation in a user's own suite file, with the reason it fails.)
+  two things of one kind.
 - **Never a destination**: the relation follows its subject as a relative clause or a participle
   ("the butter that is to the left of the milk", "the bowl sitting on the plate"); after a motion
   verb a bare one ("take the butter to the left of the milk") reads as where to put it.
@@ -115,7 +114,6 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
     if clash:
         out.append(f"{rel.replace('_', ' ')} about {' / '.join(phrases)!r}: {clash[0]!r} reads as a contradiction")
     out += _unseen_or_unattached(model, r, rel)
-    out += _twin_named(model, r, text)
     out += _as_clause(r, text)
     out += _landmarks_single(model, r)
     out += _holder(model, rel, groups)
@@ -127,39 +125,7 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
         true_in = facts.holds(rel, *combo) & states
         if true_in:
             out.append(f"{rel}{tuple(combo)} holds in initial state(s) {sorted(true_in)[:5]}")
-    out += _false_for_twins(model, r, rel, groups, states)
     return out
-
-
-def _false_for_twins(model: TaskModel, r: dict, rel: str, groups: list[list[str]], states: frozenset) -> list[str]:
-    """About a twinned bowl, the relation is false for its twin too: "the black bowl from table centre
-    that is to the right of the ramekin" would otherwise describe the OTHER bowl, and a reader could
-    take it for that one."""
-    subject = set(r.get("subject", {}).get("entities", []))
-    twins = sorted(twins_of(model, subject))
-    if not twins:
-        return []
-    if sorted(r.get("also_false_for", [])) != twins:
-        return [f"relation about a twinned bowl must list its twin(s) {twins} in also_false_for"]
-    out = []
-    for twin in twins:
-        for combo in _product([[twin], *groups[1:]]):
-            true_in = model.facts.holds(rel, *combo) & states
-            if true_in:
-                out.append(f"{rel}{tuple(combo)} holds for the twin in initial state(s) {sorted(true_in)[:5]}")
-    return out
-
-
-def twins_of(model: TaskModel, subject: set[str]) -> set[str]:
-    """The identical twins of a twinned subject (same category, not the subject)."""
-    if not subject & model.goal_twins():
-        return set()
-    cats = {model.category_of(e) for e in subject}
-    return {
-        e
-        for e, info in model.facts.entities.items()
-        if e not in subject and info.kind == "object" and model.category_of(e) in cats
-    }
 
 
 def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states: frozenset) -> list[str]:
@@ -208,24 +174,10 @@ def _unseen_or_unattached(model: TaskModel, r: dict, rel: str) -> list[str]:
     if rel == "in" and any("drawer" in str(lm.get("phrase", "")) for lm in r.get("landmarks", [])):
         out.append("an 'in' relation about a drawer's contents: the camera cannot see inside a closed drawer")
     subject = set(r.get("subject", {}).get("entities", []))
-    if subject & model.goal_twins():
+    subject |= {model.parent(e) for e in subject}
+    if subject & (model.goal_twins() | model.unnamed):  # the scored bowl, or its unnamed twin
         out.append("a relation about a twinned object: its clause could attach to the twin's identifying landmark")
     return out
-
-
-def _twin_named(model: TaskModel, r: dict, text: str) -> list[str]:
-    """A relation about a twinned entity keeps its identifying name and is about it alone."""
-    subject = set(r.get("subject", {}).get("entities", []))
-    twinned = {e for e in model.goal_twins() | model.unnamed if {e, model.parent(e)} & subject}
-    if not twinned:
-        return []
-    named = [e for e in twinned if e in model.goal_twins()]
-    if len(twinned) > 1 or not named:
-        return [f"relation text {text!r} is about a twinned entity but could mean {', '.join(sorted(twinned))}"]
-    name = model.name(named[0])
-    if not text.startswith(name) or str(r.get("subject", {}).get("phrase", "")) != name.removeprefix("the "):
-        return [f"relation text {text!r} about a twinned entity does not keep its identifying name {name!r}"]
-    return []
 
 
 def _as_clause(r: dict, text: str) -> list[str]:
