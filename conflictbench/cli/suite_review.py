@@ -29,6 +29,7 @@ def review_sheets(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of the batches' shuffle")
     args = parser.parse_args(argv)
     from conflictbench.tasks.suite.file import load_suite
+    from conflictbench.tasks.suite.review import read_text
     from conflictbench.tasks.suite.review_sheets import write_batches
     from conflictbench.tasks.validation.rules import new_context
 
@@ -36,7 +37,7 @@ def review_sheets(argv: Sequence[str], plugins: Plugins) -> int:
     cases = [c for c in suite.cases if c.status != "removed"]
     if args.only:  # named cases, removed ones too: a round-2 recheck reads what round 1 removed
         cases = list(suite.cases)
-        wanted = set(_read(Path(args.only)).split())
+        wanted = set(read_text(Path(args.only)).split())
         unknown = wanted - {c.case_id for c in cases}
         if unknown:
             raise UserError(f"{args.only}: {len(unknown)} case id(s) not in the suite, e.g. {sorted(unknown)[0]}")
@@ -65,7 +66,7 @@ def review_merge(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--suite", help="the suite the verdicts are about (default: the shipped one)")
     args = parser.parse_args(argv)
     from conflictbench.tasks.suite.file import load_suite
-    from conflictbench.tasks.suite.review import load_reviews, parse_reviews, review_path
+    from conflictbench.tasks.suite.review import load_reviews, parse_reviews, read_text, review_path
     from conflictbench.tasks.suite.review_sheets import decisions_from_verdicts, read_verdicts
 
     target = Path(args.reviews) if args.reviews else review_path()
@@ -80,7 +81,7 @@ def review_merge(argv: Sequence[str], plugins: Plugins) -> int:
     if args.round > 1 and same_reader:
         raise UserError(f"{args.reviewer} already decided {sorted(same_reader)[0]}: a recheck needs another reader")
     text = "".join(json.dumps(d, ensure_ascii=False) + "\n" for d in new)
-    old = _read(target) if target.exists() else ""
+    old = read_text(target) if target.exists() else ""
     parse_reviews(old + text, str(target))  # refuses a second decision for a case in one round
     try:
         target.write_text(old + text, encoding="utf-8")
@@ -88,10 +89,3 @@ def review_merge(argv: Sequence[str], plugins: Plugins) -> int:
         raise UserError(f"cannot write {target}: {exc.strerror}") from None
     print(f"appended {len(new)} decision(s) to {target}", file=sys.stderr)
     return 0
-
-
-def _read(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"cannot read {path}: {getattr(exc, 'strerror', None) or exc}") from None

@@ -109,11 +109,16 @@ def load_reviews(path: str | Path | None = None) -> list[Decision]:
         if path:
             raise ReviewError(f"review file not found: {p}")
         return []
+    return parse_reviews(read_text(p, "the review file "), str(p))
+
+
+def read_text(path: Path, what: str = "") -> str:
+    """A review file's text, or one line saying why it cannot be read (a directory, no permission,
+    not UTF-8): a user's mistake, never a traceback."""
     try:
-        text = p.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ReviewError(f"cannot read the review file {p}: {getattr(exc, 'strerror', None) or exc}") from None
-    return parse_reviews(text, str(p))
+        raise ReviewError(f"cannot read {what}{path}: {getattr(exc, 'strerror', None) or exc}") from None
 
 
 def latest(decisions: Iterable[Decision]) -> list[Decision]:
