@@ -18,11 +18,15 @@ from .core import (
     PolicyClient,
     PrivilegedState,
     ServedPolicy,
+    ServerProcess,
     ServerUnavailable,
     ServingConfig,
     Transport,
+    UserError,
     default_format_prompt,
+    free_port,
     hookimpl,
+    model_environment,
     rng_for,
     sampling_seed,
 )
@@ -67,6 +71,11 @@ __all__ = [
     "ServerUnavailable",
     "ServingConfig",
     "Transport",
+    "UserError",
+    # a model's server started for a run, in the model environment set-up made
+    "ServerProcess",
+    "free_port",
+    "model_environment",
     # the plugin manager
     "BUILTIN_PLUGINS",
     "plugins",

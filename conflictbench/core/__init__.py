@@ -10,6 +10,7 @@ from .errors import (
     UserError,
 )
 from .hookspecs import hookimpl, hookspec
+from .launch import ServerProcess, free_port, model_environment
 from .plugins import MetricSpec, Plugins, PolicySpec
 from .policy import DEFAULT_MAX_STEPS, PerEpisode, Policy, PolicyTraits, as_action_chunk
 from .prompts import P1_PREAMBLE, default_format_prompt
@@ -67,6 +68,7 @@ __all__ = [
     "SIMULATOR_ERROR_PREFIX",
     "SceneGeometry",
     "ServedPolicy",
+    "ServerProcess",
     "ServerUnavailable",
     "ServingConfig",
     "SimulatorUnavailable",
@@ -75,7 +77,9 @@ __all__ = [
     "UserError",
     "as_action_chunk",
     "default_format_prompt",
+    "free_port",
     "hookimpl",
+    "model_environment",
     "hookspec",
     "rng_for",
     "sampling_seed",

@@ -153,9 +153,14 @@ class PolicyClient:
                 self._streams[stream] = _Stream(self, self._make_transport(self.url))
             return self._streams[stream]
 
-    def open(self, stream: int = 0) -> None:
-        """Connect ``stream`` now (so a missing server stops a run before any simulator starts)."""
-        self._stream(stream).ensure_connected()
+    def open(self, stream: int = 0) -> Transport:
+        """Connect ``stream`` now (so a missing server stops a run before any simulator starts).
+
+        Returns its connected transport, whose handshake a plugin may read (openpi's server metadata).
+        """
+        connection = self._stream(stream)
+        connection.ensure_connected()
+        return connection.transport
 
     def request(self, request: Any, stream: int = 0) -> Any:
         """One request on ``stream``'s connection; its reply, or InfrastructureError / ServerUnavailable."""

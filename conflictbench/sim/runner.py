@@ -122,6 +122,14 @@ class Runner:
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
         policy = self._load_policy()
+        try:
+            return self._run_with(policy, plan)
+        finally:  # also when nothing was left to play: a policy may hold a server process
+            close = getattr(policy, "close", None)
+            if callable(close):
+                close()
+
+    def _run_with(self, policy: Any, plan: list[EpisodeSpec]) -> RunResult:
         traits = PolicyTraits(policy)
         self.code_versions = self.plugins.provenance(self.spec.name)
         self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
@@ -155,9 +163,6 @@ class Runner:
             self._calls.close()
             pool.stop()
             self._bar.close()
-            close = getattr(policy, "close", None)
-            if callable(close):
-                close()
         return result
 
     def _next_item(

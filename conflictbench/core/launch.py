@@ -1,0 +1,145 @@
+"""A policy server started for one run and stopped at its end (``model.checkpoint=DIR``).
+
+A model plugin whose model lives in its own environment (a separate Python, see the README's "Model
+environments") starts its server with :class:`ServerProcess`: the command runs in its own process group,
+its output goes to a log file, the run waits until the server's health URL answers 200, and
+:meth:`ServerProcess.stop` (also called at interpreter exit, should the run die first) ends it.
+
+A server that exits during start-up with code 2 reports a user mistake (a checkpoint that is not what
+the plugin expects): its last line becomes a :class:`UserError`. Any other early exit, or no answer
+within the start-up limit, is :class:`ServerUnavailable` (the run stops, exit code 3), naming the log.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from .errors import ServerUnavailable, UserError
+
+#: Exit code by which a server says the user's input (its checkpoint, its options) is wrong.
+USER_ERROR_EXIT_CODE = 2
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port nothing listens on now (the server binds it a moment later)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        return sock.getsockname()[1]
+
+
+def model_environment(name: str) -> Path:
+    """Where ``scripts/setup.sh --models NAME`` puts a model environment: inside the one running us."""
+    return Path(sys.prefix) / "models" / name
+
+
+class ServerProcess:
+    """One server process: started, waited for, stopped. Use as a context manager or call start/stop."""
+
+    def __init__(
+        self,
+        argv: Sequence[str],
+        *,
+        name: str,
+        health_url: str,
+        env: Mapping[str, str] | None = None,
+        startup_timeout_s: float = 600.0,
+        log_dir: Path | None = None,
+    ):
+        self.argv, self.name, self.health_url = list(argv), name, health_url
+        self.env = {**os.environ, **(env or {})}
+        self.startup_timeout_s = startup_timeout_s
+        folder = Path(log_dir) if log_dir is not None else Path(tempfile.gettempdir()) / "conflictbench-servers"
+        self.log_path = folder / f"{name}-{os.getpid()}-{time.strftime('%Y%m%d-%H%M%S')}.log"
+        self.process: subprocess.Popen | None = None
+
+    def start(self) -> ServerProcess:
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, "ab") as log:
+            try:
+                self.process = subprocess.Popen(
+                    self.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env,
+                    start_new_session=True,  # Ctrl-C reaches the run, which then stops the server itself
+                )  # fmt: skip
+            except OSError as exc:
+                raise UserError(f"could not start the {self.name} server ({self.argv[0]}): {exc}") from None
+        atexit.register(self.stop)
+        started = time.monotonic()
+        try:
+            while not self._healthy():
+                code = self.process.poll()
+                if code is not None:
+                    self._failed_start(code)
+                if time.monotonic() - started > self.startup_timeout_s:
+                    raise ServerUnavailable(
+                        self.health_url,
+                        f"the {self.name} server did not answer within {self.startup_timeout_s:g} s "
+                        f"(model.startup_timeout_s); its log: {self.log_path}",
+                    )
+                time.sleep(0.25)
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def _healthy(self) -> bool:
+        try:
+            with urllib.request.urlopen(self.health_url, timeout=2) as reply:
+                return reply.status == 200
+        except (OSError, urllib.error.URLError):
+            return False
+
+    def _failed_start(self, code: int) -> None:
+        last = self.log_tail(1)
+        if code == USER_ERROR_EXIT_CODE and last:
+            raise UserError(last)
+        raise ServerUnavailable(
+            self.health_url,
+            f"the {self.name} server exited with code {code} while starting ({last or 'no output'}); "
+            f"its log: {self.log_path}",
+        )
+
+    def log_tail(self, lines: int = 20) -> str:
+        """The last ``lines`` non-empty lines the server wrote."""
+        try:
+            text = self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+        return "\n".join([line for line in text.splitlines() if line.strip()][-lines:])
+
+    @property
+    def running(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def stop(self, grace_s: float = 10.0) -> None:
+        """End the server's process group: SIGTERM, then SIGKILL after ``grace_s``. Safe to call twice."""
+        process, self.process = self.process, None
+        atexit.unregister(self.stop)
+        if process is None or process.poll() is not None:
+            return
+        for sig, wait in ((signal.SIGTERM, grace_s), (signal.SIGKILL, 5.0)):
+            try:
+                os.killpg(process.pid, sig)
+            except ProcessLookupError:
+                return
+            try:
+                process.wait(wait)
+                return
+            except subprocess.TimeoutExpired:
+                continue
+
+    def __enter__(self) -> ServerProcess:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,97 @@
+"""ServerProcess: a model's server started for a run, waited for, and always stopped (real processes)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from conflictbench.core import ServerProcess, ServerUnavailable, UserError, free_port
+
+HEALTH_SERVER = textwrap.dedent(
+    """
+    import http.server, os, sys, time
+    delay, port = float(sys.argv[1]), int(sys.argv[2])
+    time.sleep(delay)  # loading a model
+    class Health(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):
+            self.send_response(200 if self.path == "/healthz" else 404)
+            self.end_headers()
+            self.wfile.write(b"OK")
+        def log_message(self, *args):
+            pass
+    print("serving", os.getpid(), flush=True)
+    http.server.HTTPServer(("127.0.0.1", port), Health).serve_forever()
+    """
+)
+
+
+def server(tmp_path, script: str, *args: str, timeout: float = 20.0) -> ServerProcess:
+    port = free_port()
+    argv = [sys.executable, "-c", script, *args, str(port)] if args else [sys.executable, "-c", script]
+    return ServerProcess(
+        argv, name="test", health_url=f"http://127.0.0.1:{port}/healthz", startup_timeout_s=timeout, log_dir=tmp_path
+    )
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_start_waits_until_the_server_answers_and_stop_ends_it(tmp_path):
+    process = server(tmp_path, HEALTH_SERVER, "1.0")
+    started = time.monotonic()
+    with process:
+        assert time.monotonic() - started >= 1.0  # it waited for the load, not just for the process
+        assert process.running
+        pid = process.process.pid
+        assert f"serving {pid}" in process.log_tail()
+    assert not alive(pid)
+    process.stop()  # twice is fine
+
+
+def test_a_server_exiting_with_code_2_reports_its_last_line_as_a_user_error(tmp_path):
+    script = "import sys; print('loading'); print('/x is a pi0 checkpoint: use model=pi0', file=sys.stderr); exit(2)"
+    with pytest.raises(UserError, match=r"^/x is a pi0 checkpoint: use model=pi0$"):
+        server(tmp_path, script).start()
+
+
+def test_a_server_dying_while_starting_is_unavailable_and_names_its_log(tmp_path):
+    process = server(tmp_path, "import sys; print('out of memory'); sys.exit(137)")
+    with pytest.raises(ServerUnavailable, match=r"exited with code 137 while starting \(out of memory\)") as info:
+        process.start()
+    assert str(process.log_path) in str(info.value)
+
+
+def test_a_server_that_never_answers_is_stopped_after_the_start_up_limit(tmp_path):
+    process = server(tmp_path, "import time; print('stuck', flush=True); time.sleep(60)", timeout=1.5)
+    with pytest.raises(ServerUnavailable, match="did not answer within 1.5 s"):
+        process.start()
+    assert process.process is None  # stopped, not left running
+    assert "stuck" in process.log_tail()
+
+
+def test_a_run_that_dies_without_stopping_its_server_still_ends_it(tmp_path):
+    port = free_port()
+    child = textwrap.dedent(
+        f"""
+        import sys
+        from conflictbench.core import ServerProcess
+        p = ServerProcess([sys.executable, "-c", {HEALTH_SERVER!r}, "0", "{port}"], name="test",
+                          health_url="http://127.0.0.1:{port}/healthz", log_dir={str(tmp_path)!r}).start()
+        print(p.process.pid, flush=True)
+        raise SystemExit(1)  # the run dies; atexit must still stop the server
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
+    pid = int(out.stdout.split()[0])
+    time.sleep(0.2)
+    assert not alive(pid)
