@@ -1,0 +1,47 @@
+"""What a π checkpoint folder must hold, checked without torch (the client checks before starting a server).
+
+A LeRobot π checkpoint is a folder with ``config.json`` (its ``type`` is ``pi0``, ``pi05`` or
+``pi0_fast``) and ``model.safetensors``, as ``PreTrainedPolicy.save_pretrained`` writes it (the
+normalization statistics sit beside them in the processor files).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+#: conflictbench's policy names and the LeRobot config ``type`` each loads.
+POLICY_TYPES = {"pi0": "pi0", "pi05": "pi05", "pi0-fast": "pi0_fast"}
+WEIGHTS_FILE = "model.safetensors"
+
+
+class CheckpointError(Exception):
+    """The folder is not a usable π checkpoint (the message is one line for the user)."""
+
+
+def checkpoint_type(checkpoint: str | Path) -> str:
+    """The LeRobot policy type of the checkpoint folder; :class:`CheckpointError` if it is not a π one."""
+    folder = Path(checkpoint).expanduser()
+    if not folder.is_dir():
+        raise CheckpointError(f"no checkpoint folder at {folder}")
+    config = folder / "config.json"
+    try:
+        kind = json.loads(config.read_text()).get("type")
+    except FileNotFoundError:
+        raise CheckpointError(f"{folder} is not a LeRobot checkpoint (no config.json)") from None
+    except (OSError, ValueError, AttributeError) as exc:
+        raise CheckpointError(f"cannot read {config}: {exc}") from None
+    if kind not in POLICY_TYPES.values():
+        raise CheckpointError(f"{folder} holds a {kind or 'untyped'} policy, not a π one (pi0, pi05, pi0_fast)")
+    if not (folder / WEIGHTS_FILE).is_file():
+        raise CheckpointError(f"{folder} has no {WEIGHTS_FILE}")
+    return kind
+
+
+def check_checkpoint(checkpoint: str | Path, policy: str) -> Path:
+    """The folder, checked to hold a checkpoint of ``policy`` (pi0, pi05 or pi0-fast)."""
+    kind = checkpoint_type(checkpoint)
+    if kind != POLICY_TYPES[policy]:
+        wanted = next(name for name, t in POLICY_TYPES.items() if t == kind)
+        raise CheckpointError(f"{checkpoint} is a {kind} checkpoint: use model={wanted}, not model={policy}")
+    return Path(checkpoint).expanduser()

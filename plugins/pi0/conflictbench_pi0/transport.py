@@ -1,0 +1,71 @@
+"""One connection to an openpi policy server (ours or openpi's own ``serve_policy.py``), for the shared client.
+
+The shared client (``conflictbench.PolicyClient``) makes one per simulator worker and owns retries and
+reconnection; this class only speaks the protocol (see :mod:`.protocol`): connect, read the metadata
+frame, then one binary frame out and one back per request. A text frame in reply is the server's error
+(openpi sends the traceback, then closes): :class:`InfrastructureError`, and the next request reconnects.
+"""
+
+from __future__ import annotations
+
+import urllib.parse
+from typing import Any
+
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+from websockets.sync.client import ClientConnection, connect
+
+from conflictbench import InfrastructureError, Transport, UserError
+from conflictbench.core.transport import one_line
+
+from .protocol import packb, unpackb
+
+
+class OpenpiTransport(Transport):
+    """openpi's websocket protocol on one connection; ``metadata`` is the server's first frame."""
+
+    def __init__(self, url: str):
+        super().__init__(url)
+        parts = urllib.parse.urlsplit(url)
+        if parts.scheme not in ("ws", "wss") or not parts.hostname:
+            raise UserError(f"not a ws:// or wss:// URL: {url!r} (an openpi server, e.g. ws://gpu-box:8000)")
+        self._ws: ClientConnection | None = None
+        self.metadata: dict[str, Any] = {}
+
+    def connect(self, timeout: float) -> None:
+        self.close()
+        try:
+            self._ws = connect(self.url, compression=None, max_size=None, open_timeout=timeout, close_timeout=2)
+            first = self._ws.recv(timeout=timeout)
+        except (InvalidHandshake, InvalidURI, ConnectionClosed) as exc:
+            self.close()
+            raise ConnectionError(f"{type(exc).__name__}: {exc}") from None
+        except BaseException:
+            self.close()
+            raise
+        if isinstance(first, str):
+            self.close()
+            raise ConnectionError(f"the server's first frame is text, not openpi metadata: {one_line(first)}")
+        metadata = unpackb(first)
+        self.metadata = metadata if isinstance(metadata, dict) else {}
+
+    def exchange(self, request: Any, timeout: float) -> Any:
+        if self._ws is None:
+            raise ConnectionError("not connected")
+        try:
+            self._ws.send(packb(request))
+            reply = self._ws.recv(timeout=timeout)
+        except ConnectionClosed as exc:
+            raise ConnectionError(f"the connection closed: {exc}") from None
+        if isinstance(reply, str):  # openpi's error reply; the server closes this connection after it
+            self.close()
+            last = reply.strip().splitlines()[-1] if reply.strip() else "(empty)"  # a traceback ends with the error
+            raise InfrastructureError(f"{self.url} answered an error: {one_line(last)}")
+        return unpackb(reply)
+
+    def close(self) -> None:
+        ws, self._ws = self._ws, None
+        if ws is not None:
+            try:
+                ws.close()
+            except Exception:  # closing a broken connection: nothing more to do
+                pass
