@@ -1,11 +1,25 @@
 #!/usr/bin/env bash
 # One-step install of conflictbench into ./.venv: system rendering libraries, a Python 3.11/3.12
-# virtual environment, the package with the pinned LIBERO simulator, and the test tools.
-# Safe to run again: it only does what is missing.
+# virtual environment, the package with the pinned LIBERO simulator, the test tools, the model
+# plugins' clients (plugins/*), and each model plugin's model environment: a Python 3.12 environment
+# at .venv/models/<plugin> holding the model's backend (LeRobot for pi0) and the plugin's server.
+# Safe to run again: it only does what is missing or changed.
 #
 #   PYTHON=python3.12 scripts/setup.sh    choose the interpreter (default: python3.11, else python3.12)
 #   VENV=/path/to/venv scripts/setup.sh   choose where the environment goes (default: .venv)
+#   scripts/setup.sh --models pi0         build only these model environments (default: all; "none")
+#   MODEL_PYTHON=python3.12 scripts/setup.sh   the model environments' interpreter (default: a 3.12)
 set -euo pipefail
+
+MODELS=all
+while (($#)); do
+  case "$1" in
+    --models) MODELS=${2:?--models needs a list, e.g. --models pi0 (or all, none)}; shift 2 ;;
+    --models=*) MODELS=${1#--models=}; shift ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    *) echo "[setup] unknown argument $1 (see --help)" >&2; exit 2 ;;
+  esac
+done
 
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
@@ -59,4 +73,58 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   "$VENV/bin/python" -m pip install -q -e ".[sim,test]"
   touch "$stamp"
 fi
+# 4. The model plugins' clients, with the upstream counterparts their tests talk to.
+for plugin in plugins/*/; do
+  name=$(basename "$plugin")
+  stamp="$VENV/.conflictbench-plugin-$name"
+  if [ ! -f "$stamp" ] || [ "$plugin/pyproject.toml" -nt "$stamp" ]; then
+    say "installing the $name plugin's client"
+    "$VENV/bin/python" -m pip install -q -e "$plugin[test]"
+    touch "$stamp"
+  fi
+done
+
+# 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack
+#    cannot share). Each gets its plugin without dependencies (no conflictbench, no simulator) plus
+#    exactly the plugin's `server` extra. About 5 GB and 90 s each on the first build (torch).
+case "$MODELS" in
+  none) MODELS="" ;;
+  all) MODELS=$(for p in plugins/*/; do basename "$p"; done) ;;
+  *) MODELS=${MODELS//,/ } ;;
+esac
+if [ -n "$MODELS" ]; then
+  if [ -z "${MODEL_PYTHON:-}" ]; then
+    for candidate in python3.12 $(pyenv root 2>/dev/null)/versions/3.12*/bin/python3.12; do
+      if "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' 2>/dev/null; then
+        MODEL_PYTHON=$candidate
+        break
+      fi
+    done
+  fi
+  if [ -z "${MODEL_PYTHON:-}" ]; then
+    say "the model environments need Python 3.12 (set MODEL_PYTHON=...), or skip them: --models none"
+    exit 1
+  fi
+fi
+for name in $MODELS; do
+  plugin=plugins/$name
+  [ -f "$plugin/pyproject.toml" ] || { say "no model plugin $plugin (have: $(ls plugins))"; exit 2; }
+  env_dir="$VENV/models/$name"
+  stamp="$env_dir/.conflictbench-installed"
+  if [ -f "$stamp" ] && [ ! "$plugin/pyproject.toml" -nt "$stamp" ]; then
+    continue
+  fi
+  say "building the $name model environment in $env_dir with $MODEL_PYTHON (first time: a few minutes)"
+  [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
+  "$env_dir/bin/python" -m pip install -q --upgrade pip
+  mapfile -t requirements < <("$env_dir/bin/python" - "$plugin/pyproject.toml" <<'EOF'
+import sys, tomllib
+project = tomllib.load(open(sys.argv[1], "rb"))["project"]
+print("\n".join(project.get("optional-dependencies", {}).get("server", [])))
+EOF
+)
+  "$env_dir/bin/python" -m pip install -q "${requirements[@]}"
+  "$env_dir/bin/python" -m pip install -q --no-deps -e "$plugin"
+  touch "$stamp"
+done
 say "ready: $VENV/bin/conflictbench"

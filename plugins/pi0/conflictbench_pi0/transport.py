@@ -8,6 +8,7 @@ frame, then one binary frame out and one back per request. A text frame in reply
 
 from __future__ import annotations
 
+import inspect
 import urllib.parse
 from typing import Any
 
@@ -18,6 +19,10 @@ from conflictbench import InfrastructureError, Transport, UserError
 from conflictbench.core.transport import one_line
 
 from .protocol import packb, unpackb
+
+# websockets 17 wants ``legacy=True`` for a connection kept open outside a ``with`` block (the default
+# then, with a deprecation warning); older releases have no such flag.
+_KEEP_OPEN = {"legacy": True} if "legacy" in inspect.signature(connect).parameters else {}
 
 
 class OpenpiTransport(Transport):
@@ -34,7 +39,9 @@ class OpenpiTransport(Transport):
     def connect(self, timeout: float) -> None:
         self.close()
         try:
-            self._ws = connect(self.url, compression=None, max_size=None, open_timeout=timeout, close_timeout=2)
+            self._ws = connect(
+                self.url, compression=None, max_size=None, open_timeout=timeout, close_timeout=2, **_KEEP_OPEN
+            )
             first = self._ws.recv(timeout=timeout)
         except (InvalidHandshake, InvalidURI, ConnectionClosed) as exc:
             self.close()
