@@ -27,6 +27,7 @@ from conflictbench import (
     model_environment,
     sampling_seed,
 )
+from conflictbench.core import DEFAULT_MAX_STEPS
 
 from .checkpoints import POLICY_TYPES, CheckpointError, check_checkpoint
 from .processing import REPLAN_STEPS, camera_image
@@ -58,6 +59,9 @@ class PiConfig(ServingConfig):
     """``ws://HOST:PORT`` of a running openpi server; empty: start one for ``checkpoint``."""
     replan_steps: int = REPLAN_STEPS
     """Actions of each chunk executed before asking again (openpi's LIBERO client: 5)."""
+    max_steps: int = 0
+    """Policy steps per episode; 0: openpi's budget per LIBERO suite (220 / 280 / 300 / 520). A shorter
+    budget (a smoke test) ends episodes early; it is part of every episode's identity."""
     python: str = ""
     """The model environment's interpreter for the started server (default: the one set-up made)."""
     device: str = "auto"
@@ -75,6 +79,8 @@ class PiPolicy(ServedPolicy):
 
     def __init__(self, name: str, cfg: PiConfig, server: ServerProcess | None = None):
         self.name, self.replan_steps, self.server = name, cfg.replan_steps, server
+        if cfg.max_steps:
+            self.max_steps = {suite: cfg.max_steps for suite in DEFAULT_MAX_STEPS}
         try:
             super().__init__(PolicyClient.from_config(cfg, transport=OpenpiTransport))
             self._check_hosted(self.client.open())
@@ -115,8 +121,10 @@ class PiPolicy(ServedPolicy):
 
 def load(name: str, cfg: PiConfig) -> PiPolicy:
     """The policy for ``model=name``: connected to ``cfg.server``, or to a server started for ``cfg.checkpoint``."""
-    if cfg.replan_steps < 1:
-        raise UserError(f"model.replan_steps must be >= 1, got {cfg.replan_steps}")
+    if cfg.replan_steps < 1 or cfg.max_steps < 0:
+        raise UserError(
+            f"model.replan_steps must be >= 1 and model.max_steps >= 0, got {cfg.replan_steps} and {cfg.max_steps}"
+        )
     if cfg.server:
         if not cfg.checkpoint:
             raise UserError(
