@@ -87,11 +87,20 @@ def serve_command(args: argparse.Namespace) -> int:
     except CheckpointError as error:
         return _user_error(str(error))
 
+    listening = False
+
     def announce(host: str, port: int) -> None:
+        nonlocal listening
+        listening = True
         url = f"ws://{host}:{port}"
         print(f"{PROGRAM}: serving {args.policy} from {args.checkpoint} on {url}", file=sys.stderr, flush=True)
 
-    serve(backend, args.host, args.port, args.max_batch, on_ready=announce)
+    try:
+        serve(backend, args.host, args.port, args.max_batch, on_ready=announce)
+    except (OSError, OverflowError) as error:
+        if listening:
+            raise
+        return _user_error(f"cannot listen on {args.host}:{args.port}: {getattr(error, 'strerror', None) or error}")
     return 0
 
 

@@ -16,9 +16,9 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import pytest
-from conflictbench_pi0.checkpoints import POLICY_TYPES
 
 from conflictbench import ServerProcess, free_port
+from conflictbench_pi0.checkpoints import POLICY_TYPES
 
 PLUGIN_ROOT = Path(__file__).resolve().parents[1]
 OPENPI_HOST = Path(__file__).resolve().parent / "openpi_host.py"
@@ -54,8 +54,10 @@ def server_argv(kind: str, checkpoint: Path, port: int, max_batch: int = 32, thr
 
 
 def model_process_env(env: Mapping[str, str]) -> dict[str, str]:
-    """``env`` (the tiny checkpoints' variables) with this plugin importable and one CPU thread."""
-    merged = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16", "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1", **env}
+    """This process's environment plus ``env`` (the tiny checkpoints' variables), the plugin importable, one
+    CPU thread."""
+    defaults = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16", "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"}
+    merged = {**os.environ, **defaults, **env}
     paths = [str(PLUGIN_ROOT), *filter(None, [merged.get("PYTHONPATH", "")])]
     merged["PYTHONPATH"] = os.pathsep.join(paths)
     return merged
