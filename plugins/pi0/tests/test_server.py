@@ -467,6 +467,26 @@ def test_e2e_our_server_and_openpis_give_the_same_actions(ours, theirs):
 
 @pytest.mark.model_env
 @needs_model_env
+@pytest.mark.parametrize("policy, horizon", [("pi0", 50), ("pi0-fast", 10)])
+def test_e2e_pi0_and_pi0_fast_are_served_like_openpi_serves_them(tiny_checkpoints, tiny_env, policy, horizon):
+    servers = [launch_server(kind, tiny_checkpoints[policy], tiny_env) for kind in ("ours", "openpi")]
+    try:
+        replies = []
+        for url, _ in servers:
+            connection, metadata = open_connection(url)
+            assert metadata["action_horizon"] == horizon
+            replies.append([ask(connection, observation(40 + seed, noise_seed=seed))[ACTIONS] for seed in (0, 1)])
+        (ours_first, ours_second), (theirs_first, theirs_second) = replies
+        assert ours_first.shape == (horizon, 7) and not np.array_equal(ours_first, ours_second)
+        np.testing.assert_array_equal(ours_first, theirs_first)
+        np.testing.assert_array_equal(ours_second, theirs_second)
+    finally:
+        for _, process in servers:
+            process.stop()
+
+
+@pytest.mark.model_env
+@needs_model_env
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_e2e_signals_stop_the_server_cleanly(tiny_pi05, tiny_env, signum):
     url, server = launch_server("ours", tiny_pi05, tiny_env)
