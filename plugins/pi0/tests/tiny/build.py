@@ -168,6 +168,27 @@ def libero_like_stats(seed: int) -> dict[str, dict[str, list[float]]]:
     return {"observation.state": stats(state_mean, state_std), "action": stats(action_mean, action_std)}
 
 
+def reinitialize_at_unit_gain(model) -> None:
+    """Weights of std 1/sqrt(fan_in) (embeddings 1/width), from torch's seeded RNG.
+
+    LeRobot's init (std 0.02, as for the full-size models) leaves a model of width 64 nearly blind to its
+    inputs: activations shrink layer by layer and the actions are then decided by the noise alone. At unit
+    gain, the image, the state and the prompt visibly move the actions, as in a trained model.
+    """
+    import torch
+    from torch import nn
+
+    with torch.no_grad():
+        for module in model.modules():
+            if isinstance(module, (nn.Linear, nn.Conv2d)):
+                fan_in = module.weight[0].numel()
+                module.weight.normal_(0.0, fan_in**-0.5)
+                if module.bias is not None:
+                    module.bias.zero_()
+            elif isinstance(module, nn.Embedding):  # Gemma scales embeddings up by sqrt(width)
+                module.weight.normal_(0.0, 1.0 / module.embedding_dim)
+
+
 def build_checkpoint(policy: str, out: Path, seed: int) -> None:
     """Construct the tiny policy with LeRobot's own classes and save it as LeRobot saves a trained one."""
     import torch
@@ -194,6 +215,7 @@ def build_checkpoint(policy: str, out: Path, seed: int) -> None:
     )
     torch.manual_seed(seed)
     model = get_policy_class(policy_type)(config)
+    reinitialize_at_unit_gain(model)
     model.save_pretrained(out)
     stats = {
         key: {name: torch.tensor(values) for name, values in entry.items()}
