@@ -31,7 +31,7 @@ from conflictbench.core import DEFAULT_MAX_STEPS
 
 from .checkpoints import POLICY_TYPES, CheckpointError, check_checkpoint
 from .processing import REPLAN_STEPS, camera_image
-from .protocol import ACTIONS, IMAGE, NOISE_SEED, PROMPT, STATE, WRIST_IMAGE
+from .protocol import ACTIONS, IMAGE, NOISE_SEED, NOISE_SEED_LIMIT, PROMPT, STATE, WRIST_IMAGE
 from .transport import OpenpiTransport
 
 #: The model environment ``scripts/setup.sh --models pi0`` builds (inside the running environment).
@@ -102,7 +102,7 @@ class PiPolicy(ServedPolicy):
             WRIST_IMAGE: camera_image(observation.wrist_image),
             STATE: np.asarray(observation.state, dtype=np.float64),
             PROMPT: observation.instruction,
-            NOISE_SEED: sampling_seed(observation),
+            NOISE_SEED: sampling_seed(observation) % NOISE_SEED_LIMIT,
         }
 
     def decode(self, reply: Any, observation: Observation) -> np.ndarray:

@@ -28,9 +28,11 @@ STATE = "observation/state"
 PROMPT = "prompt"
 #: Reply key holding the action chunk (horizon x 7).
 ACTIONS = "actions"
-#: Our one addition to a request: the seed of the episode's sampling noise at this step. openpi's own
-#: LIBERO input transform reads only the four keys above, so its server ignores it; ours seeds with it.
+#: Our one addition to a request: the seed of the episode's sampling noise at this step, an int in
+#: [0, 2**63) (fits a signed 64-bit integer everywhere). openpi's own LIBERO input transform reads only
+#: the four keys above, so its server ignores it; ours seeds with it.
 NOISE_SEED = "conflictbench/noise_seed"
+NOISE_SEED_LIMIT = 2**63
 
 _UNSENDABLE_KINDS = "OVc"  # object, void (structured), complex
 

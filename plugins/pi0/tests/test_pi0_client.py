@@ -69,7 +69,7 @@ def expected_request(obs: Observation) -> dict:
         "observation/wrist_image": camera_image(obs.wrist_image),
         "observation/state": obs.state,
         "prompt": obs.instruction,
-        "conflictbench/noise_seed": sampling_seed(obs),
+        "conflictbench/noise_seed": sampling_seed(obs) % 2**63,
     }
 
 
