@@ -142,10 +142,10 @@ class PiBackend:
             _check_request(request)
         with torch.inference_mode():
             if self._samples_tokens:  # token sampling draws from torch's global RNG: one seeded run each
-                chunks = torch.cat([self._sample_alone(request) for request in requests])
+                # (post-processed one by one too: a relative-actions step remembers the last state it saw)
+                actions = torch.cat([self._postprocessor(self._sample_alone(request)) for request in requests])
             else:
-                chunks = self._predict(requests)
-            actions = self._postprocessor(chunks)
+                actions = self._postprocessor(self._predict(requests))
         actions = actions[:, : self.chunk_length].to("cpu", torch.float32).numpy()
         return [np.array(chunk) for chunk in actions]
 
