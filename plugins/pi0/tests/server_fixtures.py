@@ -5,20 +5,30 @@
 openpi-server's ``WebsocketPolicyServer`` around the same backend) on a free port, waits for
 ``/healthz`` and stops every server it started when the session ends. A server that dies or does not
 answer in time fails the test with the tail of its output.
+
+Also the client side of the server tests: a valid ``observation``, ``open_connection`` (closed after
+each test by the autouse fixture ``close_connections``, imported by each test module), ``ask``,
+``expect_error`` (openpi's error frame and close code 1011) and ``healthz``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
+import urllib.request
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
+import numpy as np
 import pytest
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import ClientConnection, connect
 
 from conflictbench import ServerProcess, free_port
 from conflictbench_pi0.checkpoints import POLICY_TYPES
+from conflictbench_pi0.protocol import IMAGE, NOISE_SEED, PROMPT, STATE, WRIST_IMAGE, packb, unpackb
 
 PLUGIN_ROOT = Path(__file__).resolve().parents[1]
 OPENPI_HOST = Path(__file__).resolve().parent / "openpi_host.py"
@@ -101,3 +111,75 @@ def start_server() -> Iterator:
     yield start
     for process in started:
         process.stop()
+
+
+# Client side of the tests: websockets' sync client and the shared codec, as a client would use them.
+
+#: Limit for one frame or connection in tests (a tiny model answers in about 0.1 s).
+TIMEOUT_S = 60.0
+
+
+def observation(seed: int = 0, prompt: str = "put the bowl on the plate", noise_seed: int | None = 7) -> dict:
+    """A valid openpi LIBERO request whose images and state follow from ``seed``."""
+    rng = np.random.default_rng(seed)
+    request = {
+        IMAGE: rng.integers(0, 256, (224, 224, 3), dtype=np.uint8),
+        WRIST_IMAGE: rng.integers(0, 256, (224, 224, 3), dtype=np.uint8),
+        STATE: rng.uniform(-1, 1, 8),
+        PROMPT: prompt,
+    }
+    if noise_seed is not None:
+        request[NOISE_SEED] = noise_seed
+    return request
+
+
+open_connections = contextlib.ExitStack()
+
+
+@pytest.fixture(autouse=True)
+def close_connections() -> Iterator[None]:
+    """Every connection a test opened is closed when it ends."""
+    with open_connections:
+        yield
+
+
+def open_connection(url: str) -> tuple[ClientConnection, dict]:
+    """A connection (closed after the test) and the metadata the server sent first."""
+    connection = open_connections.enter_context(connect(url, compression=None, max_size=None, open_timeout=TIMEOUT_S))
+    first = connection.recv(timeout=TIMEOUT_S)
+    assert isinstance(first, bytes), f"the first frame must be binary metadata, got {first!r}"
+    return connection, unpackb(first)
+
+
+def ask(connection: ClientConnection, request: dict) -> dict:
+    connection.send(packb(request))
+    reply = connection.recv(timeout=TIMEOUT_S)
+    assert isinstance(reply, bytes), f"expected a reply, got the error: {reply}"
+    return unpackb(reply)
+
+
+def expect_error(connection: ClientConnection, fragment: str) -> str:
+    """The error text frame (containing ``fragment``), then close code 1011, as openpi's server does."""
+    text = connection.recv(timeout=TIMEOUT_S)
+    assert isinstance(text, str) and fragment in text, text
+    with pytest.raises(ConnectionClosed) as closed:
+        connection.recv(timeout=TIMEOUT_S)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1011
+    return text
+
+
+def healthz(url: str) -> tuple[int, bytes]:
+    with urllib.request.urlopen(url.replace("ws://", "http://") + "/healthz", timeout=TIMEOUT_S) as reply:
+        return reply.status, reply.read()
+
+
+def malformed(**changes) -> dict:
+    """A valid request with ``changes`` (image, wrist, state, prompt, seed: a new value, or None to drop it)."""
+    request = observation(5)
+    for key, value in changes.items():
+        key = {"image": IMAGE, "wrist": WRIST_IMAGE, "state": STATE, "prompt": PROMPT, "seed": NOISE_SEED}[key]
+        if value is None:
+            del request[key]
+        else:
+            request[key] = value
+    return request

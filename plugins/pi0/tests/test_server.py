@@ -1,13 +1,9 @@
-"""The batching openpi-protocol server, its CLI, and openpi's own server as the counterpart.
+"""The batching server and its CLI's user errors, without a model.
 
-Three layers, each over real sockets on 127.0.0.1:
-
-- the server's queueing and batching, in this process, around a stand-in model whose actions are a pure
-  function of the request and whose calls can be held, so which requests share a batch is decided by the
-  test and not by timing (the only stand-in here: the model is the boundary under test);
-- the CLI's user errors (subprocesses; no model needed);
-- end to end (``model_env``): ``conflictbench-pi0 serve`` and ``tests/openpi_host.py`` in the model
-  environment with a tiny random-weight pi0.5.
+The server's queueing and batching run in this process, over real sockets on 127.0.0.1, around a stand-in
+model whose actions are a pure function of the request and whose calls can be held, so which requests share
+a batch is decided by the test and not by timing (the model is the boundary under test; end to end with a
+real tiny checkpoint: ``test_server_e2e.py``). The CLI's user errors run as subprocesses.
 """
 
 from __future__ import annotations
@@ -15,86 +11,31 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
-import urllib.request
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pytest
-from server_fixtures import STARTUP_TIMEOUT_S, launch_server, model_process_env, needs_model_env, server_argv
-from websockets.exceptions import ConnectionClosed
-from websockets.sync.client import ClientConnection, connect
+from server_fixtures import (
+    PLUGIN_ROOT,
+    TIMEOUT_S,
+    ask,
+    close_connections,  # noqa: F401 (autouse)
+    expect_error,
+    healthz,
+    malformed,
+    observation,
+    open_connection,
+)
+from websockets.sync.client import ClientConnection
 
 from conflictbench_pi0.protocol import ACTIONS, IMAGE, NOISE_SEED, PROMPT, STATE, WRIST_IMAGE, packb, unpackb
 from conflictbench_pi0.server import BatchingPolicyServer, InvalidRequest, validate_request
-
-TIMEOUT_S = 60.0
-PLUGIN_ROOT = Path(__file__).resolve().parents[1]
-
-
-def observation(seed: int = 0, prompt: str = "put the bowl on the plate", noise_seed: int | None = 7) -> dict:
-    """A valid openpi LIBERO request whose images and state follow from ``seed``."""
-    rng = np.random.default_rng(seed)
-    request = {
-        IMAGE: rng.integers(0, 256, (224, 224, 3), dtype=np.uint8),
-        WRIST_IMAGE: rng.integers(0, 256, (224, 224, 3), dtype=np.uint8),
-        STATE: rng.uniform(-1, 1, 8),
-        PROMPT: prompt,
-    }
-    if noise_seed is not None:
-        request[NOISE_SEED] = noise_seed
-    return request
-
-
-_open_connections = contextlib.ExitStack()
-
-
-@pytest.fixture(autouse=True)
-def _close_connections() -> Iterator[None]:
-    """Every connection a test opened is closed when it ends."""
-    with _open_connections:
-        yield
-
-
-def open_connection(url: str) -> tuple[ClientConnection, dict]:
-    """A connection (closed after the test) and the metadata the server sent first."""
-    connection = _open_connections.enter_context(connect(url, compression=None, max_size=None, open_timeout=TIMEOUT_S))
-    first = connection.recv(timeout=TIMEOUT_S)
-    assert isinstance(first, bytes), f"the first frame must be binary metadata, got {first!r}"
-    return connection, unpackb(first)
-
-
-def ask(connection: ClientConnection, request: dict) -> dict:
-    connection.send(packb(request))
-    reply = connection.recv(timeout=TIMEOUT_S)
-    assert isinstance(reply, bytes), f"expected a reply, got the error: {reply}"
-    return unpackb(reply)
-
-
-def expect_error(connection: ClientConnection, fragment: str) -> str:
-    """The error text frame (containing ``fragment``), then close code 1011, as openpi's server does."""
-    text = connection.recv(timeout=TIMEOUT_S)
-    assert isinstance(text, str) and fragment in text, text
-    with pytest.raises(ConnectionClosed) as closed:
-        connection.recv(timeout=TIMEOUT_S)
-    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1011
-    return text
-
-
-def healthz(url: str) -> tuple[int, bytes]:
-    with urllib.request.urlopen(url.replace("ws://", "http://") + "/healthz", timeout=TIMEOUT_S) as reply:
-        return reply.status, reply.read()
-
-
-# ----------------------------------------------------------------------------------------------------
-# The server around a stand-in model
 
 
 def stand_in_actions(request: dict) -> np.ndarray:
@@ -247,17 +188,6 @@ def test_a_failing_model_call_fails_its_whole_batch_and_nothing_else():
         np.testing.assert_array_equal(reused[ACTIONS], stand_in_actions(request))
 
 
-def malformed(**changes) -> dict:
-    request = observation(5)
-    for key, value in changes.items():
-        key = {"image": IMAGE, "wrist": WRIST_IMAGE, "state": STATE, "prompt": PROMPT, "seed": NOISE_SEED}[key]
-        if value is None:
-            del request[key]
-        else:
-            request[key] = value
-    return request
-
-
 MALFORMED = {
     "image of 256 px": (malformed(image=np.zeros((256, 256, 3), np.uint8)), "'observation/image' must be a uint8"),
     "float image": (malformed(wrist=np.zeros((224, 224, 3), np.float32)), "'observation/wrist_image' must be"),
@@ -365,156 +295,3 @@ def test_cli_without_the_model_stack_says_which_python_to_use(tmp_path):
 def test_cli_usage_errors_are_one_line_and_exit_2(args, fragment):
     done = run_cli(*args)
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and fragment in done.stderr
-
-
-# ----------------------------------------------------------------------------------------------------
-# End to end: the tiny pi0.5 behind our server and behind openpi's, in the model environment
-
-
-@pytest.fixture(scope="module")
-def tiny_pi05(tiny_checkpoints) -> Path:
-    return tiny_checkpoints["pi05"]
-
-
-@pytest.fixture(scope="module")
-def ours(start_server, tiny_pi05, tiny_env) -> str:
-    return start_server("ours", tiny_pi05, tiny_env)[0]
-
-
-@pytest.fixture(scope="module")
-def theirs(start_server, tiny_pi05, tiny_env) -> str:
-    return start_server("openpi", tiny_pi05, tiny_env)[0]
-
-
-@pytest.mark.model_env
-@needs_model_env
-@pytest.mark.parametrize("kind", ["ours", "theirs"])
-def test_e2e_metadata_healthz_and_reply_shape(kind, request):
-    url = request.getfixturevalue(kind)
-    assert healthz(url) == (200, b"OK\n")
-    connection, metadata = open_connection(url)
-    assert metadata["policy_type"] == "pi05" and metadata["action_dim"] == 7
-    reply = ask(connection, observation(1))
-    assert reply[ACTIONS].dtype == np.float32
-    assert reply[ACTIONS].shape == (metadata["action_horizon"], 7)
-    assert np.all(np.isfinite(reply[ACTIONS]))
-    assert reply["server_timing"]["infer_ms"] > 0
-    if kind == "ours":
-        assert reply["server_timing"]["batch_size"] == 1
-
-
-@pytest.mark.model_env
-@needs_model_env
-def test_e2e_malformed_request_leaves_other_connections_working(ours):
-    bystander, _ = open_connection(ours)
-    before = ask(bystander, observation(2))
-    offender, _ = open_connection(ours)
-    offender.send(packb(malformed(state=np.zeros(7))))
-    expect_error(offender, "invalid request: 'observation/state' must be 8 finite numbers")
-    after = ask(bystander, observation(2))
-    np.testing.assert_array_equal(after[ACTIONS], before[ACTIONS])
-
-
-@pytest.mark.model_env
-@needs_model_env
-def test_e2e_concurrent_requests_share_a_batch_and_match_single_requests(ours):
-    """Two requests arriving while the model is busy are answered by one forward pass, each with its own actions.
-
-    A third connection's request keeps the model busy (a tiny-model call takes about 100 ms) while the two
-    arrive, so they queue together; two requests sent at the same instant to an idle server would usually
-    be answered one by one, since the first starts the model as soon as it arrives.
-    """
-    requests = [observation(10, "open the drawer", noise_seed=11), observation(20, "close the drawer", noise_seed=22)]
-    alone_connection, _ = open_connection(ours)
-    alone = [ask(alone_connection, request) for request in requests]
-    assert all(reply["server_timing"]["batch_size"] == 1 for reply in alone)
-    assert not np.allclose(alone[0][ACTIONS], alone[1][ACTIONS])
-    busy, _ = open_connection(ours)
-    connections = [open_connection(ours)[0] for _ in requests]
-    start = threading.Barrier(len(requests))
-
-    def send_together(index: int) -> dict:
-        start.wait(TIMEOUT_S)
-        return ask(connections[index], requests[index])
-
-    seen = []
-    with ThreadPoolExecutor(len(requests)) as pool:
-        for _ in range(5):  # a loaded machine may still let the busy request start late
-            busy.send(packb(observation(30)))
-            time.sleep(0.03)
-            together = list(pool.map(send_together, range(len(requests))))
-            assert isinstance(busy.recv(timeout=TIMEOUT_S), bytes)
-            timings = [reply["server_timing"] for reply in together]
-            seen.append([timing["batch_size"] for timing in timings])
-            if seen[-1] == [2, 2] and timings[0]["infer_ms"] == timings[1]["infer_ms"]:  # the same call
-                break
-        else:
-            pytest.fail(f"the two requests never shared a batch of 2 (batch sizes seen: {seen})")
-    for batched, single in zip(together, alone, strict=True):
-        # Measured on the tiny pi0.5: identical; the tolerance allows for other kernels' batched reductions.
-        np.testing.assert_allclose(batched[ACTIONS], single[ACTIONS], rtol=1e-5, atol=1e-5)
-
-
-@pytest.mark.model_env
-@needs_model_env
-def test_e2e_our_server_and_openpis_give_the_same_actions(ours, theirs):
-    for seed in (0, 1):
-        request = observation(30 + seed, noise_seed=seed)
-        ours_connection, _ = open_connection(ours)
-        theirs_connection, _ = open_connection(theirs)
-        np.testing.assert_array_equal(ask(ours_connection, request)[ACTIONS], ask(theirs_connection, request)[ACTIONS])
-
-
-@pytest.mark.model_env
-@needs_model_env
-@pytest.mark.parametrize("policy, horizon", [("pi0", 50), ("pi0-fast", 10)])
-def test_e2e_pi0_and_pi0_fast_are_served_like_openpi_serves_them(tiny_checkpoints, tiny_env, policy, horizon):
-    servers = [launch_server(kind, tiny_checkpoints[policy], tiny_env) for kind in ("ours", "openpi")]
-    try:
-        replies = []
-        for url, _ in servers:
-            connection, metadata = open_connection(url)
-            assert metadata["action_horizon"] == horizon
-            replies.append([ask(connection, observation(40 + seed, noise_seed=seed))[ACTIONS] for seed in (0, 1)])
-        (ours_first, ours_second), (theirs_first, theirs_second) = replies
-        assert ours_first.shape == (horizon, 7) and not np.array_equal(ours_first, ours_second)
-        np.testing.assert_array_equal(ours_first, theirs_first)
-        np.testing.assert_array_equal(ours_second, theirs_second)
-    finally:
-        for _, process in servers:
-            process.stop()
-
-
-@pytest.mark.model_env
-@needs_model_env
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
-def test_e2e_signals_stop_the_server_cleanly(tiny_pi05, tiny_env, signum):
-    url, server = launch_server("ours", tiny_pi05, tiny_env)
-    try:
-        connection, _ = open_connection(url)
-        ask(connection, observation(3))
-        process = server.process
-        process.send_signal(signum)
-        assert process.wait(TIMEOUT_S) == 0
-        with pytest.raises(ConnectionClosed):
-            connection.recv(timeout=TIMEOUT_S)
-        log = server.log_path.read_text()
-        assert "Traceback" not in log
-        assert f"conflictbench-pi0: serving pi05 from {tiny_pi05} on ws://127.0.0.1:" in log
-    finally:
-        server.stop()
-
-
-@pytest.mark.model_env
-@needs_model_env
-def test_e2e_a_port_in_use_is_a_user_error(tiny_pi05, tiny_env):
-    with socket.socket() as taken:
-        taken.bind(("127.0.0.1", 0))
-        taken.listen()
-        port = taken.getsockname()[1]
-        done = subprocess.run(
-            [*server_argv("ours", tiny_pi05, port)], env=model_process_env(tiny_env), capture_output=True, text=True,
-            timeout=STARTUP_TIMEOUT_S,
-        )  # fmt: skip
-    assert done.returncode == 2
-    assert done.stderr.splitlines()[-1].startswith(f"conflictbench-pi0: cannot listen on 127.0.0.1:{port}: ")
