@@ -85,8 +85,9 @@ for plugin in plugins/*/; do
 done
 
 # 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack
-#    cannot share). Each gets its plugin without dependencies (no conflictbench, no simulator) plus
-#    exactly the plugin's `server` extra. About 5 GB and 90 s each on the first build (torch).
+#    cannot share). Each gets its plugin without dependencies (no conflictbench, no simulator), exactly
+#    the plugin's `server` extra, and its `server-test` extra without dependencies (upstream servers the
+#    tests compare with). About 5 GB and 90 s each on the first build (torch).
 case "$MODELS" in
   none) MODELS="" ;;
   all) MODELS=$(for p in plugins/*/; do basename "$p"; done) ;;
@@ -120,10 +121,14 @@ for name in $MODELS; do
   mapfile -t requirements < <("$env_dir/bin/python" - "$plugin/pyproject.toml" <<'EOF'
 import sys, tomllib
 project = tomllib.load(open(sys.argv[1], "rb"))["project"]
-print("\n".join(project.get("optional-dependencies", {}).get("server", [])))
+extra = project.get("optional-dependencies", {})
+print("\n".join(extra.get("server", [])))
+print("--no-deps", *extra.get("server-test", []))  # counterparts for the tests, without their pins
 EOF
 )
-  "$env_dir/bin/python" -m pip install -q "${requirements[@]}"
+  ((${#requirements[@]} < 2)) || "$env_dir/bin/python" -m pip install -q "${requirements[@]:0:${#requirements[@]}-1}"
+  read -ra counterparts <<<"${requirements[-1]}"
+  [ "${#counterparts[@]}" -le 1 ] || "$env_dir/bin/python" -m pip install -q "${counterparts[@]}"
   "$env_dir/bin/python" -m pip install -q --no-deps -e "$plugin"
   touch "$stamp"
 done

@@ -1,0 +1,155 @@
+"""Whole runs with a tiny π0.5: real LIBERO episodes, our server in the model environment, the CLI as users call it."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from server_fixtures import model_process_env, server_argv
+from tiny_fixtures import needs_model_env
+
+from conflictbench.core import ServerProcess, free_port
+from conflictbench.store import EpisodeStore
+
+pytestmark = [pytest.mark.sim]
+STEPS = 15  # three queries of five actions per episode
+
+
+def run_cli(tmp_path: Path, env: dict[str, str], *overrides: str, out: str = "results") -> subprocess.CompletedProcess:
+    args = [
+        "model=pi05",
+        "suite=physical",
+        "level=L1",
+        "run.cases_per_cell=1",
+        "run.libero_suites=[libero_spatial]",
+        "run.progress=false",
+        "run.report=false",
+        f"run.out={tmp_path / out}",
+        f"model.max_steps={STEPS}",
+        *overrides,
+    ]
+    return subprocess.run(
+        [sys.executable, "-m", "conflictbench.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        stdin=subprocess.DEVNULL,
+        cwd=tmp_path,
+        env=model_process_env(env),
+    )
+
+
+def counts(stderr: str) -> tuple[int, int, int]:
+    found = re.search(r"(\d+) played, (\d+) already stored, \d+ played by another job, (\d+) with errors", stderr)
+    assert found, stderr[-3000:]
+    return int(found[1]), int(found[2]), int(found[3])
+
+
+def our_server(checkpoint: Path, env: dict[str, str], port: int, max_batch: int = 32) -> ServerProcess:
+    return ServerProcess(
+        server_argv("ours", checkpoint, port, max_batch),
+        name="pi0-test",
+        health_url=f"http://127.0.0.1:{port}/healthz",
+        env=model_process_env(env),
+        startup_timeout_s=240,
+    ).start()
+
+
+def actions_by_episode(root: Path) -> dict[str, np.ndarray]:
+    return {r.episode_id: r.raw_actions for r in EpisodeStore(root).records()}
+
+
+@needs_model_env
+def test_a_checkpoint_gets_its_own_server_for_the_run_and_real_episodes_play(tmp_path, tiny_checkpoints, tiny_env):
+    checkpoint = tiny_checkpoints["pi05"]
+    out = run_cli(tmp_path, tiny_env, f"model.checkpoint={checkpoint}", "model.device=cpu", "run.workers=2", "prompt=p1")
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert counts(out.stderr) == (2, 0, 0)
+    log = Path(re.search(r"\(log: (\S+)\)", out.stderr)[1])
+    assert f"serving pi05 from {checkpoint}" in log.read_text()
+    alive = subprocess.run(["pgrep", "-f", f"--checkpoint {checkpoint}"], capture_output=True, text=True)
+    assert alive.stdout.strip() == "", "the run left its server running"
+    records = list(EpisodeStore(tmp_path / "results").records())
+    for record in records:
+        assert record.steps == STEPS and record.error is None and record.prompt == "p1"
+        assert np.ptp(record.raw_actions[:, :6], axis=0).min() > 0  # the model's actions move, step to step
+    assert not np.allclose(records[0].raw_actions, records[1].raw_actions)  # the prompt reached the model
+
+    again = run_cli(tmp_path, tiny_env, f"model.checkpoint={checkpoint}", "model.device=cpu", "prompt=p1")
+    assert again.returncode == 0 and counts(again.stderr) == (0, 2, 0), again.stderr[-3000:]
+
+
+@needs_model_env
+def test_one_or_two_workers_batched_or_not_play_the_same_actions(tmp_path, tiny_checkpoints, tiny_env):
+    checkpoint = tiny_checkpoints["pi05"]
+    label = ["model.checkpoint=tiny-pi05", "run.init_states=2"]  # 4 episodes: 2 references, 2 conflicts
+    batching, single = our_server(checkpoint, tiny_env, free_port()), None
+    try:
+        url = f"ws://127.0.0.1:{batching.health_url.split(':')[2].split('/')[0]}"
+        one = run_cli(tmp_path, tiny_env, f"model.server={url}", "run.workers=1", *label, out="one")
+        two = run_cli(tmp_path, tiny_env, f"model.server={url}", "run.workers=2", *label, out="two")
+        single = our_server(checkpoint, tiny_env, free_port(), max_batch=1)
+        url = f"ws://127.0.0.1:{single.health_url.split(':')[2].split('/')[0]}"
+        unbatched = run_cli(tmp_path, tiny_env, f"model.server={url}", "run.workers=2", *label, out="unbatched")
+    finally:
+        batching.stop()
+        if single is not None:
+            single.stop()
+    for out in (one, two, unbatched):
+        assert out.returncode == 0 and counts(out.stderr) == (4, 0, 0), out.stderr[-3000:]
+    runs = [actions_by_episode(tmp_path / name) for name in ("one", "two", "unbatched")]
+    assert runs[0].keys() == runs[1].keys() == runs[2].keys() and len(runs[0]) == 4
+    for episode, actions in runs[0].items():
+        assert actions.shape == (STEPS, 7)
+        # a batch of two and a single forward pass differ by float32 rounding only (test_server_e2e)
+        np.testing.assert_allclose(runs[1][episode], actions, rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(runs[2][episode], actions, rtol=1e-4, atol=1e-5)
+
+
+@needs_model_env
+def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(
+    tmp_path, tiny_checkpoints, tiny_env
+):
+    checkpoint, port = tiny_checkpoints["pi05"], free_port()
+    url = f"ws://127.0.0.1:{port}"
+    settings = [f"model.server={url}", "model.checkpoint=tiny-pi05", "run.init_states=2", "run.workers=1"]
+    settings += ["model.connect_retries=1", "model.backoff_s=0.2"]
+    server = our_server(checkpoint, tiny_env, port)
+    episodes = tmp_path / "results" / "episodes"
+
+    def kill_after_the_first_episode() -> None:
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and not (episodes.exists() and any(episodes.rglob("*.parquet"))):
+            time.sleep(0.2)
+        server.stop(grace_s=0)
+
+    killer = threading.Thread(target=kill_after_the_first_episode)
+    killer.start()
+    try:
+        out = run_cli(tmp_path, tiny_env, *settings)
+    finally:
+        killer.join()
+        server.stop()
+    assert out.returncode == 3, out.stderr[-3000:]
+    errors = [line for line in out.stderr.splitlines() if line.startswith("conflictbench: error:")]
+    assert len(errors) == 1 and url in errors[0] and "Traceback" not in out.stderr, out.stderr[-3000:]
+    store = EpisodeStore(tmp_path / "results")
+    stored = {r.episode_id: r.raw_actions for r in store.records()}
+    assert 1 <= len(stored) < 4 and all(r.error is None for r in store.records())
+
+    server = our_server(checkpoint, tiny_env, port)  # back at the same URL
+    try:
+        out = run_cli(tmp_path, tiny_env, *settings)
+    finally:
+        server.stop()
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert counts(out.stderr) == (4 - len(stored), len(stored), 0)
+    after = {r.episode_id: r.raw_actions for r in EpisodeStore(tmp_path / "results").records()}
+    assert len(after) == 4 and all(np.array_equal(after[e], stored[e]) for e in stored)
+
