@@ -68,7 +68,8 @@ def actions_by_episode(root: Path) -> dict[str, np.ndarray]:
 @needs_model_env
 def test_a_checkpoint_gets_its_own_server_for_the_run_and_real_episodes_play(tmp_path, tiny_checkpoints, tiny_env):
     checkpoint = tiny_checkpoints["pi05"]
-    out = run_cli(tmp_path, tiny_env, f"model.checkpoint={checkpoint}", "model.device=cpu", "run.workers=2", "prompt=p1")
+    settings = [f"model.checkpoint={checkpoint}", "model.device=cpu", "prompt=p1"]
+    out = run_cli(tmp_path, tiny_env, *settings, "run.workers=2")
     assert out.returncode == 0, out.stderr[-3000:]
     assert counts(out.stderr) == (2, 0, 0)
     log = Path(re.search(r"\(log: (\S+)\)", out.stderr)[1])
@@ -81,7 +82,7 @@ def test_a_checkpoint_gets_its_own_server_for_the_run_and_real_episodes_play(tmp
         assert np.ptp(record.raw_actions[:, :6], axis=0).min() > 0  # the model's actions move, step to step
     assert not np.allclose(records[0].raw_actions, records[1].raw_actions)  # the prompt reached the model
 
-    again = run_cli(tmp_path, tiny_env, f"model.checkpoint={checkpoint}", "model.device=cpu", "prompt=p1")
+    again = run_cli(tmp_path, tiny_env, *settings)
     assert again.returncode == 0 and counts(again.stderr) == (0, 2, 0), again.stderr[-3000:]
 
 
@@ -152,4 +153,3 @@ def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_re
     assert counts(out.stderr) == (4 - len(stored), len(stored), 0)
     after = {r.episode_id: r.raw_actions for r in EpisodeStore(tmp_path / "results").records()}
     assert len(after) == 4 and all(np.array_equal(after[e], stored[e]) for e in stored)
-
