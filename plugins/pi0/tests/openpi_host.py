@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from conflictbench_pi0.backend import load_backend
 from openpi_server import WebsocketPolicyServer
+
+from conflictbench_pi0.backend import load_backend
 
 
 class SingleRequestPolicy:
