@@ -108,7 +108,7 @@ def test_one_or_two_workers_batched_or_not_play_the_same_actions(tmp_path, tiny_
     assert runs[0].keys() == runs[1].keys() == runs[2].keys() and len(runs[0]) == 4
     for episode, actions in runs[0].items():
         assert actions.shape == (STEPS, 7)
-        # a batch of two and a single forward pass differ by float32 rounding only (test_server_e2e)
+        # a batch of two and a single forward pass differ by float32 rounding only (test_pi0_server_e2e)
         np.testing.assert_allclose(runs[1][episode], actions, rtol=1e-4, atol=1e-5)
         np.testing.assert_allclose(runs[2][episode], actions, rtol=1e-4, atol=1e-5)
 

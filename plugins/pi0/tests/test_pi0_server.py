@@ -3,7 +3,7 @@
 The server's queueing and batching run in this process, over real sockets on 127.0.0.1, around a stand-in
 model whose actions are a pure function of the request and whose calls can be held, so which requests share
 a batch is decided by the test and not by timing (the model is the boundary under test; end to end with a
-real tiny checkpoint: ``test_server_e2e.py``). The CLI's user errors run as subprocesses.
+real tiny checkpoint: ``test_pi0_server_e2e.py``). The CLI's user errors run as subprocesses.
 """
 
 from __future__ import annotations
