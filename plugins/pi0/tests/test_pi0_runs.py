@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from server_fixtures import model_process_env, server_argv
-from tiny_fixtures import needs_model_env
+from tiny_fixtures import MODEL_PYTHON, TINY_DIR, needs_model_env
 
 from conflictbench.core import ServerProcess, free_port
 from conflictbench.store import EpisodeStore
@@ -153,3 +153,39 @@ def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_re
     assert counts(out.stderr) == (4 - len(stored), len(stored), 0)
     after = {r.episode_id: r.raw_actions for r in EpisodeStore(tmp_path / "results").records()}
     assert len(after) == 4 and all(np.array_equal(after[e], stored[e]) for e in stored)
+
+
+@needs_model_env
+@pytest.mark.parametrize("name", ["pi0", "pi05"])
+def test_the_served_path_gives_the_actions_of_a_direct_lerobot_call(tmp_path, tiny_checkpoints, tiny_env, name):
+    """Client processing, wire, our server and backend, against LeRobot called alone on the same input."""
+    from test_pi0_client import observation
+
+    from conflictbench_pi0.client import PiConfig, load
+    from conflictbench_pi0.protocol import packb
+
+    observations = [
+        observation(step=step, episode=f"{name}-e", prompt=f"put the bowl on plate {step}") for step in (0, 7)
+    ]
+    server = our_server(tiny_checkpoints[name], tiny_env, port := free_port())
+    try:
+        policy = load(name, PiConfig(server=f"ws://127.0.0.1:{port}", checkpoint="tiny"))
+        try:
+            served = [policy.act(obs) for obs in observations]
+            requests = [policy.encode(obs) for obs in observations]
+        finally:
+            policy.close()
+    finally:
+        server.stop()
+    (tmp_path / "requests.msgpack").write_bytes(packb(requests))
+    direct = subprocess.run(
+        [str(MODEL_PYTHON), str(TINY_DIR / "direct.py"), "--checkpoint", str(tiny_checkpoints[name])]
+        + ["--requests", str(tmp_path / "requests.msgpack"), "--out", str(tmp_path / "direct.npz")],
+        env=model_process_env(tiny_env), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert direct.returncode == 0, direct.stdout[-2000:] + direct.stderr[-2000:]
+    expected = np.load(tmp_path / "direct.npz")["actions"]
+    for got, want in zip(served, expected):
+        assert got.shape == (5, 7)
+        np.testing.assert_allclose(got, want[:5], rtol=1e-5, atol=1e-6)
+    assert not np.allclose(served[0], served[1])
