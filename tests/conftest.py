@@ -6,26 +6,17 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
+from testing_support import DEMO_PLUGIN, pip_install_into
 
 import conflictbench
-from conflictbench.core import ConflictCase
 from conflictbench.sim.plan import EpisodeSpec
 from conflictbench.sim.runner import Runner, RunResult
 from conflictbench.store import EpisodeStore
-from conflictbench.tasks.libero.base_tasks import base_task
 
 
 @pytest.fixture(scope="session")
 def plugins():
     return conflictbench.plugins()
-
-
-def reference_spec(suite: str, task_id: int, init_state: int = 0, prompt: str = "p0") -> EpisodeSpec:
-    return EpisodeSpec(suite, task_id, init_state, prompt, base_task(suite, task_id).language)
-
-
-def conflict_spec(case: ConflictCase, init_state: int = 0, prompt: str = "p0") -> EpisodeSpec:
-    return EpisodeSpec(case.suite, case.task_id, init_state, prompt, base_task(case.suite, case.task_id).language, case)
 
 
 @pytest.fixture
@@ -47,20 +38,6 @@ def play(tmp_path: Path, plugins):
         return runner.run(list(specs)), store
 
     return _play
-
-
-DEMO_PLUGIN = Path(__file__).parent / "plugins" / "conflictbench-demo"
-
-
-def pip_install_into(target: Path, source: Path, upgrade: bool = False) -> Path:
-    """Install a plugin's source folder into ``target`` as a real distribution (its entry points found
-    from ``PYTHONPATH`` or ``sys.path``), without touching the test environment."""
-    import subprocess
-    import sys
-
-    command = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--no-compile"]
-    subprocess.run([*command, *(["--upgrade"] if upgrade else []), "--target", str(target), str(source)], check=True)
-    return target
 
 
 @pytest.fixture(scope="session")

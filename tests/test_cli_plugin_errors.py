@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import pip_install_into
+from testing_support import pip_install_into
 
 PYPROJECT = """[build-system]
 requires = ["setuptools>=61"]

@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from conftest import DEMO_PLUGIN, pip_install_into, reference_spec
+from testing_support import DEMO_PLUGIN, pip_install_into, reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import Plugins

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from conftest import reference_spec
+from testing_support import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, PerEpisode, hookimpl, rng_for
 from conflictbench.core import LIBERO_SUITES, Plugins

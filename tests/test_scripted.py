@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import conflict_spec, reference_spec
+from testing_support import conflict_spec, reference_spec
 
 from conflictbench.core import LIBERO_SUITES
 from conflictbench.metrics import pair_metrics

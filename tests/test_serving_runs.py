@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import conflict_spec, pip_install_into, reference_spec
 from policy_server import PolicyServer, served_action
+from testing_support import conflict_spec, pip_install_into, reference_spec
 
 import conflictbench
 from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, ConflictCase

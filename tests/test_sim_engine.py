@@ -10,7 +10,7 @@ from importlib import metadata
 
 import numpy as np
 import pytest
-from conftest import conflict_spec, reference_spec
+from testing_support import conflict_spec, reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, P1_PREAMBLE, Plugins

@@ -146,7 +146,7 @@ def test_schema_rejects_arrays_of_the_wrong_width(tmp_path, bad):
 def test_an_episode_another_job_landed_after_the_snapshot_is_not_played_twice(tmp_path, plugins):
     """Job B's list of stored episodes is a snapshot; job A may write an episode and release its
     claim after it. B then wins the claim, and must still see the file and skip the episode."""
-    from conftest import reference_spec
+    from testing_support import reference_spec
 
     from conflictbench.core import PolicyTraits
     from conflictbench.policies import NoopPolicy

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import reference_spec
+from testing_support import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, SIMULATOR_ERROR_PREFIX, Plugins
