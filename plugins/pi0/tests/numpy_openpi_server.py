@@ -4,12 +4,12 @@ The client tests talk to it: the server is upstream's, so what our client sends 
 against the real protocol, not against our own server. The stand-in's actions are a fixed function of
 every field of the request (``actions_for``), so a test can tell that each arrived intact.
 
-    python numpy_openpi_server.py PORT [POLICY_TYPE]
+    python numpy_openpi_server.py PORT [--policy-type pi0] [--fail-on TEXT]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 
 import numpy as np
 
@@ -36,8 +36,11 @@ def actions_for(request: dict) -> np.ndarray:
 
 
 class StandInPolicy:
+    def __init__(self, fail_on: str | None = None):
+        self.fail_on = fail_on
+
     def infer(self, obs: dict) -> dict:
-        if obs["prompt"] == FAIL_PROMPT:
+        if obs["prompt"] == FAIL_PROMPT or (self.fail_on and self.fail_on in obs["prompt"]):
             raise RuntimeError("the model failed on purpose")
         received = {
             key: [str(value.dtype), list(value.shape)] if isinstance(value, np.ndarray) else type(value).__name__
@@ -49,9 +52,14 @@ class StandInPolicy:
 def main() -> None:
     from openpi_server.websocket_policy_server import WebsocketPolicyServer
 
-    port = int(sys.argv[1])
-    metadata = {"policy_type": sys.argv[2]} if len(sys.argv) > 2 else {}
-    WebsocketPolicyServer(StandInPolicy(), host="127.0.0.1", port=port, metadata=metadata).serve_forever()
+    parser = argparse.ArgumentParser()
+    parser.add_argument("port", type=int)
+    parser.add_argument("--policy-type", help="sent as the metadata's policy_type, as our server does")
+    parser.add_argument("--fail-on", help="fail every request whose prompt contains this text")
+    args = parser.parse_args()
+    metadata = {"policy_type": args.policy_type} if args.policy_type else {}
+    server = WebsocketPolicyServer(StandInPolicy(args.fail_on), host="127.0.0.1", port=args.port, metadata=metadata)
+    server.serve_forever()
 
 
 if __name__ == "__main__":

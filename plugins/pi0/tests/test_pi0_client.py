@@ -137,7 +137,7 @@ def test_a_reply_of_another_shape_is_an_infrastructure_failure(openpi_server):
 
 
 def test_a_server_hosting_another_pi_policy_is_refused(tmp_path):
-    server, url = start_openpi_server(tmp_path, "pi0")
+    server, url = start_openpi_server(tmp_path, "--policy-type", "pi0")
     try:
         with pytest.raises(UserError, match="hosts a pi0 policy, not pi05"):
             policy(url, "pi05")

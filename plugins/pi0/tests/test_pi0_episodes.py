@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from test_pi0_client import start_openpi_server
 
+from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX
 from conflictbench.store import EpisodeStore
 
 pytestmark = pytest.mark.sim
@@ -59,3 +60,42 @@ def test_episodes_play_against_openpis_server_executing_five_actions_of_each_chu
         assert not np.allclose(raw[5], raw[0] * 6)  # step 5 came from a new chunk, not row 5 of the old one
     reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
     assert reference.raw_actions[0, 4] != conflict.raw_actions[0, 4]  # the prompt the server got differs
+
+
+def planned_conflict_instruction() -> str:
+    """The conflict instruction the CLI's selection below plays (suite=physical level=L1, one case)."""
+    from conflictbench.sim.plan import build_plan
+    from conflictbench.tasks.libero.base_tasks import all_base_tasks
+    from conflictbench.tasks.suite.file import load_suite
+
+    tasks = {t.key: t.language for t in all_base_tasks(("libero_spatial",))}
+    plan = build_plan(
+        load_suite(None).cases, base_instructions=tasks, families=["physical"], levels=["L1"], prompts=["p0"],
+        init_states=[0], cases_per_cell=1, sample_seed=0, libero_suites=["libero_spatial"],
+    )  # fmt: skip
+    [conflict] = [spec for spec in plan if spec.case is not None]
+    return conflict.case.instruction
+
+
+def test_an_error_frame_is_stored_as_an_infrastructure_failure_left_out_and_played_again(tmp_path):
+    settings = ["model=pi05", "model.checkpoint=stand-in", f"model.max_steps={STEPS}", "run.report=true"]
+    failing, url = start_openpi_server(tmp_path, "--fail-on", planned_conflict_instruction())
+    try:
+        out = run_cli(tmp_path, *settings, f"model.server={url}")
+    finally:
+        failing.stop()
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "2 played, 0 already stored, 0 played by another job, 1 with errors" in out.stderr
+    assert "1 episode(s) ended with an infrastructure failure and are left out" in out.stdout + out.stderr
+    store = EpisodeStore(tmp_path / "results")
+    [failed] = [r for r in store.records() if r.error is not None]
+    assert failed.case_id is not None and failed.error.startswith(INFRASTRUCTURE_ERROR_PREFIX)
+    assert "the model failed on purpose" in failed.error and store.replay_ids() == {failed.episode_id}
+
+    healthy, url = start_openpi_server(tmp_path)
+    try:
+        out = run_cli(tmp_path, *settings, f"model.server={url}")
+    finally:
+        healthy.stop()
+    assert "1 played, 1 already stored, 0 played by another job, 0 with errors" in out.stderr, out.stderr[-3000:]
+    assert store.replay_ids() == set() and all(r.error is None for r in store.records())
