@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+import conflictbench
+
+#: Every policy the command offers: the built-ins, any installed model plugin, and the test's demo plugin.
+POLICIES = ", ".join(sorted([*conflictbench.plugins().policies(), "demo-wave"]))
+
 
 def test_list_shows_builtins_and_the_pip_installed_third_party_plugin(cli):
     out = cli("list")
@@ -24,7 +29,7 @@ def test_help_lists_the_verbs(cli):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["model=nope"], "unknown model 'nope'; valid choices: demo-wave, noop, oracle, random, scripted"),
+        (["model=nope"], f"unknown model 'nope'; valid choices: {POLICIES}"),
         (["suite=physicl"], "unknown suite 'physicl'; valid choices: all, grounding, instruction, physical, spatial"),
         (["level=L5"], "unknown level 'L5'; valid choices: L1, L2, L3, L4, all"),
         (["prompt=p3"], "unknown prompt 'p3'; valid choices: both, p0, p1"),
