@@ -95,3 +95,30 @@ def test_a_run_that_dies_without_stopping_its_server_still_ends_it(tmp_path):
     pid = int(out.stdout.split()[0])
     time.sleep(0.2)
     assert not alive(pid)
+
+
+def test_a_run_killed_outright_takes_its_server_with_it(tmp_path):
+    port = free_port()
+    child = textwrap.dedent(
+        f"""
+        import os, signal, sys
+        from conflictbench.core import ServerProcess
+        p = ServerProcess([sys.executable, "-c", {HEALTH_SERVER!r}, "0", "{port}"], name="test",
+                          health_url="http://127.0.0.1:{port}/healthz", log_dir={str(tmp_path)!r}).start()
+        print(p.process.pid, flush=True)
+        os.kill(os.getpid(), signal.SIGKILL)  # no atexit, no finally: the kernel must end the server
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
+    pid = int(out.stdout.split()[0])
+    deadline = time.monotonic() + 10
+    while alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive(pid)
+
+
+def test_a_proxy_in_the_environment_does_not_catch_the_local_health_check(tmp_path, monkeypatch):
+    monkeypatch.setenv("http_proxy", "http://127.0.0.1:9")  # nothing listens there
+    monkeypatch.setenv("no_proxy", "")
+    with server(tmp_path, HEALTH_SERVER, "0") as process:
+        assert process.running

@@ -1,9 +1,11 @@
 """A policy server started for one run and stopped at its end (``model.checkpoint=DIR``).
 
 A model plugin whose model lives in its own environment (a separate Python, see the README's "Model
-environments") starts its server with :class:`ServerProcess`: the command runs in its own process group,
-its output goes to a log file, the run waits until the server's health URL answers 200, and
-:meth:`ServerProcess.stop` (also called at interpreter exit, should the run die first) ends it.
+plugins") starts its server with :class:`ServerProcess`: the command runs in its own process group (so
+the terminal's Ctrl-C reaches the run, which then stops it), its output goes to a log file, the run waits
+until the server's health URL answers 200 (asked directly, never through a proxy), and
+:meth:`ServerProcess.stop` ends it: called by the run, at interpreter exit, and, on Linux, by the kernel
+when the run's process dies any other way (the server is asked to exit with its parent).
 
 A server that exits during start-up with code 2 reports a user mistake (a checkpoint that is not what
 the plugin expects): its last line becomes a :class:`UserError`. Any other early exit, or no answer
@@ -13,6 +15,8 @@ within the start-up limit, is :class:`ServerUnavailable` (the run stops, exit co
 from __future__ import annotations
 
 import atexit
+import ctypes
+import itertools
 import os
 import signal
 import socket
@@ -29,6 +33,17 @@ from .errors import ServerUnavailable, UserError
 
 #: Exit code by which a server says the user's input (its checkpoint, its options) is wrong.
 USER_ERROR_EXIT_CODE = 2
+_PR_SET_PDEATHSIG = 1
+_log_numbers = itertools.count()
+#: Health checks of a local server never go through a proxy (http_proxy would catch 127.0.0.1 too).
+_DIRECT = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+
+
+def _exit_with_parent() -> None:  # runs in the child between fork and exec
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):  # not Linux: atexit and the run's own stop() remain
+        pass
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -60,7 +75,8 @@ class ServerProcess:
         self.env = {**os.environ, **(env or {})}
         self.startup_timeout_s = startup_timeout_s
         folder = Path(log_dir) if log_dir is not None else Path(tempfile.gettempdir()) / "conflictbench-servers"
-        self.log_path = folder / f"{name}-{os.getpid()}-{time.strftime('%Y%m%d-%H%M%S')}.log"
+        stamp = f"{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}-{next(_log_numbers)}"
+        self.log_path = folder / f"{name}-{stamp}.log"
         self.process: subprocess.Popen | None = None
 
     def start(self) -> ServerProcess:
@@ -70,6 +86,7 @@ class ServerProcess:
                 self.process = subprocess.Popen(
                     self.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env,
                     start_new_session=True,  # Ctrl-C reaches the run, which then stops the server itself
+                    preexec_fn=_exit_with_parent if sys.platform.startswith("linux") else None,
                 )  # fmt: skip
             except OSError as exc:
                 raise UserError(f"could not start the {self.name} server ({self.argv[0]}): {exc}") from None
@@ -94,7 +111,7 @@ class ServerProcess:
 
     def _healthy(self) -> bool:
         try:
-            with urllib.request.urlopen(self.health_url, timeout=2) as reply:
+            with _DIRECT.open(self.health_url, timeout=2) as reply:
                 return reply.status == 200
         except (OSError, urllib.error.URLError):
             return False
@@ -122,21 +139,31 @@ class ServerProcess:
         return self.process is not None and self.process.poll() is None
 
     def stop(self, grace_s: float = 10.0) -> None:
-        """End the server's process group: SIGTERM, then SIGKILL after ``grace_s``. Safe to call twice."""
-        process, self.process = self.process, None
-        atexit.unregister(self.stop)
-        if process is None or process.poll() is not None:
+        """End the server's process group: SIGTERM, then SIGKILL after ``grace_s`` (also if interrupted
+        while waiting). Safe to call twice."""
+        process = self.process
+        if process is None:
             return
-        for sig, wait in ((signal.SIGTERM, grace_s), (signal.SIGKILL, 5.0)):
+        try:
+            self._signal_group(process, signal.SIGTERM)
+            process.wait(grace_s)
+        except (subprocess.TimeoutExpired, KeyboardInterrupt):
+            pass
+        finally:
+            self._signal_group(process, signal.SIGKILL)  # the group: a server's own children go too
             try:
-                os.killpg(process.pid, sig)
-            except ProcessLookupError:
-                return
-            try:
-                process.wait(wait)
-                return
+                process.wait(5.0)
             except subprocess.TimeoutExpired:
-                continue
+                pass
+            self.process = None
+            atexit.unregister(self.stop)
+
+    @staticmethod
+    def _signal_group(process: subprocess.Popen, sig: int) -> None:
+        try:
+            os.killpg(process.pid, sig)  # the group outlives its leader; its id stays the leader's pid
+        except (ProcessLookupError, PermissionError):
+            pass
 
     def __enter__(self) -> ServerProcess:
         return self.start()

@@ -37,6 +37,8 @@ class PolicyTraits:
         self.image_size: int = int(getattr(policy, "image_size", DEFAULT_IMAGE_SIZE))
         self.warmup_steps: int = int(getattr(policy, "warmup_steps", DEFAULT_WARMUP_STEPS))
         self.max_steps: dict[str, int] = {**DEFAULT_MAX_STEPS, **dict(getattr(policy, "max_steps", None) or {})}
+        self.identity: dict[str, Any] = dict(getattr(policy, "identity", None) or {})
+        """What the settings do not say about the model (a checkpoint's fingerprint); part of the identity."""
         self.batched: bool = callable(getattr(policy, "act_batch", None))
         self.concurrent: bool = self.batched and bool(getattr(policy, "concurrent_requests", False))
         """``act_batch`` may run in several threads at once, one query each (a served policy: every

@@ -237,6 +237,9 @@ class _Stream:
                 self._connect()
                 try:
                     return self.transport.exchange(request, client.request_timeout_s)
+                except InfrastructureError:
+                    self._drop()  # a server that answered with an error may have closed this connection
+                    raise
                 except TimeoutError:
                     self._drop()  # the server may still be working on it: never resend a slow request
                     raise InfrastructureError(

@@ -92,6 +92,17 @@ class Runner:
                 raise UserError(f"policy {self.spec.name!r} has no {method}() method")
         return policy
 
+    def _start_policy(self, policy: Any) -> None:
+        start = getattr(policy, "start", None)
+        if not callable(start):
+            return
+        try:
+            start()
+        except (UserError, ServerUnavailable):
+            raise
+        except Exception as exc:
+            raise UserError(f"could not start policy {self.spec.name!r}: {type(exc).__name__}: {exc}") from exc
+
     # -- planning --------------------------------------------------------------------------
     def jobs(self, plan: list[EpisodeSpec], traits: PolicyTraits) -> list[Item]:
         items = []
@@ -145,6 +156,7 @@ class Runner:
         if not todo:
             return result
 
+        self._start_policy(policy)  # only now that there is something to play (a model server loads for minutes)
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
         pool = self._pool = WorkerPool(settings, size=min(self.workers, len(todo)))
         self._policy, self._serving, self._held = policy, None, []

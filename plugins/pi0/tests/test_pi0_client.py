@@ -116,7 +116,7 @@ def test_the_noise_seed_comes_from_the_episode_and_step_never_the_call_order(ope
 
 
 def test_an_error_frame_is_an_infrastructure_failure_and_the_next_request_reconnects(openpi_server):
-    pi = policy(openpi_server)
+    pi = policy(openpi_server, resends=0)  # reconnecting after the error costs no resend
     try:
         with pytest.raises(InfrastructureError, match="answered an error: RuntimeError: the model failed on purpose"):
             pi.act(observation(prompt=FAIL_PROMPT))
