@@ -10,13 +10,16 @@ No module of the package imports this one, and none is named after a builtin: im
 ``conflictbench.cli.X`` binds ``X`` in this module's namespace. A mistake of the user's prints one
 line and exits with code 2 (so does a plugin that registers something invalid or implements a hook
 that does not exist); a simulator that cannot run here prints what to install, and a policy
-server that cannot be reached is named by its URL; both exit with code 3.
+server that cannot be reached is named by its URL; both exit with code 3. Ctrl-C, SIGTERM and SIGHUP
+end a run cleanly (every finished episode stored, a started model server stopped), exit code 130.
 """
 
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from conflictbench.core import PluginError, ServerUnavailable, SimulatorUnavailable, UserError
@@ -31,8 +34,15 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
 """
 
 
+def _interrupted(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt  # SIGTERM (a batch scheduler's time limit, `kill`) and SIGHUP end a run as Ctrl-C does
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, _interrupted)
     try:
         if argv[:1] in (["-h"], ["--help"], ["help"]):
             print(USAGE, end="")
