@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .checkpoints import POLICY_TYPES, CheckpointError, checkpoint_type
+from .checkpoints import POLICY_TYPES, CheckpointError, checkpoint_type, fingerprint
 from .protocol import IMAGE, NOISE_SEED, PROMPT, STATE, WRIST_IMAGE
 
 __all__ = ["POLICY_TYPES", "CheckpointError", "PiBackend", "checkpoint_type", "load_backend", "noise_for_seed"]
@@ -116,6 +116,7 @@ class PiBackend:
         self.metadata: dict = {
             "policy_type": self.policy_type,
             "checkpoint": str(checkpoint),
+            "checkpoint_fingerprint": fingerprint(checkpoint),
             "action_dim": self.action_dim,
             "action_horizon": self.chunk_length,
             "image_keys": list(self.image_keys),

@@ -7,6 +7,7 @@ normalization statistics sit beside them in the processor files).
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -45,3 +46,17 @@ def check_checkpoint(checkpoint: str | Path, policy: str) -> Path:
         wanted = next(name for name, t in POLICY_TYPES.items() if t == kind)
         raise CheckpointError(f"{checkpoint} is a {kind} checkpoint: use model={wanted}, not model={policy}")
     return Path(checkpoint).expanduser()
+
+
+def fingerprint(checkpoint: str | Path) -> str:
+    """A digest of what decides the model's actions: the config, the weights and the processor files
+    (normalization statistics), by content. The same weights under another path give the same digest;
+    new weights written to the same path give another. Reads every byte (a 7 GB checkpoint: seconds)."""
+    folder = Path(checkpoint).expanduser()
+    digest = hashlib.sha256()
+    files = [folder / "config.json", folder / WEIGHTS_FILE, *sorted(folder.glob("policy_*processor*"))]
+    for path in files:
+        digest.update(f"{path.name}\0".encode())
+        with open(path, "rb") as handle:
+            digest.update(hashlib.file_digest(handle, "sha256").digest())
+    return f"sha256:{digest.hexdigest()[:24]}"

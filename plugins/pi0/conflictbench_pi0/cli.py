@@ -1,7 +1,7 @@
 """``conflictbench-pi0 serve``: host a LeRobot π checkpoint over openpi's protocol (model environment).
 
     conflictbench-pi0 serve --policy {pi0,pi05,pi0-fast} --checkpoint DIR [--host 127.0.0.1] [--port 8000]
-                            [--device cpu] [--max-batch 32] [--threads N]
+                            [--device cpu] [--max-batch 8] [--threads N]
 
 Every user mistake is one line on stderr and exit code 2, the last line the process writes (the
 client that starts this server shows that line as the error): a missing folder, one that is not a π
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import signal
 import sys
 from pathlib import Path
@@ -21,6 +22,7 @@ from pathlib import Path
 from conflictbench_pi0.checkpoints import POLICY_TYPES, CheckpointError, checkpoint_type
 
 PROGRAM = "conflictbench-pi0"
+DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 USER_ERROR = 2
 
 
@@ -38,7 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default: %(default)s)")
     serve.add_argument("--port", type=int, default=8000, help="0: any free port (default: %(default)s)")
     serve.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto (default: %(default)s)")
-    serve.add_argument("--max-batch", type=int, default=32, help="most requests per forward pass (default: 32)")
+    serve.add_argument(
+        "--max-batch", type=int, default=8,
+        help="rows of every forward pass: the requests waiting, padded with copies (default: %(default)s)",
+    )  # fmt: skip
     serve.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     return parser
 
@@ -55,6 +60,8 @@ def _stop_quietly(signum: int, frame: object) -> None:
 def serve_command(args: argparse.Namespace) -> int:
     if args.max_batch < 1:
         return _user_error(f"--max-batch must be at least 1, got {args.max_batch}")
+    if not DEVICE.fullmatch(args.device):
+        return _user_error(f"--device must be cpu, cuda, cuda:N or auto, got {args.device!r}")
     if args.threads is not None and args.threads < 1:
         return _user_error(f"--threads must be at least 1, got {args.threads}")
     try:
@@ -82,6 +89,8 @@ def serve_command(args: argparse.Namespace) -> int:
     device = args.device
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        return _user_error(f"--device {args.device}: this machine has no CUDA device torch can use (try --device cpu)")
     try:
         backend = load_backend(args.checkpoint, device=device)
     except CheckpointError as error:

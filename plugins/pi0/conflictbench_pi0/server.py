@@ -3,7 +3,10 @@
 openpi's own ``openpi-server`` runs one ``infer()`` per request. Here every connection queues its
 validated request with a future, and one batcher task hands everything queued (up to ``max_batch``)
 to ``backend.infer_batch`` in a single worker thread, so model calls never overlap and N simulator
-workers keep one model busy with batches of up to N.
+workers keep one model busy with batches of up to N. With ``fixed_shape`` (what ``serve`` and the
+command use) each call is padded to exactly ``max_batch`` rows: float rounding depends on a batch's
+shape, and which requests share a call depends on timing, so only a fixed shape keeps every episode's
+actions reproducible. The metadata frame says ``max_batch`` and ``fixed_shape``.
 
 The wire protocol is openpi's (see :mod:`conflictbench_pi0.protocol`): the packed metadata first on
 every connection, one binary frame per request and per reply (``{"actions": chunk, "server_timing":
@@ -107,12 +110,15 @@ class _Pending:
 class BatchingPolicyServer:
     """Serves ``backend`` to any number of connections, one model call at a time, batching what waits."""
 
-    def __init__(self, backend: Backend, max_batch: int = 32) -> None:
+    def __init__(self, backend: Backend, max_batch: int = 32, fixed_shape: bool = False) -> None:
         if max_batch < 1:
             raise ValueError(f"max_batch must be at least 1, got {max_batch}")
         self.backend = backend
         self.max_batch = max_batch
-        self._metadata_frame = protocol.packb(backend.metadata)
+        self.fixed_shape = fixed_shape
+        """Every model call gets exactly ``max_batch`` rows (the batch padded with copies of its last
+        request): a request's actions then never depend on how many others shared its call."""
+        self._metadata_frame = protocol.packb({**backend.metadata, "max_batch": max_batch, "fixed_shape": fixed_shape})
         self._queue: asyncio.Queue[_Pending] = asyncio.Queue()
         # One thread: model calls never overlap, and torch sees the same thread every time.
         self._model_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pi-model")
@@ -200,11 +206,14 @@ class BatchingPolicyServer:
                 while len(batch) < self.max_batch and not self._queue.empty():
                     batch.append(self._queue.get_nowait())
                 requests = [pending.request for pending in batch]
+                if self.fixed_shape:
+                    requests += [requests[-1]] * (self.max_batch - len(requests))
                 started = time.monotonic()
                 try:
                     chunks = await loop.run_in_executor(self._model_thread, self.backend.infer_batch, requests)
-                    if len(chunks) != len(batch):
-                        raise RuntimeError(f"infer_batch returned {len(chunks)} chunks for {len(batch)} requests")
+                    if len(chunks) != len(requests):
+                        raise RuntimeError(f"infer_batch returned {len(chunks)} chunks for {len(requests)} requests")
+                    chunks = chunks[: len(batch)]
                 except Exception as error:
                     logger.error("inference failed for a batch of %d: %s", len(batch), error)
                     for pending in batch:
@@ -257,14 +266,18 @@ def serve(
     port: int = 8000,
     max_batch: int = 32,
     on_ready: Callable[[str, int], None] | None = None,
+    fixed_shape: bool = True,
 ) -> None:
-    """Serve ``backend`` until SIGTERM or SIGINT, then return normally (call from the main thread)."""
+    """Serve ``backend`` until SIGTERM or SIGINT, then return normally (call from the main thread).
+
+    ``fixed_shape`` (the default here): every forward pass has ``max_batch`` rows, so an episode's actions
+    do not depend on which requests happened to share its calls (float rounding follows the shape)."""
 
     async def main() -> None:
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for signum in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(signum, stop.set)
-        await BatchingPolicyServer(backend, max_batch).run(host, port, stop, on_ready)
+        await BatchingPolicyServer(backend, max_batch, fixed_shape).run(host, port, stop, on_ready)
 
     asyncio.run(main())

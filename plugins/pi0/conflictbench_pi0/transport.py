@@ -23,6 +23,9 @@ from .protocol import packb, unpackb
 # websockets 17 wants ``legacy=True`` for a connection kept open outside a ``with`` block (the default
 # then, with a deprecation warning); older releases have no such flag.
 _KEEP_OPEN = {"legacy": True} if "legacy" in inspect.signature(connect).parameters else {}
+# websockets >= 15 takes proxies from the environment; a server on this machine is reached directly.
+_NO_PROXY = {"proxy": None} if "proxy" in inspect.signature(connect).parameters else {}
+_LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
 class OpenpiTransport(Transport):
@@ -39,8 +42,9 @@ class OpenpiTransport(Transport):
     def connect(self, timeout: float) -> None:
         self.close()
         try:
+            direct = _NO_PROXY if urllib.parse.urlsplit(self.url).hostname in _LOOPBACK else {}
             self._ws = connect(
-                self.url, compression=None, max_size=None, open_timeout=timeout, close_timeout=2, **_KEEP_OPEN
+                self.url, compression=None, max_size=None, open_timeout=timeout, close_timeout=2, **_KEEP_OPEN, **direct
             )
             first = self._ws.recv(timeout=timeout)
         except (InvalidHandshake, InvalidURI, ConnectionClosed) as exc:
@@ -52,7 +56,11 @@ class OpenpiTransport(Transport):
         if isinstance(first, str):
             self.close()
             raise ConnectionError(f"the server's first frame is text, not openpi metadata: {one_line(first)}")
-        metadata = unpackb(first)
+        try:
+            metadata = unpackb(first)
+        except Exception as exc:
+            self.close()
+            raise ConnectionError(f"the server's first frame is not openpi metadata: {exc}") from None
         self.metadata = metadata if isinstance(metadata, dict) else {}
 
     def exchange(self, request: Any, timeout: float) -> Any:
@@ -67,7 +75,10 @@ class OpenpiTransport(Transport):
             self.close()
             last = reply.strip().splitlines()[-1] if reply.strip() else "(empty)"  # a traceback ends with the error
             raise InfrastructureError(f"{self.url} answered an error: {one_line(last)}")
-        return unpackb(reply)
+        try:
+            return unpackb(reply)
+        except Exception as exc:  # not the model's behaviour: the wire carried something else
+            raise InfrastructureError(f"{self.url} sent a frame that is not openpi msgpack: {exc}") from None
 
     def close(self) -> None:
         ws, self._ws = self._ws, None

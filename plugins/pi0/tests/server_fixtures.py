@@ -48,7 +48,7 @@ def policy_of(checkpoint: Path) -> str:
     return next(name for name, lerobot_type in POLICY_TYPES.items() if lerobot_type == kind)
 
 
-def server_argv(kind: str, checkpoint: Path, port: int, max_batch: int = 32, threads: int = 1) -> list[str]:
+def server_argv(kind: str, checkpoint: Path, port: int, max_batch: int = 4, threads: int = 1) -> list[str]:
     if kind == "ours":
         return [
             str(MODEL_PYTHON), "-m", "conflictbench_pi0", "serve", "--policy", policy_of(checkpoint),
@@ -78,7 +78,7 @@ def launch_server(
     checkpoint: Path,
     env: Mapping[str, str],
     *,
-    max_batch: int = 32,
+    max_batch: int = 4,
     threads: int = 1,
     startup_timeout_s: float = STARTUP_TIMEOUT_S,
 ) -> tuple[str, ServerProcess]:

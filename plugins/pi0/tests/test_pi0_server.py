@@ -78,9 +78,11 @@ class StandInModel:
 
 
 @contextlib.contextmanager
-def serving(model: StandInModel, max_batch: int = 32) -> Iterator[tuple[str, BatchingPolicyServer]]:
+def serving(
+    model: StandInModel, max_batch: int = 32, fixed_shape: bool = False
+) -> Iterator[tuple[str, BatchingPolicyServer]]:
     """The server on a free port, its event loop in a thread; stopped (and checked stopped) at the end."""
-    server = BatchingPolicyServer(model, max_batch)
+    server = BatchingPolicyServer(model, max_batch, fixed_shape)
     bound, ready = {}, threading.Event()
 
     async def main() -> None:
@@ -123,7 +125,7 @@ def test_metadata_first_healthz_and_reply():
     with serving(model) as (url, _):
         assert healthz(url) == (200, b"OK\n")
         connection, metadata = open_connection(url)
-        assert metadata == StandInModel.metadata
+        assert metadata == {**StandInModel.metadata, "max_batch": 32, "fixed_shape": False}
         request = observation(1)
         reply = ask(connection, request)
         np.testing.assert_array_equal(reply[ACTIONS], stand_in_actions(request))
@@ -150,6 +152,26 @@ def test_requests_queued_while_the_model_is_busy_share_one_batch(max_batch, expe
             np.testing.assert_array_equal(reply[ACTIONS], stand_in_actions(request))  # each gets its own chunk
         assert model.batch_sizes == expected_batches
         assert model.most_running == 1  # model calls never overlap
+
+
+def test_with_a_fixed_shape_every_model_call_has_max_batch_rows_and_each_request_its_own_reply():
+    model = StandInModel(held=True)
+    with serving(model, max_batch=4, fixed_shape=True) as (url, server):
+        first = hold_model_with_one_request(url, model)
+        connections = [open_connection(url)[0] for _ in range(2)]
+        requests = [observation(seed, noise_seed=seed) for seed in range(2)]
+        for connection, request in zip(connections, requests, strict=True):
+            connection.send(packb(request))
+        wait_until(lambda: server.queued == 2, "two requests are queued")
+        model.released.set()
+        assert unpackb(first.recv(timeout=TIMEOUT_S))["server_timing"]["batch_size"] == 1
+        for connection, request in zip(connections, requests, strict=True):
+            reply = unpackb(connection.recv(timeout=TIMEOUT_S))
+            np.testing.assert_array_equal(reply[ACTIONS], stand_in_actions(request))
+            assert reply["server_timing"]["batch_size"] == 2  # the requests served, not the padding
+        assert model.batch_sizes == [4, 4]  # one request padded to four rows, then two padded to four
+        _, metadata = open_connection(url)
+        assert (metadata["max_batch"], metadata["fixed_shape"]) == (4, True)
 
 
 def test_concurrent_clients_never_overlap_model_calls():

@@ -48,6 +48,12 @@ def theirs(start_server, tiny_pi05, tiny_env) -> str:
     return start_server("openpi", tiny_pi05, tiny_env)[0]
 
 
+@pytest.fixture(scope="module")
+def ours_one_row(start_server, tiny_pi05, tiny_env) -> str:
+    """Ours with forward passes of one row: the shape of openpi's calls, so the rounding is the same too."""
+    return start_server("ours", tiny_pi05, tiny_env, max_batch=1)[0]
+
+
 @pytest.mark.model_env
 @needs_model_env
 @pytest.mark.parametrize("kind", ["ours", "theirs"])
@@ -113,25 +119,26 @@ def test_e2e_concurrent_requests_share_a_batch_and_match_single_requests(ours):
         else:
             pytest.fail(f"the two requests never shared a batch of 2 (batch sizes seen: {seen})")
     for batched, single in zip(together, alone, strict=True):
-        # Measured on the tiny pi0.5: identical; the tolerance allows for other kernels' batched reductions.
-        np.testing.assert_allclose(batched[ACTIONS], single[ACTIONS], rtol=1e-5, atol=1e-5)
+        # Every call has the same shape (max_batch rows, padded), so company and position change nothing.
+        np.testing.assert_array_equal(batched[ACTIONS], single[ACTIONS])
 
 
 @pytest.mark.model_env
 @needs_model_env
-def test_e2e_our_server_and_openpis_give_the_same_actions(ours, theirs):
+def test_e2e_our_server_and_openpis_give_the_same_actions(ours, ours_one_row, theirs):
     for seed in (0, 1):
         request = observation(30 + seed, noise_seed=seed)
-        ours_connection, _ = open_connection(ours)
-        theirs_connection, _ = open_connection(theirs)
-        np.testing.assert_array_equal(ask(ours_connection, request)[ACTIONS], ask(theirs_connection, request)[ACTIONS])
+        replies = [ask(open_connection(url)[0], request)[ACTIONS] for url in (ours_one_row, theirs, ours)]
+        np.testing.assert_array_equal(replies[0], replies[1])
+        # four rows per call round differently than one, in the last float32 bits only
+        np.testing.assert_allclose(replies[2], replies[1], rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.model_env
 @needs_model_env
 @pytest.mark.parametrize("policy, horizon", [("pi0", 50), ("pi0-fast", 10)])
 def test_e2e_pi0_and_pi0_fast_are_served_like_openpi_serves_them(tiny_checkpoints, tiny_env, policy, horizon):
-    servers = [launch_server(kind, tiny_checkpoints[policy], tiny_env) for kind in ("ours", "openpi")]
+    servers = [launch_server(kind, tiny_checkpoints[policy], tiny_env, max_batch=1) for kind in ("ours", "openpi")]
     try:
         replies = []
         for url, _ in servers:
