@@ -138,6 +138,11 @@ class ServerProcess:
     def running(self) -> bool:
         return self.process is not None and self.process.poll() is None
 
+    @property
+    def exit_code(self) -> int | None:
+        """The server's exit code if it ended on its own (not stopped by :meth:`stop`), else None."""
+        return None if self.process is None else self.process.poll()
+
     def stop(self, grace_s: float = 10.0) -> None:
         """End the server's process group: SIGTERM, then SIGKILL after ``grace_s`` (also if interrupted
         while waiting). Safe to call twice."""
