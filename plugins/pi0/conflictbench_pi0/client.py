@@ -73,9 +73,10 @@ class PiConfig(ServingConfig):
     """The model environment's interpreter for the started server (default: the one set-up made)."""
     device: str = "auto"
     """Where the started server runs the model: ``cuda``, ``cuda:N``, ``cpu`` or ``auto`` (cuda if any)."""
-    max_batch: int = 8
-    """Rows of every forward pass of the started server (the waiting requests, padded): at least
-    ``run.workers``. Float rounding follows the batch shape, so it is part of every episode's identity."""
+    max_batch: int = 2
+    """Rows of every forward pass of the started server (the waiting requests, padded with copies): set it
+    to ``run.workers`` (default 2). Float rounding follows the batch shape, so it is part of every
+    episode's identity; a call costs as much as ``max_batch`` requests on a CPU, about one on a GPU."""
     startup_timeout_s: float = 900.0
     """Limit for the started server to load the checkpoint and answer."""
 

@@ -157,3 +157,87 @@ def test_a_server_that_went_away_stops_the_run_naming_its_url(tmp_path):
             pi.act(observation(step=1))
     finally:
         pi.close()
+
+
+def fake_checkpoint(folder: Path, kind: str = "pi05", weights: bytes = b"weights") -> Path:
+    folder.mkdir(parents=True)
+    (folder / "config.json").write_text(f'{{"type": "{kind}"}}')
+    (folder / "model.safetensors").write_bytes(weights)
+    (folder / "policy_preprocessor.json").write_text("{}")
+    return folder
+
+
+def identity_hash(cfg: PiConfig, checkpoint: Path) -> str:
+    from conflictbench.core import PolicyTraits
+    from conflictbench.sim.plan import config_hash
+    from conflictbench_pi0.client import PiPolicy
+
+    policy = PiPolicy("pi05", cfg, checkpoint)  # nothing starts before start()
+    assert policy.server is None and policy.client is None
+    return config_hash("pi05", cfg, PolicyTraits(policy))
+
+
+def test_a_checkpoint_counts_by_its_content_and_settings_by_whether_they_change_actions(tmp_path):
+    first = fake_checkpoint(tmp_path / "a")
+    same_elsewhere = fake_checkpoint(tmp_path / "copy" / "b")
+    retrained = fake_checkpoint(tmp_path / "c", weights=b"other weights")
+    base = PiConfig(checkpoint=str(first))
+    reference = identity_hash(base, first)
+    assert identity_hash(PiConfig(checkpoint=str(same_elsewhere)), same_elsewhere) == reference
+    assert identity_hash(PiConfig(checkpoint=str(retrained)), retrained) != reference
+    for changes_actions in ({"replan_steps": 4}, {"max_steps": 30}, {"max_batch": 4}):
+        assert identity_hash(PiConfig(checkpoint=str(first), **changes_actions), first) != reference
+    for how_it_runs in (
+        {"device": "cpu"},
+        {"python": "/x/python"},
+        {"request_timeout_s": 5.0},
+        {"startup_timeout_s": 1},
+    ):
+        assert identity_hash(PiConfig(checkpoint=str(first), **how_it_runs), first) == reference
+
+
+def test_against_a_running_server_its_own_word_on_the_model_is_the_identity(tmp_path):
+    server, url = start_openpi_server(tmp_path)  # openpi's server says nothing: the given name counts
+    try:
+        named = [load("pi05", PiConfig(server=url, checkpoint=name, connect_retries=0)) for name in ("a", "b")]
+        try:
+            assert [p.identity for p in named] == [
+                {"checkpoint": "a", "max_batch": 1},
+                {"checkpoint": "b", "max_batch": 1},
+            ]
+        finally:
+            for p in named:
+                p.close()
+    finally:
+        server.stop()
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ([], "model=pi05 needs model.checkpoint=DIR"),
+        (["model.server=ws://127.0.0.1:9"], "also needs model.checkpoint=NAME"),
+        (["model.checkpoint={pi0}"], "is a pi0 checkpoint: use model=pi0, not model=pi05"),
+        (["model.checkpoint={missing}"], "no checkpoint folder at"),
+        (["model.checkpoint={pi05}", "model.python=/no/such/python"], "no model environment at /no/such/python"),
+        (["model.checkpoint={pi05}", "model.python={bare_python}"], "cannot run the pi0 server"),
+        (["model.checkpoint={pi05}", "model.device=gpu"], "model.device must be cpu, cuda, cuda:N or auto"),
+        (["model.checkpoint={pi05}", "model.replan_steps=0"], "model.replan_steps and model.max_batch must be >= 1"),
+    ],
+)
+def test_user_mistakes_are_one_line_and_exit_code_2(tmp_path, settings, message):
+    import subprocess
+
+    folders = {"pi0": fake_checkpoint(tmp_path / "pi0", "pi0"), "pi05": fake_checkpoint(tmp_path / "pi05")}
+    bare_python = Path(sys.base_prefix) / "bin" / "python3"  # this interpreter without the venv: no plugin
+    values = {**folders, "missing": tmp_path / "nope", "bare_python": bare_python}
+    args = ["model=pi05", "suite=physical", "level=L1", "run.libero_suites=[libero_spatial]", "run.progress=false"]
+    args += [f"run.out={tmp_path / 'results'}", *[s.format(**values) for s in settings]]
+    out = subprocess.run(
+        [sys.executable, "-m", "conflictbench.cli", *args], capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 2, out.stderr[-2000:]
+    last = out.stderr.strip().splitlines()[-1]
+    assert last.startswith("conflictbench: error: ") and message in last, last
+    assert "Traceback" not in out.stderr
