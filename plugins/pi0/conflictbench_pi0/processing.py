@@ -1,6 +1,6 @@
 """What openpi's LIBERO client does around the model (``examples/libero/main.py``), step by step.
 
-The facts (each pinned by a test in ``tests/test_processing.py``):
+The facts (each pinned by a test in ``tests/test_pi0_processing.py``):
 
 - both camera images are rotated 180 degrees (LIBERO renders them upside down), then letterboxed to
   224 x 224 (``resize_with_pad``: scale to fit, bilinear, centre on black), as uint8;
