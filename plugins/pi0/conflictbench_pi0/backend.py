@@ -8,10 +8,10 @@ pre/post-processor pipelines (``make_pre_post_processors(config, pretrained_path
 normalization statistics, un-normalization).
 
 Observations enter as LeRobot's environment path makes them (``lerobot.envs.utils.preprocess_observation``):
-HWC uint8 images become CHW float32 in [0, 1], the first visual feature of the checkpoint gets the
-agentview image and the second the wrist image (LeRobot's LIBERO names ``observation.images.image`` and
-``observation.images.image2``, but the names are read from the checkpoint, in its order), and ``task`` is the
-list of prompts. The model's own letterbox to its ``image_resolution`` is then an exact no-op at 224.
+HWC uint8 images become CHW float32 in [0, 1]; of the checkpoint's two camera inputs the one named like a
+wrist camera (``wrist`` in its name, or LeRobot's LIBERO ``observation.images.image2``) gets the wrist image
+and the other the agentview image (with no such name, the config's order), and ``task`` is the list of
+prompts. The model's own letterbox to its ``image_resolution`` is then an exact no-op at 224.
 
 Sampling depends on the request, never on the call order or batch company: pi0 and pi0.5 get their
 flow-matching noise from a ``torch.Generator`` seeded with the request's ``NOISE_SEED`` (seed 0 when the
@@ -70,6 +70,16 @@ def image_feature_names(config_features: dict[str, Any]) -> list[str]:
     return names
 
 
+def camera_order(names: list[str]) -> list[str]:
+    """The checkpoint's two camera inputs as (agentview, wrist): the one named like a wrist camera
+    (``wrist`` in its name, or LeRobot's LIBERO ``...image2``) takes the wrist image, whatever the order
+    in the config; with no such name, the config's order."""
+    wrist = [n for n in names if "wrist" in n.lower()] or [n for n in names if n.endswith("image2")]
+    if len(wrist) != 1:
+        return list(names)
+    return [next(n for n in names if n != wrist[0]), wrist[0]]
+
+
 def _check_inputs(folder: Path) -> None:
     """Two cameras and an 8-D state, read from config.json (CheckpointError naming what it has otherwise)."""
     config = json.loads((folder / "config.json").read_text())
@@ -112,7 +122,7 @@ class PiBackend:
         self.policy_type: str = config.type
         self.action_dim: int = int(config.output_features["action"].shape[0])
         self.chunk_length: int = int(config.n_action_steps)
-        self.image_keys: list[str] = image_feature_names(config.input_features)
+        self.image_keys: list[str] = camera_order(image_feature_names(config.input_features))
         self.metadata: dict = {
             "policy_type": self.policy_type,
             "checkpoint": str(checkpoint),

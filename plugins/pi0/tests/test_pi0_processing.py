@@ -50,3 +50,30 @@ def test_openpi_clients_constants():
     assert traits.warmup_steps == 10 and traits.image_size == 256 and traits.needs_images
     assert traits.max_steps == dict(DEFAULT_MAX_STEPS)
     assert traits.max_steps == {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
+
+
+@pytest.mark.parametrize(
+    "names, expected",
+    [
+        (
+            ["observation.images.image", "observation.images.image2"],
+            ["observation.images.image", "observation.images.image2"],
+        ),
+        (
+            ["observation.images.image2", "observation.images.image"],
+            ["observation.images.image", "observation.images.image2"],
+        ),
+        (
+            ["observation.images.wrist_image", "observation.images.agentview"],
+            ["observation.images.agentview", "observation.images.wrist_image"],
+        ),
+        (
+            ["observation.images.cam_a", "observation.images.cam_b"],
+            ["observation.images.cam_a", "observation.images.cam_b"],
+        ),
+    ],
+)
+def test_the_wrist_image_goes_to_the_checkpoints_wrist_camera_whatever_its_order(names, expected):
+    from conflictbench_pi0.backend import camera_order  # importable without torch: it loads lazily
+
+    assert camera_order(names) == expected
