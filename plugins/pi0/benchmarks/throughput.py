@@ -206,7 +206,7 @@ def main() -> int:
     parser.add_argument("--checkpoint", help="reuse a tiny pi05 checkpoint folder (needs --hf-home)")
     parser.add_argument("--hf-home", help="the HF_HOME its build filled")
     parser.add_argument("--server-threads", type=int, default=1, help="torch threads of the server (default: 1)")
-    parser.add_argument("--max-batch", type=int, default=2, help="the server's --max-batch (default: 2, the workers of the widest variant)")
+    parser.add_argument("--max-batch", type=int, default=2, help="the server's --max-batch (default: 2)")
     parser.add_argument("--variant", choices=sorted(VARIANTS), help=argparse.SUPPRESS)  # one run, in a child
     parser.add_argument("--url", help=argparse.SUPPRESS)
     parser.add_argument("--result", type=Path, help=argparse.SUPPRESS)
