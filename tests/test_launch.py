@@ -79,25 +79,8 @@ def test_a_server_that_never_answers_is_stopped_after_the_start_up_limit(tmp_pat
     assert "stuck" in process.log_tail()
 
 
-def test_a_run_that_dies_without_stopping_its_server_still_ends_it(tmp_path):
-    port = free_port()
-    child = textwrap.dedent(
-        f"""
-        import sys
-        from conflictbench.core import ServerProcess
-        p = ServerProcess([sys.executable, "-c", {HEALTH_SERVER!r}, "0", "{port}"], name="test",
-                          health_url="http://127.0.0.1:{port}/healthz", log_dir={str(tmp_path)!r}).start()
-        print(p.process.pid, flush=True)
-        raise SystemExit(1)  # the run dies; atexit must still stop the server
-        """
-    )
-    out = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
-    pid = int(out.stdout.split()[0])
-    time.sleep(0.2)
-    assert not alive(pid)
-
-
-def test_a_run_killed_outright_takes_its_server_with_it(tmp_path):
+def pid_of_the_server_of_a_run_that(tmp_path, ends_how: str) -> int:
+    """Starts a run (a child Python) that starts a server, then ends as ``ends_how`` says; the server's pid."""
     port = free_port()
     child = textwrap.dedent(
         f"""
@@ -106,15 +89,27 @@ def test_a_run_killed_outright_takes_its_server_with_it(tmp_path):
         p = ServerProcess([sys.executable, "-c", {HEALTH_SERVER!r}, "0", "{port}"], name="test",
                           health_url="http://127.0.0.1:{port}/healthz", log_dir={str(tmp_path)!r}).start()
         print(p.process.pid, flush=True)
-        os.kill(os.getpid(), signal.SIGKILL)  # no atexit, no finally: the kernel must end the server
+        {ends_how}
         """
     )
     out = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
-    pid = int(out.stdout.split()[0])
-    deadline = time.monotonic() + 10
+    return int(out.stdout.split()[0])
+
+
+def ends_within(pid: int, seconds: float = 10.0) -> bool:
+    deadline = time.monotonic() + seconds
     while alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not alive(pid)
+    return not alive(pid)
+
+
+def test_a_run_that_dies_without_stopping_its_server_still_ends_it(tmp_path):
+    assert ends_within(pid_of_the_server_of_a_run_that(tmp_path, "raise SystemExit(1)"))  # atexit stops it
+
+
+def test_a_run_killed_outright_takes_its_server_with_it(tmp_path):
+    # no atexit, no finally: the kernel must end the server
+    assert ends_within(pid_of_the_server_of_a_run_that(tmp_path, "os.kill(os.getpid(), signal.SIGKILL)"))
 
 
 def test_a_proxy_in_the_environment_does_not_catch_the_local_health_check(tmp_path, monkeypatch):

@@ -17,25 +17,20 @@ pytestmark = pytest.mark.sim
 STEPS = 12
 
 
-def run_cli(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
-    args = [
-        "suite=physical",
-        "level=L1",
-        "run.init_states=1",
-        "run.cases_per_cell=1",
-        "run.libero_suites=[libero_spatial]",
-        "run.progress=false",
-        "run.report=false",
-        f"run.out={tmp_path / 'results'}",
-        *overrides,
-    ]
+def run_cli(
+    tmp_path: Path, *overrides: str, out: str = "results", env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess:
+    """``conflictbench`` on one physical L1 case of libero_spatial and its reference (first initial state)."""
+    args = ["suite=physical", "level=L1", "run.cases_per_cell=1", "run.libero_suites=[libero_spatial]"]
+    args += ["run.progress=false", "run.report=false", f"run.out={tmp_path / out}", *overrides]
     return subprocess.run(
         [sys.executable, "-m", "conflictbench.cli", *args],
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=900,
         stdin=subprocess.DEVNULL,
         cwd=tmp_path,
+        env=env,
     )
 
 

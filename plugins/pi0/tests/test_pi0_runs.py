@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -12,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from server_fixtures import model_process_env, server_argv
+from test_pi0_episodes import run_cli as run_cli_on_one_case
 from tiny_fixtures import MODEL_PYTHON, TINY_DIR, needs_model_env
 
 from conflictbench.core import ServerProcess, free_port
@@ -22,27 +22,8 @@ STEPS = 15  # three queries of five actions per episode
 
 
 def run_cli(tmp_path: Path, env: dict[str, str], *overrides: str, out: str = "results") -> subprocess.CompletedProcess:
-    args = [
-        "model=pi05",
-        "suite=physical",
-        "level=L1",
-        "run.cases_per_cell=1",
-        "run.libero_suites=[libero_spatial]",
-        "run.progress=false",
-        "run.report=false",
-        f"run.out={tmp_path / out}",
-        f"model.max_steps={STEPS}",
-        *overrides,
-    ]
-    return subprocess.run(
-        [sys.executable, "-m", "conflictbench.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        stdin=subprocess.DEVNULL,
-        cwd=tmp_path,
-        env=model_process_env(env),
-    )
+    settings = ["model=pi05", f"model.max_steps={STEPS}", *overrides]
+    return run_cli_on_one_case(tmp_path, *settings, out=out, env=model_process_env(env))
 
 
 def counts(stderr: str) -> tuple[int, int, int]:

@@ -135,43 +135,35 @@ def test_metadata_first_healthz_and_reply():
         assert second["server_timing"]["prev_total_ms"] > 0  # as openpi's server reports it
 
 
-@pytest.mark.parametrize("max_batch, expected_batches", [(32, [1, 3]), (2, [1, 2, 1])])
-def test_requests_queued_while_the_model_is_busy_share_one_batch(max_batch, expected_batches):
+@pytest.mark.parametrize(
+    "max_batch, fixed_shape, queued, model_calls, served_together",
+    [
+        (32, False, 3, [1, 3], [3, 3, 3]),
+        (2, False, 3, [1, 2, 1], [2, 2, 1]),
+        (4, True, 2, [4, 4], [2, 2]),  # every call padded to four rows; replies count the requests served
+    ],
+)
+def test_requests_queued_while_the_model_is_busy_share_one_call(
+    max_batch, fixed_shape, queued, model_calls, served_together
+):
     model = StandInModel(held=True)
-    with serving(model, max_batch) as (url, server):
+    with serving(model, max_batch, fixed_shape) as (url, server):
         first = hold_model_with_one_request(url, model)
-        connections = [open_connection(url)[0] for _ in range(3)]
-        requests = [observation(seed, noise_seed=seed) for seed in range(3)]
+        connections = [open_connection(url)[0] for _ in range(queued)]
+        requests = [observation(seed, noise_seed=seed) for seed in range(queued)]
         for connection, request in zip(connections, requests, strict=True):
             connection.send(packb(request))
-        wait_until(lambda: server.queued == 3, "three requests are queued")
+        wait_until(lambda: server.queued == queued, f"{queued} requests are queued")
         model.released.set()
         assert unpackb(first.recv(timeout=TIMEOUT_S))["server_timing"]["batch_size"] == 1
-        for connection, request in zip(connections, requests, strict=True):
-            reply = unpackb(connection.recv(timeout=TIMEOUT_S))
+        replies = [unpackb(connection.recv(timeout=TIMEOUT_S)) for connection in connections]
+        for reply, request in zip(replies, requests, strict=True):
             np.testing.assert_array_equal(reply[ACTIONS], stand_in_actions(request))  # each gets its own chunk
-        assert model.batch_sizes == expected_batches
+        assert [reply["server_timing"]["batch_size"] for reply in replies] == served_together
+        assert model.batch_sizes == model_calls
         assert model.most_running == 1  # model calls never overlap
-
-
-def test_with_a_fixed_shape_every_model_call_has_max_batch_rows_and_each_request_its_own_reply():
-    model = StandInModel(held=True)
-    with serving(model, max_batch=4, fixed_shape=True) as (url, server):
-        first = hold_model_with_one_request(url, model)
-        connections = [open_connection(url)[0] for _ in range(2)]
-        requests = [observation(seed, noise_seed=seed) for seed in range(2)]
-        for connection, request in zip(connections, requests, strict=True):
-            connection.send(packb(request))
-        wait_until(lambda: server.queued == 2, "two requests are queued")
-        model.released.set()
-        assert unpackb(first.recv(timeout=TIMEOUT_S))["server_timing"]["batch_size"] == 1
-        for connection, request in zip(connections, requests, strict=True):
-            reply = unpackb(connection.recv(timeout=TIMEOUT_S))
-            np.testing.assert_array_equal(reply[ACTIONS], stand_in_actions(request))
-            assert reply["server_timing"]["batch_size"] == 2  # the requests served, not the padding
-        assert model.batch_sizes == [4, 4]  # one request padded to four rows, then two padded to four
         _, metadata = open_connection(url)
-        assert (metadata["max_batch"], metadata["fixed_shape"]) == (4, True)
+        assert (metadata["max_batch"], metadata["fixed_shape"]) == (max_batch, fixed_shape)
 
 
 def test_concurrent_clients_never_overlap_model_calls():
