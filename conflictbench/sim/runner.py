@@ -81,12 +81,7 @@ class Runner:
 
     # -- policy ----------------------------------------------------------------------------
     def _load_policy(self) -> Any:
-        try:
-            policy = self.spec.load(self.config)
-        except (UserError, ServerUnavailable):
-            raise
-        except Exception as exc:
-            raise UserError(f"could not load policy {self.spec.name!r}: {type(exc).__name__}: {exc}") from exc
+        policy = self._policy_call("load", self.spec.load, self.config)
         for method in ("reset", "act"):
             if not callable(getattr(policy, method, None)):
                 raise UserError(f"policy {self.spec.name!r} has no {method}() method")
@@ -94,14 +89,18 @@ class Runner:
 
     def _start_policy(self, policy: Any) -> None:
         start = getattr(policy, "start", None)
-        if not callable(start):
-            return
+        if callable(start):
+            self._policy_call("start", start)
+
+    def _policy_call(self, what: str, function: Callable[..., Any], *args: Any) -> Any:
+        """``function(*args)``; a failure that is not already a user error or a missing server becomes
+        one line naming the policy (its loading or starting is set-up, not the model's behaviour)."""
         try:
-            start()
+            return function(*args)
         except (UserError, ServerUnavailable):
             raise
         except Exception as exc:
-            raise UserError(f"could not start policy {self.spec.name!r}: {type(exc).__name__}: {exc}") from exc
+            raise UserError(f"could not {what} policy {self.spec.name!r}: {type(exc).__name__}: {exc}") from exc
 
     # -- planning --------------------------------------------------------------------------
     def jobs(self, plan: list[EpisodeSpec], traits: PolicyTraits) -> list[Item]:

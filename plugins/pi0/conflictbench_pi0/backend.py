@@ -33,12 +33,10 @@ from typing import Any
 import numpy as np
 
 from .checkpoints import POLICY_TYPES, CheckpointError, checkpoint_type, fingerprint
-from .protocol import IMAGE, NOISE_SEED, PROMPT, STATE, WRIST_IMAGE
+from .protocol import IMAGE, NOISE_SEED, PROMPT, STATE, STATE_SIZE, WRIST_IMAGE, validate_request
 
 __all__ = ["POLICY_TYPES", "CheckpointError", "PiBackend", "checkpoint_type", "load_backend", "noise_for_seed"]
 
-STATE_DIM = 8
-IMAGE_SHAPE = (224, 224, 3)
 #: The processor pipelines LeRobot saves beside the weights; without them there are no normalization stats.
 PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
 #: Lines LeRobot's pi ``from_pretrained`` prints, instead of raising, when the weights did not load.
@@ -92,24 +90,13 @@ def _check_inputs(folder: Path) -> None:
         )
     state = features.get("observation.state")
     state_shape = list(state.get("shape", [])) if isinstance(state, dict) else None
-    if state_shape != [STATE_DIM]:
+    if state_shape != [STATE_SIZE]:
         raise CheckpointError(
-            f"{folder} takes a state of shape {state_shape}; openpi's LIBERO client sends {STATE_DIM} numbers"
+            f"{folder} takes a state of shape {state_shape}; openpi's LIBERO client sends {STATE_SIZE} numbers"
         )
     for name in PROCESSOR_FILES:
         if not (folder / name).is_file():
             raise CheckpointError(f"{folder} has no {name} (LeRobot >= 0.4 saves its normalization stats there)")
-
-
-def _check_request(request: dict) -> None:
-    for key in (IMAGE, WRIST_IMAGE):
-        image = np.asarray(request[key])
-        if image.dtype != np.uint8 or image.shape != IMAGE_SHAPE:
-            raise ValueError(f"{key} must be uint8 {IMAGE_SHAPE}, got {image.dtype} {image.shape}")
-    if np.asarray(request[STATE]).shape != (STATE_DIM,):
-        raise ValueError(f"{STATE} must hold {STATE_DIM} numbers, got shape {np.asarray(request[STATE]).shape}")
-    if not isinstance(request[PROMPT], str):
-        raise ValueError(f"{PROMPT} must be a string, got {type(request[PROMPT]).__name__}")
 
 
 class PiBackend:
@@ -150,7 +137,7 @@ class PiBackend:
         if not requests:
             return []
         for request in requests:
-            _check_request(request)
+            validate_request(request)
         with torch.inference_mode():
             if self._samples_tokens:  # token sampling draws from torch's global RNG: one seeded run each
                 # (post-processed one by one too: a relative-actions step remembers the last state it saw)

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from pathlib import Path
 
 #: conflictbench's policy names and the LeRobot config ``type`` each loads.
 POLICY_TYPES = {"pi0": "pi0", "pi05": "pi05", "pi0-fast": "pi0_fast"}
 WEIGHTS_FILE = "model.safetensors"
+#: Where a checkpoint can be loaded (``model.device``, ``serve --device``).
+DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 
 
 class CheckpointError(Exception):

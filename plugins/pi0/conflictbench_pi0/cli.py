@@ -14,15 +14,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import re
 import signal
 import sys
 from pathlib import Path
 
-from conflictbench_pi0.checkpoints import POLICY_TYPES, CheckpointError, checkpoint_type
+from conflictbench_pi0.checkpoints import DEVICE, POLICY_TYPES, CheckpointError, checkpoint_type
 
 PROGRAM = "conflictbench-pi0"
-DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 USER_ERROR = 2
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import re
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -32,14 +31,13 @@ from conflictbench import (
 )
 from conflictbench.core import DEFAULT_MAX_STEPS
 
-from .checkpoints import POLICY_TYPES, CheckpointError, check_checkpoint, fingerprint
+from .checkpoints import DEVICE, POLICY_TYPES, CheckpointError, check_checkpoint, fingerprint
 from .processing import REPLAN_STEPS, camera_image
 from .protocol import ACTIONS, IMAGE, NOISE_SEED, NOISE_SEED_LIMIT, PROMPT, STATE, WRIST_IMAGE
 from .transport import OpenpiTransport
 
 #: The model environment ``scripts/setup.sh --models pi0`` builds (inside the running environment).
 ENVIRONMENT = "pi0"
-DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 #: Set for every model process: bfloat16 kernels beyond AVX512 kill some CPUs' VMs (SIGILL).
 MODEL_PROCESS_ENV = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"}
 
@@ -90,8 +88,8 @@ class PiPolicy(ServedPolicy):
 
     needs_images = True
 
-    def __init__(self, name: str, cfg: PiConfig, checkpoint: Path | None = None):
-        self.name, self.cfg, self.checkpoint = name, cfg, checkpoint
+    def __init__(self, name: str, cfg: PiConfig, checkpoint: Path | None = None, python: Path | None = None):
+        self.name, self.cfg, self.checkpoint, self.python = name, cfg, checkpoint, python
         self.replan_steps = cfg.replan_steps
         if cfg.max_steps:
             self.max_steps = {suite: cfg.max_steps for suite in DEFAULT_MAX_STEPS}
@@ -107,7 +105,8 @@ class PiPolicy(ServedPolicy):
     def start(self) -> None:
         if self.checkpoint is None or self.client is not None:
             return
-        self.server, url = start_server(self.name, self.checkpoint, self.cfg)
+        python = self.python or model_python(self.cfg)
+        self.server, url = start_server(self.name, self.checkpoint, self.cfg, python)
         try:
             metadata = self._connect(dataclasses.replace(self.cfg, server=url))
         except BaseException:
@@ -195,8 +194,8 @@ def load(name: str, cfg: PiConfig) -> PiPolicy:
         checkpoint = check_checkpoint(cfg.checkpoint, name)
     except CheckpointError as exc:
         raise UserError(str(exc)) from None
-    model_python(cfg)  # a missing model environment is reported now, before the plan is played
-    return PiPolicy(name, cfg, checkpoint.resolve())
+    python = model_python(cfg)  # a missing model environment is reported now, before the plan is played
+    return PiPolicy(name, cfg, checkpoint.resolve(), python)
 
 
 def model_python(cfg: PiConfig) -> Path:
@@ -216,9 +215,9 @@ def model_python(cfg: PiConfig) -> Path:
     return python
 
 
-def start_server(name: str, checkpoint: Path, cfg: PiConfig) -> tuple[ServerProcess, str]:
+def start_server(name: str, checkpoint: Path, cfg: PiConfig, python: Path) -> tuple[ServerProcess, str]:
     """``conflictbench-pi0 serve`` for ``checkpoint`` in the model environment, answering; and its URL."""
-    python, port = model_python(cfg), free_port()
+    port = free_port()
     argv = [str(python), "-m", "conflictbench_pi0", "serve", "--policy", name, "--checkpoint", str(checkpoint)]
     argv += ["--host", "127.0.0.1", "--port", str(port), "--device", cfg.device, "--max-batch", str(cfg.max_batch)]
     env = {key: value for key, value in MODEL_PROCESS_ENV.items() if key not in os.environ}

@@ -11,7 +11,9 @@ The facts, from openpi-client's ``msgpack_numpy`` and ``websocket_policy_server`
   after which the server closes the connection (code 1011);
 - ``GET /healthz`` answers ``OK`` (readiness without a websocket).
 
-This module imports neither conflictbench nor torch: the model environment's server uses it too.
+:func:`validate_request` says what a LIBERO request must hold (our server checks each one with it before
+queueing, and the backend before every forward pass). This module imports neither conflictbench nor
+torch: the model environment's server uses it too.
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ ACTIONS = "actions"
 #: the four keys above, so its server ignores it; ours seeds with it.
 NOISE_SEED = "conflictbench/noise_seed"
 NOISE_SEED_LIMIT = 2**63
+#: What openpi's LIBERO client sends: both images letterboxed to 224, LIBERO's 8-D state.
+IMAGE_SHAPE = (224, 224, 3)
+STATE_SIZE = 8
 
 _UNSENDABLE_KINDS = "OVc"  # object, void (structured), complex
 
@@ -68,3 +73,46 @@ def packb(obj: Any) -> bytes:
 def unpackb(data: bytes) -> Any:
     """The value in one openpi frame. Arrays come back read-only (they view the frame's bytes)."""
     return msgpack.unpackb(data, object_hook=_decode)
+
+
+class InvalidRequest(ValueError):
+    """A request that is not an openpi LIBERO observation; the message is sent to its client."""
+
+
+def validate_request(request: Any) -> dict:
+    """``request`` if it is a valid observation, else :class:`InvalidRequest` saying what is wrong."""
+    if not isinstance(request, dict):
+        raise InvalidRequest(f"a request must be a map, got {type(request).__name__}")
+    for key in (IMAGE, WRIST_IMAGE, STATE, PROMPT):
+        if key not in request:
+            raise InvalidRequest(f"missing {key!r}")
+    for key in (IMAGE, WRIST_IMAGE):
+        image = request[key]
+        if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != IMAGE_SHAPE:
+            raise InvalidRequest(f"{key!r} must be a uint8 array of shape {IMAGE_SHAPE}, got {_describe(image)}")
+    state = request[STATE]
+    try:
+        state_array = np.asarray(state)
+    except (TypeError, ValueError):
+        state_array = None
+    if (
+        state_array is None
+        or state_array.dtype.kind not in "iuf"
+        or state_array.shape != (STATE_SIZE,)
+        or not np.all(np.isfinite(state_array))
+    ):
+        raise InvalidRequest(f"{STATE!r} must be {STATE_SIZE} finite numbers, got {_describe(state)}")
+    if not isinstance(request[PROMPT], str):
+        raise InvalidRequest(f"{PROMPT!r} must be a string, got {_describe(request[PROMPT])}")
+    if NOISE_SEED in request:
+        seed = request[NOISE_SEED]
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < NOISE_SEED_LIMIT:
+            raise InvalidRequest(f"{NOISE_SEED!r} must be an int in [0, 2**63), got {_describe(seed)}")
+    return request
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        return f"{value.dtype} array of shape {value.shape}"
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"

@@ -37,13 +37,9 @@ import websockets.asyncio.server as ws_server
 from websockets.frames import CloseCode
 
 from conflictbench_pi0 import protocol
+from conflictbench_pi0.protocol import InvalidRequest, validate_request
 
 logger = logging.getLogger(__name__)
-
-IMAGE_SHAPE = (224, 224, 3)
-STATE_SIZE = 8
-#: Seeds go to ``torch.Generator.manual_seed``; a non-negative 63-bit int fits every use.
-MAX_SEED = 2**63 - 1
 
 
 class Backend(Protocol):
@@ -52,49 +48,6 @@ class Backend(Protocol):
     metadata: dict
 
     def infer_batch(self, requests: list[dict]) -> list[np.ndarray]: ...
-
-
-class InvalidRequest(ValueError):
-    """A request that is not an openpi LIBERO observation; the message is sent to its client."""
-
-
-def validate_request(request: Any) -> dict:
-    """``request`` if it is a valid observation, else :class:`InvalidRequest` saying what is wrong."""
-    if not isinstance(request, dict):
-        raise InvalidRequest(f"a request must be a map, got {type(request).__name__}")
-    for key in (protocol.IMAGE, protocol.WRIST_IMAGE, protocol.STATE, protocol.PROMPT):
-        if key not in request:
-            raise InvalidRequest(f"missing {key!r}")
-    for key in (protocol.IMAGE, protocol.WRIST_IMAGE):
-        image = request[key]
-        if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != IMAGE_SHAPE:
-            raise InvalidRequest(f"{key!r} must be a uint8 array of shape {IMAGE_SHAPE}, got {_describe(image)}")
-    state = request[protocol.STATE]
-    try:
-        state_array = np.asarray(state)
-    except (TypeError, ValueError):
-        state_array = None
-    if (
-        state_array is None
-        or state_array.dtype.kind not in "iuf"
-        or state_array.shape != (STATE_SIZE,)
-        or not np.all(np.isfinite(state_array))
-    ):
-        raise InvalidRequest(f"{protocol.STATE!r} must be {STATE_SIZE} finite numbers, got {_describe(state)}")
-    if not isinstance(request[protocol.PROMPT], str):
-        raise InvalidRequest(f"{protocol.PROMPT!r} must be a string, got {_describe(request[protocol.PROMPT])}")
-    if protocol.NOISE_SEED in request:
-        seed = request[protocol.NOISE_SEED]
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) <= MAX_SEED:
-            raise InvalidRequest(f"{protocol.NOISE_SEED!r} must be an int in [0, 2**63), got {_describe(seed)}")
-    return request
-
-
-def _describe(value: Any) -> str:
-    if isinstance(value, np.ndarray):
-        return f"{value.dtype} array of shape {value.shape}"
-    text = repr(value)
-    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
 
 
 class ServerStopping(Exception):

@@ -14,37 +14,30 @@ each test by the autouse fixture ``close_connections``, imported by each test mo
 from __future__ import annotations
 
 import contextlib
-import json
 import os
-import sys
 import urllib.request
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
 import pytest
+from tiny_fixtures import MODEL_PYTHON, PLUGIN_ROOT, needs_model_env  # noqa: F401 (re-exported to the server tests)
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 from conflictbench import ServerProcess, free_port
-from conflictbench_pi0.checkpoints import POLICY_TYPES
+from conflictbench_pi0.checkpoints import POLICY_TYPES, checkpoint_type
 from conflictbench_pi0.protocol import IMAGE, NOISE_SEED, PROMPT, STATE, WRIST_IMAGE, packb, unpackb
 
-PLUGIN_ROOT = Path(__file__).resolve().parents[1]
 OPENPI_HOST = Path(__file__).resolve().parent / "openpi_host.py"
-MODEL_PYTHON = Path(sys.prefix) / "models" / "pi0" / "bin" / "python"
 SERVER_KINDS = ("ours", "openpi")
 #: Loading torch and a tiny model takes 10-20 s alone; a busy 2-core machine can take several times that.
 STARTUP_TIMEOUT_S = 240.0
 
-needs_model_env = pytest.mark.skipif(
-    not MODEL_PYTHON.exists(), reason=f"no pi0 model environment at {MODEL_PYTHON} (scripts/setup.sh --models pi0)"
-)
-
 
 def policy_of(checkpoint: Path) -> str:
     """Our policy name (pi0, pi05, pi0-fast) for the LeRobot type in ``checkpoint``'s config."""
-    kind = json.loads((Path(checkpoint) / "config.json").read_text())["type"]
+    kind = checkpoint_type(checkpoint)
     return next(name for name, lerobot_type in POLICY_TYPES.items() if lerobot_type == kind)
 
 

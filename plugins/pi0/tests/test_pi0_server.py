@@ -34,8 +34,19 @@ from server_fixtures import (
 )
 from websockets.sync.client import ClientConnection
 
-from conflictbench_pi0.protocol import ACTIONS, IMAGE, NOISE_SEED, PROMPT, STATE, WRIST_IMAGE, packb, unpackb
-from conflictbench_pi0.server import BatchingPolicyServer, InvalidRequest, validate_request
+from conflictbench_pi0.protocol import (
+    ACTIONS,
+    IMAGE,
+    NOISE_SEED,
+    PROMPT,
+    STATE,
+    WRIST_IMAGE,
+    InvalidRequest,
+    packb,
+    unpackb,
+    validate_request,
+)
+from conflictbench_pi0.server import BatchingPolicyServer
 
 
 def stand_in_actions(request: dict) -> np.ndarray:

@@ -54,7 +54,6 @@ def ours_one_row(start_server, tiny_pi05, tiny_env) -> str:
     return start_server("ours", tiny_pi05, tiny_env, max_batch=1)[0]
 
 
-@pytest.mark.model_env
 @needs_model_env
 @pytest.mark.parametrize("kind", ["ours", "theirs"])
 def test_e2e_metadata_healthz_and_reply_shape(kind, request):
@@ -71,7 +70,6 @@ def test_e2e_metadata_healthz_and_reply_shape(kind, request):
         assert reply["server_timing"]["batch_size"] == 1
 
 
-@pytest.mark.model_env
 @needs_model_env
 def test_e2e_malformed_request_leaves_other_connections_working(ours):
     bystander, _ = open_connection(ours)
@@ -83,7 +81,6 @@ def test_e2e_malformed_request_leaves_other_connections_working(ours):
     np.testing.assert_array_equal(after[ACTIONS], before[ACTIONS])
 
 
-@pytest.mark.model_env
 @needs_model_env
 def test_e2e_concurrent_requests_share_a_batch_and_match_single_requests(ours):
     """Two requests arriving while the model is busy are answered by one forward pass, each with its own actions.
@@ -123,7 +120,6 @@ def test_e2e_concurrent_requests_share_a_batch_and_match_single_requests(ours):
         np.testing.assert_array_equal(batched[ACTIONS], single[ACTIONS])
 
 
-@pytest.mark.model_env
 @needs_model_env
 def test_e2e_our_server_and_openpis_give_the_same_actions(ours, ours_one_row, theirs):
     for seed in (0, 1):
@@ -134,7 +130,6 @@ def test_e2e_our_server_and_openpis_give_the_same_actions(ours, ours_one_row, th
         np.testing.assert_allclose(replies[2], replies[1], rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.model_env
 @needs_model_env
 @pytest.mark.parametrize("policy, horizon", [("pi0", 50), ("pi0-fast", 10)])
 def test_e2e_pi0_and_pi0_fast_are_served_like_openpi_serves_them(tiny_checkpoints, tiny_env, policy, horizon):
@@ -154,7 +149,6 @@ def test_e2e_pi0_and_pi0_fast_are_served_like_openpi_serves_them(tiny_checkpoint
             process.stop()
 
 
-@pytest.mark.model_env
 @needs_model_env
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_e2e_signals_stop_the_server_cleanly(tiny_pi05, tiny_env, signum):
@@ -174,7 +168,6 @@ def test_e2e_signals_stop_the_server_cleanly(tiny_pi05, tiny_env, signum):
         server.stop()
 
 
-@pytest.mark.model_env
 @needs_model_env
 def test_e2e_a_port_in_use_is_a_user_error(tiny_pi05, tiny_env):
     with socket.socket() as taken:
