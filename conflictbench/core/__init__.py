@@ -10,6 +10,7 @@ from .errors import (
     UserError,
 )
 from .hookspecs import hookimpl, hookspec
+from .hosting import MODEL_PROCESS_ENV, HostedConfig, HostedPolicy
 from .launch import ServerProcess, free_port, model_environment
 from .plugins import MetricSpec, Plugins, PolicySpec
 from .policy import DEFAULT_MAX_STEPS, PerEpisode, Policy, PolicyTraits, as_action_chunk
@@ -68,6 +69,9 @@ __all__ = [
     "SIMULATOR_ERROR_PREFIX",
     "SceneGeometry",
     "ServedPolicy",
+    "HostedConfig",
+    "HostedPolicy",
+    "MODEL_PROCESS_ENV",
     "ServerProcess",
     "ServerUnavailable",
     "ServingConfig",

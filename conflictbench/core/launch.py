@@ -3,7 +3,8 @@
 A model plugin whose model lives in its own environment (a separate Python, see the README's "Model
 plugins") starts its server with :class:`ServerProcess`: the command runs in its own process group (so
 the terminal's Ctrl-C reaches the run, which then stops it), its output goes to a log file, the run waits
-until the server's health URL answers 200 (asked directly, never through a proxy), and
+until the server's health URL answers 200 (asked directly, never through a proxy; or, for a protocol
+without HTTP, until a ``ready`` check the plugin gives returns true), and
 :meth:`ServerProcess.stop` ends it: called by the run, at interpreter exit, and, on Linux, by the kernel
 when the run's process dies any other way (the server is asked to exit with its parent).
 
@@ -26,7 +27,7 @@ import tempfile
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from .errors import ServerUnavailable, UserError
@@ -67,11 +68,13 @@ class ServerProcess:
         *,
         name: str,
         health_url: str,
+        ready: Callable[[], bool] | None = None,
         env: Mapping[str, str] | None = None,
         startup_timeout_s: float = 600.0,
         log_dir: Path | None = None,
     ):
         self.argv, self.name, self.health_url = list(argv), name, health_url
+        self._ready = ready  # a protocol's own readiness check (a ZeroMQ ping); else GET health_url
         self.env = {**os.environ, **(env or {})}
         self.startup_timeout_s = startup_timeout_s
         folder = Path(log_dir) if log_dir is not None else Path(tempfile.gettempdir()) / "conflictbench-servers"
@@ -110,6 +113,11 @@ class ServerProcess:
         return self
 
     def _healthy(self) -> bool:
+        if self._ready is not None:
+            try:
+                return bool(self._ready())
+            except Exception:  # not up yet, whatever the protocol's way of saying so
+                return False
         try:
             with _DIRECT.open(self.health_url, timeout=2) as reply:
                 return reply.status == 200

@@ -223,7 +223,8 @@ def test_against_a_running_server_its_own_word_on_the_model_is_the_identity(tmp_
         (["model.checkpoint={pi05}", "model.python=/no/such/python"], "no model environment at /no/such/python"),
         (["model.checkpoint={pi05}", "model.python={bare_python}"], "cannot run the pi0 server"),
         (["model.checkpoint={pi05}", "model.device=gpu"], "model.device must be cpu, cuda, cuda:N or auto"),
-        (["model.checkpoint={pi05}", "model.replan_steps=0"], "model.replan_steps and model.max_batch must be >= 1"),
+        (["model.checkpoint={pi05}", "model.replan_steps=0"], "model.replan_steps must be >= 1, got 0"),
+        (["model.checkpoint={pi05}", "model.max_batch=0"], "model.max_batch must be >= 1"),
     ],
 )
 def test_user_mistakes_are_one_line_and_exit_code_2(tmp_path, settings, message):

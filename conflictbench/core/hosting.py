@@ -1,0 +1,250 @@
+"""A served policy that hosts its own model: ``model.checkpoint=DIR`` starts a server, ``model.server=URL`` uses one.
+
+Every model plugin whose model runs in a model environment (see the README's "Model plugins") shares this
+lifecycle; the plugin supplies its protocol and processing (a :class:`~.serving.ServedPolicy`'s ``encode``
+and ``decode``) and a few declarations:
+
+- ``environment``: the model environment ``scripts/setup.sh --models NAME`` builds (its Python runs the
+  server), and ``server_module``: the module whose ``serve`` command hosts a checkpoint there
+  (``python -m MODULE serve --policy P --checkpoint DIR --host H --port N --device D --max-batch B``);
+- ``transport`` (the protocol's :class:`~.transport.Transport`) and ``url_scheme`` (``ws``, ``tcp``, ...);
+- ``inspect_checkpoint(name, folder)``: a fast check, without the model stack, that the folder holds this
+  policy's checkpoint (raise :class:`UserError`), and ``fingerprint(folder)``: a digest of its content.
+
+What it owns, the same for every model:
+
+- **Lazy start.** Loading a checkpoint takes seconds to minutes, so :meth:`HostedPolicy.start` starts the
+  server only when the run has episodes to play (the runner calls it); ``close()`` stops it.
+- **Identity by content.** With a checkpoint, ``identity`` is its fingerprint and the server's
+  ``max_batch`` (float rounding follows the batch shape); against a running server, what its metadata
+  says (``checkpoint_fingerprint``, ``max_batch``), else the name given in ``model.checkpoint``.
+- **The right model.** A server whose metadata names another ``policy_type`` is refused; a checkpoint
+  changed while its server was loading it is refused.
+- **Clear failures.** A missing model environment is reported when the policy is loaded (before the
+  plan is played); a started server that dies turns the next request's error into one naming its exit
+  code and log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from .errors import ServerUnavailable, UserError
+from .launch import ServerProcess, free_port, model_environment
+from .policy import DEFAULT_MAX_STEPS
+from .serving import PolicyClient, ServedPolicy, ServingConfig
+from .transport import Transport
+
+#: Where a started server may run its model (``model.device``).
+DEVICES = ("auto", "cpu", "cuda", "cuda:N")
+#: Set for every model process unless the user set it: bfloat16 kernels beyond AVX512 kill some CPUs' VMs
+#: (SIGILL), and CPU inference of these models never needs them.
+MODEL_PROCESS_ENV: Mapping[str, str] = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"}
+
+
+@dataclass
+class HostedConfig(ServingConfig):
+    """Settings every hosted model shares (``model.<field>=value``); a plugin's config inherits them."""
+
+    # ``checkpoint`` and ``max_batch`` count through the policy's ``identity`` (the checkpoint's content,
+    # the server's batch shape), not as typed: the same weights at another path are the same model.
+    identity_exempt: ClassVar[tuple[str, ...]] = (
+        *ServingConfig.identity_exempt,
+        "checkpoint",
+        "max_batch",
+        "python",
+        "device",
+        "startup_timeout_s",
+    )
+
+    checkpoint: str = ""
+    """A local checkpoint folder (a server is started for it); with ``server``, the name of what that server
+    hosts where the server does not say."""
+    server: str = ""
+    """The URL of a running server; empty: start one for ``checkpoint``."""
+    max_steps: int = 0
+    """Policy steps per episode; 0: the model's own budget per LIBERO suite. A shorter budget (a smoke test)
+    ends episodes early; it is part of every episode's identity."""
+    python: str = ""
+    """The model environment's interpreter for the started server (default: the one set-up made)."""
+    device: str = "auto"
+    """Where the started server runs the model: ``cuda``, ``cuda:N``, ``cpu`` or ``auto`` (cuda if any)."""
+    max_batch: int = 2
+    """Rows of every forward pass of the started server (the waiting requests, padded with copies): set it
+    to ``run.workers`` (default 2). Float rounding follows the batch shape, so it is part of every
+    episode's identity; a call costs as much as ``max_batch`` requests on a CPU, about one on a GPU."""
+    startup_timeout_s: float = 900.0
+    """Limit for the started server to load the checkpoint and answer."""
+
+
+def _valid_device(device: str) -> bool:
+    head, _, index = device.partition(":")
+    return device in ("auto", "cpu", "cuda") or (head == "cuda" and index.isdigit())
+
+
+class HostedPolicy(ServedPolicy):
+    """A :class:`ServedPolicy` that starts, checks and stops its own server. Build it with :meth:`load`."""
+
+    environment: ClassVar[str]
+    """The model environment's name (``scripts/setup.sh --models NAME``, ``.venv/models/NAME``)."""
+    server_module: ClassVar[str]
+    """``python -m server_module serve ...`` hosts a checkpoint in that environment."""
+    transport: ClassVar[Callable[[str], Transport]]
+    url_scheme: ClassVar[str] = "ws"
+    policy_types: ClassVar[Mapping[str, str]] = {}
+    """Our policy names and the ``policy_type`` a server of each says it hosts (none: not checked)."""
+    default_max_steps: ClassVar[Mapping[str, int]] = DEFAULT_MAX_STEPS
+    """The model's own budget per LIBERO suite (``model.max_steps=0``)."""
+
+    def __init__(self, name: str, cfg: HostedConfig, checkpoint: Path | None = None, python: Path | None = None):
+        self.name, self.cfg, self.checkpoint, self.python = name, cfg, checkpoint, python
+        self.max_steps = {suite: cfg.max_steps or steps for suite, steps in self.default_max_steps.items()}
+        self.server: ServerProcess | None = None
+        self.client: PolicyClient | None = None
+        self.metadata: dict[str, Any] = {}
+        if checkpoint is not None:
+            self.identity = {"checkpoint": self.fingerprint(checkpoint), "max_batch": cfg.max_batch}
+        else:
+            self.metadata = self._connect(cfg)
+            hosted = self.metadata.get("checkpoint_fingerprint") or cfg.checkpoint
+            self.identity = {"checkpoint": hosted, "max_batch": int(self.metadata.get("max_batch", 1))}
+
+    # What a plugin supplies ----------------------------------------------------------------------------
+
+    @classmethod
+    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
+        """``folder``, checked (without the model stack) to hold a checkpoint of policy ``name``; raise
+        :class:`UserError` saying what is wrong otherwise."""
+        raise NotImplementedError
+
+    @classmethod
+    def fingerprint(cls, folder: Path) -> str:
+        """A digest of what decides the model's actions in ``folder`` (weights, config, statistics)."""
+        raise NotImplementedError
+
+    def ready_check(self, url: str) -> Callable[[], bool] | None:
+        """How to tell that a started server at ``url`` answers; None: its ``/healthz`` over HTTP."""
+        return None
+
+    # The shared lifecycle --------------------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, name: str, cfg: HostedConfig) -> HostedPolicy:
+        """The policy for ``model=name``: connected to ``cfg.server``, or ready to start a server for
+        ``cfg.checkpoint``. User mistakes raise :class:`UserError`."""
+        if cfg.max_steps < 0 or cfg.max_batch < 1:
+            raise UserError(
+                f"model.max_batch must be >= 1 and model.max_steps >= 0, got {cfg.max_batch} and {cfg.max_steps}"
+            )
+        if not _valid_device(cfg.device):
+            raise UserError(f"model.device must be cpu, cuda, cuda:N or auto, got {cfg.device!r}")
+        if cfg.server:
+            if not cfg.checkpoint:
+                raise UserError(
+                    f"model.server={cfg.server} also needs model.checkpoint=NAME, naming what that server hosts "
+                    "(part of every episode's identity where the server does not say, so results never mix)"
+                )
+            return cls(name, cfg)
+        if not cfg.checkpoint:
+            raise UserError(
+                f"model={name} needs model.checkpoint=DIR (a local checkpoint folder) "
+                f"or model.server={cls.url_scheme}://HOST:PORT (a running server)"
+            )
+        checkpoint = cls.inspect_checkpoint(name, Path(cfg.checkpoint).expanduser()).resolve()
+        python = cls.model_python(cfg)  # a missing model environment is reported now, before the plan is played
+        return cls(name, cfg, checkpoint, python)
+
+    @classmethod
+    def model_python(cls, cfg: HostedConfig) -> Path:
+        """The interpreter that runs the server: ``model.python``, or the model environment set-up made."""
+        python = Path(cfg.python).expanduser() if cfg.python else model_environment(cls.environment) / "bin" / "python"
+        setup = f"`scripts/setup.sh --models {cls.environment}`"
+        if not python.exists():
+            raise UserError(
+                f"no model environment at {python}: build it with {setup}, "
+                "or point model.python= at a Python with the plugin's server extra"
+            )
+        probe = subprocess.run([str(python), "-c", f"import {cls.server_module}"], capture_output=True, text=True)
+        if probe.returncode != 0:
+            last = (probe.stderr.strip().splitlines() or ["?"])[-1]
+            raise UserError(f"{python} cannot run the {cls.environment} server ({last}): build it with {setup}")
+        return python
+
+    def start(self) -> None:
+        if self.checkpoint is None or self.client is not None:
+            return
+        self.server, url = self._start_server(self.python or self.model_python(self.cfg))
+        try:
+            self.metadata = self._connect(dataclasses.replace(self.cfg, server=url))
+        except BaseException:
+            self.close()
+            raise
+        if self.metadata.get("checkpoint_fingerprint", self.identity["checkpoint"]) != self.identity["checkpoint"]:
+            self.close()
+            raise UserError(f"the checkpoint at {self.checkpoint} changed while its server was loading it")
+
+    def _start_server(self, python: Path) -> tuple[ServerProcess, str]:
+        port = free_port()
+        url = f"{self.url_scheme}://127.0.0.1:{port}"
+        argv = [str(python), "-m", self.server_module, "serve", "--policy", self.name, "--checkpoint"]
+        argv += [str(self.checkpoint), "--host", "127.0.0.1", "--port", str(port), "--device", self.cfg.device]
+        argv += ["--max-batch", str(self.cfg.max_batch)]
+        env = {key: value for key, value in MODEL_PROCESS_ENV.items() if key not in os.environ}
+        server = ServerProcess(
+            argv,
+            name=self.environment,
+            health_url=f"http://127.0.0.1:{port}/healthz",
+            ready=self.ready_check(url),
+            env=env,
+            startup_timeout_s=self.cfg.startup_timeout_s,
+        )
+        print(
+            f"conflictbench: starting the {self.name} server for {self.checkpoint} (log: {server.log_path})",
+            file=sys.stderr,
+        )
+        server.start()
+        return server, url
+
+    def _connect(self, cfg: HostedConfig) -> dict[str, Any]:
+        """Connect to ``cfg.server`` and return what it says about itself (its metadata, maybe empty)."""
+        client = PolicyClient.from_config(cfg, transport=type(self).transport)
+        try:
+            metadata = dict(getattr(client.open(), "metadata", None) or {})
+            hosted, wanted = metadata.get("policy_type"), self.policy_types.get(self.name)
+            if hosted is not None and wanted is not None and hosted != wanted:
+                raise UserError(f"the server at {cfg.server} hosts a {hosted} policy, not {self.name}")
+        except BaseException:
+            client.close()
+            raise
+        self.client = client
+        return metadata
+
+    def act_batch(self, observations):
+        if self.client is None:
+            raise RuntimeError("start() was not called")
+        try:
+            return super().act_batch(observations)
+        except ServerUnavailable as exc:
+            server = self.server
+            if server is None or server.exit_code is None:
+                raise
+            raise ServerUnavailable(
+                exc.url,
+                f"the {self.name} server started for this run exited with code {server.exit_code}; "
+                f"its log: {server.log_path}",
+            ) from None
+
+    def close(self) -> None:
+        try:
+            if self.client is not None:
+                self.client.close()
+        finally:
+            if self.server is not None:
+                self.server.stop()
