@@ -88,9 +88,12 @@ done
 #    cannot share). Each gets its plugin without dependencies (no conflictbench, no simulator), exactly
 #    the plugin's `server` extra, and its `server-test` extra without dependencies (upstream servers the
 #    tests compare with). About 5 GB and 90 s each on the first build (torch).
+has_server() {  # a plugin whose pyproject has a `server` extra has a model environment to build
+  grep -q '^server = \[' "plugins/$1/pyproject.toml" 2>/dev/null
+}
 case "$MODELS" in
   none) MODELS="" ;;
-  all) MODELS=$(for p in plugins/*/; do basename "$p"; done) ;;
+  all) MODELS=$(for p in plugins/*/; do has_server "$(basename "$p")" && basename "$p"; done) ;;
   *) MODELS=${MODELS//,/ } ;;
 esac
 if [ -n "$MODELS" ]; then
@@ -110,6 +113,7 @@ fi
 for name in $MODELS; do
   plugin=plugins/$name
   [ -f "$plugin/pyproject.toml" ] || { say "no model plugin $plugin (have: $(ls plugins))"; exit 2; }
+  has_server "$name" || { say "the $name plugin has no server of its own (no model environment to build)"; exit 2; }
   env_dir="$VENV/models/$name"
   stamp="$env_dir/.conflictbench-installed"
   if [ -f "$stamp" ] && [ ! "$plugin/pyproject.toml" -nt "$stamp" ]; then

@@ -129,6 +129,10 @@ class HostedPolicy(ServedPolicy):
         """A digest of what decides the model's actions in ``folder`` (weights, config, statistics)."""
         raise NotImplementedError
 
+    def make_transport(self, url: str) -> Transport:
+        """One connection's transport (override to pass settings, e.g. an API token)."""
+        return type(self).transport(url)
+
     def ready_check(self, url: str) -> Callable[[], bool] | None:
         """How to tell that a started server at ``url`` answers; None: its ``/healthz`` over HTTP."""
         return None
@@ -214,7 +218,7 @@ class HostedPolicy(ServedPolicy):
 
     def _connect(self, cfg: HostedConfig) -> dict[str, Any]:
         """Connect to ``cfg.server`` and return what it says about itself (its metadata, maybe empty)."""
-        client = PolicyClient.from_config(cfg, transport=type(self).transport)
+        client = PolicyClient.from_config(cfg, transport=self.make_transport)
         try:
             metadata = dict(getattr(client.open(), "metadata", None) or {})
             hosted, wanted = metadata.get("policy_type"), self.policy_types.get(self.name)

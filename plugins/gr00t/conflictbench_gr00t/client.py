@@ -1,0 +1,92 @@
+"""GR00T N1.7 as conflictbench sees it: GR00T's LIBERO client, talking to a GR00T policy server over ZeroMQ.
+
+``conflictbench model=gr00t model.server=tcp://HOST:5555 model.checkpoint=NAME`` plays against a running
+server: NVIDIA's own (``gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag NEW_EMBODIMENT
+--use-sim-policy-wrapper`` on a GPU machine) or ours. NVIDIA's server does not say what it hosts, so
+``model.checkpoint`` names it (part of every episode's identity); it also draws its own sampling noise, so its
+episodes are not bit-identical from run to run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, sampling_seed
+from conflictbench.core import LIBERO_SUITES
+
+from .processing import ACTION_STEPS, MAX_EPISODE_STEPS, WARMUP_STEPS, env_actions, gr00t_observation
+from .protocol import NOISE_SEED_LIMIT, get_action_request
+from .transport import Gr00tTransport
+
+
+@dataclass
+class Gr00tConfig(HostedConfig):
+    """Settings of ``gr00t`` (``model.<field>=value``; the shared ones are :class:`conflictbench.HostedConfig`'s)."""
+
+    identity_exempt: ClassVar[tuple[str, ...]] = (*HostedConfig.identity_exempt, "api_token")
+
+    server: str = ""
+    """``tcp://HOST:PORT`` of a running GR00T server (NVIDIA's ``run_gr00t_server.py``, port 5555 by default)."""
+    checkpoint: str = ""
+    """With ``server``: the name of the checkpoint that server hosts (part of every episode's identity)."""
+    action_steps: int = ACTION_STEPS
+    """Actions of each chunk executed before asking again (GR00T's LIBERO evaluation: 8)."""
+    max_steps: int = 0
+    """Policy steps per episode; 0: GR00T's LIBERO budget, 720 in every suite (``--max_episode_steps=720``)."""
+    api_token: str = ""
+    """The server's API token, if it was started with one."""
+
+
+class Gr00tPolicy(HostedPolicy):
+    """GR00T's LIBERO client: upright 256-px images, the state split by name, the task text; 8 of each chunk."""
+
+    needs_images = True
+    warmup_steps = WARMUP_STEPS
+    environment = "gr00t"
+    server_module = "conflictbench_gr00t"
+    transport = Gr00tTransport
+    url_scheme = "tcp"
+    policy_types = {"gr00t": "groot"}
+    default_max_steps = {suite: MAX_EPISODE_STEPS for suite in LIBERO_SUITES}
+
+    def __init__(self, name: str, cfg: Gr00tConfig, checkpoint: Path | None = None, python: Path | None = None):
+        self.action_steps = cfg.action_steps
+        super().__init__(name, cfg, checkpoint, python)
+
+    def make_transport(self, url: str) -> Gr00tTransport:
+        return Gr00tTransport(url, api_token=self.cfg.api_token or None)  # its ping carries the token too
+
+    @classmethod
+    def load(cls, name: str, cfg: Gr00tConfig) -> Gr00tPolicy:
+        if cfg.action_steps < 1:
+            raise UserError(f"model.action_steps must be >= 1, got {cfg.action_steps}")
+        if not cfg.server:
+            raise UserError(
+                "model=gr00t needs model.server=tcp://HOST:PORT and model.checkpoint=NAME: serve the checkpoint "
+                "with NVIDIA's `gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag NEW_EMBODIMENT "
+                "--use-sim-policy-wrapper` (this plugin does not start a server of its own yet)"
+            )
+        return super().load(name, cfg)
+
+    def encode(self, observation: Observation) -> dict[str, Any]:
+        if observation.agentview_image is None or observation.wrist_image is None:
+            raise UserError(f"{self.name} needs both camera images")
+        request = gr00t_observation(
+            observation.agentview_image, observation.wrist_image, observation.state, observation.instruction
+        )
+        seed = sampling_seed(observation) % NOISE_SEED_LIMIT
+        return get_action_request(request, seed=seed, api_token=self.cfg.api_token or None)
+
+    def decode(self, reply: Any, observation: Observation) -> np.ndarray:
+        if not isinstance(reply, (list, tuple)) or len(reply) != 2 or not isinstance(reply[0], dict):
+            raise ValueError(f"a get_action reply is [action, info], got {type(reply).__name__}")
+        return env_actions(reply[0])[: self.action_steps]
+
+
+def load(name: str, cfg: Gr00tConfig) -> Gr00tPolicy:
+    """The policy for ``model=gr00t``, connected to ``cfg.server``."""
+    return Gr00tPolicy.load(name, cfg)
