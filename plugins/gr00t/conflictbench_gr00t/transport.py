@@ -4,16 +4,20 @@ The shared client (``conflictbench.PolicyClient``) makes one per simulator worke
 reconnection; this class only speaks the protocol (see :mod:`.protocol`). ZeroMQ connects lazily and a REQ
 socket is lockstep, so ``connect`` proves the server is there with a ``ping`` and then asks for our metadata
 endpoint (NVIDIA's server answers it with an error: then ``metadata`` stays empty), and a request that times
-out closes the socket (the next request reconnects). ``{"error": ...}`` replies are the server's errors:
+out closes the socket (the next request reconnects). ZeroMQ hides a dropped TCP connection, so a socket
+monitor watches for it: a server that dies while a request waits is a lost connection (the client reconnects
+and sends it again, or stops the run), not a slow model. ``{"error": ...}`` replies are the server's errors:
 :class:`InfrastructureError`.
 """
 
 from __future__ import annotations
 
+import time
 import urllib.parse
 from typing import Any
 
 import zmq
+from zmq.utils.monitor import recv_monitor_message
 
 from conflictbench import InfrastructureError, Transport, UserError
 from conflictbench.core.transport import one_line
@@ -33,11 +37,13 @@ class Gr00tTransport(Transport):
         self.metadata: dict[str, Any] = {}
         self._context = zmq.Context.instance()
         self._socket: zmq.Socket | None = None
+        self._monitor: zmq.Socket | None = None
 
     def connect(self, timeout: float) -> None:
         self.close()
         socket = self._context.socket(zmq.REQ)
         socket.setsockopt(zmq.LINGER, 0)
+        self._monitor = socket.get_monitor_socket(zmq.EVENT_DISCONNECTED)
         socket.connect(self.url)
         self._socket = socket
         try:
@@ -65,16 +71,13 @@ class Gr00tTransport(Transport):
         milliseconds = max(1, int(timeout * 1000))
         payload = packb(request)
         try:
-            # A REQ socket with no server behind it blocks on send; one that sent must receive before it can
-            # send again: either wait ends the socket, and the next request starts over.
+            # A REQ socket with no server behind it blocks on send (nothing was sent: safe to send again once
+            # reconnected); one that sent must receive before it can send again: either way the socket ends.
             if not socket.poll(milliseconds, zmq.POLLOUT):
                 self.close()
-                raise TimeoutError(f"no server took the request within {timeout:g} s")
+                raise ConnectionError(f"no server took the request within {timeout:g} s")
             socket.send(payload)
-            if not socket.poll(milliseconds, zmq.POLLIN):
-                self.close()
-                raise TimeoutError(f"no answer within {timeout:g} s")
-            message = socket.recv()
+            message = self._receive(milliseconds, timeout)
         except zmq.ZMQError as exc:
             self.close()
             raise ConnectionError(f"ZeroMQ: {exc}") from None
@@ -88,7 +91,27 @@ class Gr00tTransport(Transport):
             raise InfrastructureError(f"{self.url} answered an error: {one_line(str(reply[ERROR]))}")
         return reply
 
+    def _receive(self, milliseconds: int, timeout: float) -> bytes:
+        """The reply, or ConnectionError when the server's connection drops first, TimeoutError when none comes."""
+        poller = zmq.Poller()
+        poller.register(self._socket, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
+        deadline = time.monotonic() + milliseconds / 1000
+        while (left := deadline - time.monotonic()) > 0:
+            ready = dict(poller.poll(max(1, int(left * 1000))))
+            if self._socket in ready:
+                return self._socket.recv()
+            if self._monitor in ready and recv_monitor_message(self._monitor)["event"] == zmq.EVENT_DISCONNECTED:
+                self.close()
+                raise ConnectionError("the server closed the connection before it answered")
+        self.close()
+        raise TimeoutError(f"no answer within {timeout:g} s")
+
     def close(self) -> None:
         socket, self._socket = self._socket, None
+        monitor, self._monitor = self._monitor, None
         if socket is not None:
+            socket.disable_monitor()
             socket.close(linger=0)
+        if monitor is not None:
+            monitor.close(linger=0)
