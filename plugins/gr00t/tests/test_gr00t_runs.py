@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import re
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -15,41 +12,18 @@ from gr00t_standin import start_standin
 
 from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX
 from conflictbench.store import EpisodeStore
+from conflictbench.testing import episode_counts as counts
+from conflictbench.testing import planned_conflict_instruction
+from conflictbench.testing import run_cli as run_one_case
 
 pytestmark = pytest.mark.sim
 STEPS = 16  # two queries of eight actions
 
 
-def run_cli(tmp_path: Path, url: str, *overrides: str) -> subprocess.CompletedProcess:
-    """``conflictbench model=gr00t`` on one physical L1 case of libero_spatial and its reference."""
-    args = ["model=gr00t", f"model.server={url}", "model.checkpoint=stand-in", f"model.max_steps={STEPS}"]
-    args += ["suite=physical", "level=L1", "run.cases_per_cell=1", "run.libero_suites=[libero_spatial]"]
-    args += ["run.progress=false", "run.report=false", f"run.out={tmp_path / 'results'}", *overrides]
-    return subprocess.run(
-        [sys.executable, "-m", "conflictbench.cli", *args],
-        capture_output=True, text=True, timeout=900, stdin=subprocess.DEVNULL, cwd=tmp_path,
-    )  # fmt: skip
-
-
-def counts(stderr: str) -> tuple[int, int, int]:
-    found = re.search(r"(\d+) played, (\d+) already stored, \d+ played by another job, (\d+) with errors", stderr)
-    assert found, stderr[-3000:]
-    return int(found[1]), int(found[2]), int(found[3])
-
-
-def conflict_instruction() -> str:
-    """The conflict instruction the selection of :func:`run_cli` plays."""
-    from conflictbench.sim.plan import build_plan
-    from conflictbench.tasks.libero.base_tasks import all_base_tasks
-    from conflictbench.tasks.suite.file import load_suite
-
-    tasks = {t.key: t.language for t in all_base_tasks(("libero_spatial",))}
-    plan = build_plan(
-        load_suite(None).cases, base_instructions=tasks, families=["physical"], levels=["L1"], prompts=["p0"],
-        init_states=[0], cases_per_cell=1, sample_seed=0, libero_suites=["libero_spatial"],
-    )  # fmt: skip
-    [conflict] = [spec for spec in plan if spec.case is not None]
-    return conflict.case.instruction
+def run_cli(tmp_path: Path, url: str, *overrides: str):
+    """``conflictbench model=gr00t`` against ``url`` on the one-case selection."""
+    settings = ["model=gr00t", f"model.server={url}", "model.checkpoint=stand-in", f"model.max_steps={STEPS}"]
+    return run_one_case(tmp_path, *settings, *overrides)
 
 
 def test_episodes_play_eight_actions_of_each_chunk_from_the_first_step(tmp_path):
@@ -75,7 +49,7 @@ def test_episodes_play_eight_actions_of_each_chunk_from_the_first_step(tmp_path)
 
 
 def test_a_malformed_reply_is_an_infrastructure_failure_left_out_and_played_again(tmp_path):
-    failing, url = start_standin(tmp_path, "--fail-on", conflict_instruction())
+    failing, url = start_standin(tmp_path, "--fail-on", planned_conflict_instruction())
     try:
         out = run_cli(tmp_path, url)
     finally:

@@ -2,36 +2,16 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 from test_pi0_client import start_openpi_server
 
 from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX
 from conflictbench.store import EpisodeStore
+from conflictbench.testing import planned_conflict_instruction, run_cli
 
 pytestmark = pytest.mark.sim
 STEPS = 12
-
-
-def run_cli(
-    tmp_path: Path, *overrides: str, out: str = "results", env: dict[str, str] | None = None
-) -> subprocess.CompletedProcess:
-    """``conflictbench`` on one physical L1 case of libero_spatial and its reference (first initial state)."""
-    args = ["suite=physical", "level=L1", "run.cases_per_cell=1", "run.libero_suites=[libero_spatial]"]
-    args += ["run.progress=false", "run.report=false", f"run.out={tmp_path / out}", *overrides]
-    return subprocess.run(
-        [sys.executable, "-m", "conflictbench.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        stdin=subprocess.DEVNULL,
-        cwd=tmp_path,
-        env=env,
-    )
 
 
 def test_episodes_play_against_openpis_server_executing_five_actions_of_each_chunk(tmp_path):
@@ -55,21 +35,6 @@ def test_episodes_play_against_openpis_server_executing_five_actions_of_each_chu
         assert not np.allclose(raw[5], raw[0] * 6)  # step 5 came from a new chunk, not row 5 of the old one
     reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
     assert reference.raw_actions[0, 4] != conflict.raw_actions[0, 4]  # the prompt the server got differs
-
-
-def planned_conflict_instruction() -> str:
-    """The conflict instruction the CLI's selection below plays (suite=physical level=L1, one case)."""
-    from conflictbench.sim.plan import build_plan
-    from conflictbench.tasks.libero.base_tasks import all_base_tasks
-    from conflictbench.tasks.suite.file import load_suite
-
-    tasks = {t.key: t.language for t in all_base_tasks(("libero_spatial",))}
-    plan = build_plan(
-        load_suite(None).cases, base_instructions=tasks, families=["physical"], levels=["L1"], prompts=["p0"],
-        init_states=[0], cases_per_cell=1, sample_seed=0, libero_suites=["libero_spatial"],
-    )  # fmt: skip
-    [conflict] = [spec for spec in plan if spec.case is not None]
-    return conflict.case.instruction
 
 
 def test_an_error_frame_is_stored_as_an_infrastructure_failure_left_out_and_played_again(tmp_path):

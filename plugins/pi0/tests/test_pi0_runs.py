@@ -11,11 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from server_fixtures import model_process_env, server_argv
-from test_pi0_episodes import run_cli as run_cli_on_one_case
 from tiny_fixtures import MODEL_PYTHON, TINY_DIR, needs_model_env
 
 from conflictbench.core import ServerProcess, free_port
 from conflictbench.store import EpisodeStore
+from conflictbench.testing import episode_counts as counts
+from conflictbench.testing import run_cli as run_cli_on_one_case
 
 pytestmark = [pytest.mark.sim]
 STEPS = 15  # three queries of five actions per episode
@@ -24,12 +25,6 @@ STEPS = 15  # three queries of five actions per episode
 def run_cli(tmp_path: Path, env: dict[str, str], *overrides: str, out: str = "results") -> subprocess.CompletedProcess:
     settings = ["model=pi05", f"model.max_steps={STEPS}", *overrides]
     return run_cli_on_one_case(tmp_path, *settings, out=out, env=model_process_env(env))
-
-
-def counts(stderr: str) -> tuple[int, int, int]:
-    found = re.search(r"(\d+) played, (\d+) already stored, \d+ played by another job, (\d+) with errors", stderr)
-    assert found, stderr[-3000:]
-    return int(found[1]), int(found[2]), int(found[3])
 
 
 def our_server(checkpoint: Path, env: dict[str, str], port: int, max_batch: int = 32) -> ServerProcess:
