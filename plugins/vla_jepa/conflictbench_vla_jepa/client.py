@@ -1,0 +1,132 @@
+"""VLA-JEPA as conflictbench sees it: VLA-JEPA's LIBERO client, talking to its websocket policy server.
+
+``conflictbench model=vla-jepa model.server=ws://HOST:PORT model.checkpoint=NAME model.stats=FILE`` plays
+against a running server (VLA-JEPA's ``deployment/model_server/server_policy.py --ckpt_path ...`` on a GPU
+machine). Its replies are normalized: the client un-normalizes them with the checkpoint's statistics
+(``model.stats``: the run's ``dataset_statistics.json``; the chunk length is read from the ``config.yaml``
+beside it, or given as ``model.chunk_length``), as upstream's client reads them from the checkpoint folder.
+Upstream's server says nothing of the model (``model.checkpoint`` names it), and its sampling noise is its own.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from conflictbench import HostedConfig, HostedPolicy, InfrastructureError, Observation, UserError, sampling_seed
+from conflictbench_pi0.transport import OpenpiTransport
+
+from .processing import (
+    MAX_STEPS,
+    ActionStatistics,
+    StatisticsError,
+    camera_image,
+    chunk_length_from_config,
+    env_actions,
+)
+from .protocol import NOISE_SEED_LIMIT, ReplyError, infer_request, normalized_actions
+
+
+@dataclass
+class VlaJepaConfig(HostedConfig):
+    """Settings of ``vla-jepa`` (``model.<field>=value``; the shared ones are :class:`conflictbench.HostedConfig`'s)."""
+
+    # The statistics count by content (in the policy's identity), not by where the file lies.
+    identity_exempt: ClassVar[tuple[str, ...]] = (*HostedConfig.identity_exempt, "stats")
+
+    server: str = ""
+    """``ws://HOST:PORT`` of a running VLA-JEPA policy server."""
+    checkpoint: str = ""
+    """With ``server``: the name of the checkpoint that server hosts (part of every episode's identity)."""
+    stats: str = ""
+    """The checkpoint run's ``dataset_statistics.json`` (the action statistics the client un-normalizes with)."""
+    unnorm_key: str = ""
+    """Which dataset's statistics to use; empty: the file's only one (sent to the server as ``unnorm_key``)."""
+    chunk_length: int = 0
+    """Actions of each chunk executed; 0: ``future_action_window_size + 1`` from the ``config.yaml`` beside
+    ``stats``."""
+    max_steps: int = 0
+    """Policy steps per episode; 0: VLA-JEPA's LIBERO budget (250 / 280 / 300 / 520)."""
+
+
+class VlaJepaPolicy(HostedPolicy):
+    """VLA-JEPA's LIBERO client: upright area-resized 224-px images, the 8-D state, the task text; whole chunks."""
+
+    needs_images = True
+    environment = "vla_jepa"
+    server_module = "conflictbench_vla_jepa"
+    transport = OpenpiTransport
+    url_scheme = "ws"
+    policy_types = {"vla-jepa": "vla_jepa"}
+    default_max_steps = MAX_STEPS
+
+    def __init__(self, name: str, cfg: VlaJepaConfig, checkpoint: Path | None = None, python: Path | None = None):
+        self.statistics, self.chunk_length, digest = read_statistics(cfg)
+        super().__init__(name, cfg, checkpoint, python)
+        self.identity = {**self.identity, "stats": digest, "chunk_length": self.chunk_length}
+
+    @classmethod
+    def load(cls, name: str, cfg: VlaJepaConfig) -> VlaJepaPolicy:
+        if not cfg.server:
+            raise UserError(
+                "model=vla-jepa needs model.server=ws://HOST:PORT, model.checkpoint=NAME and model.stats=FILE: serve "
+                "the checkpoint with VLA-JEPA's `deployment/model_server/server_policy.py --ckpt_path ...` (this "
+                "plugin does not start a server of its own yet)"
+            )
+        return super().load(name, cfg)
+
+    def encode(self, observation: Observation) -> dict[str, Any]:
+        if observation.agentview_image is None or observation.wrist_image is None:
+            raise UserError(f"{self.name} needs both camera images")
+        images = [camera_image(observation.agentview_image), camera_image(observation.wrist_image)]
+        return infer_request(
+            images,
+            observation.instruction,
+            observation.state,
+            request_id=f"{observation.episode_id}/{observation.step}",
+            unnorm_key=self.cfg.unnorm_key or None,
+            seed=sampling_seed(observation) % NOISE_SEED_LIMIT,
+        )
+
+    def decode(self, reply: Any, observation: Observation) -> np.ndarray:
+        try:
+            chunk = normalized_actions(reply)
+        except ReplyError as exc:
+            raise InfrastructureError(f"{self.cfg.server} answered an error: {exc}") from None
+        return env_actions(chunk, self.statistics, self.chunk_length)
+
+
+def read_statistics(cfg: VlaJepaConfig) -> tuple[ActionStatistics, int, str]:
+    """The action statistics, the chunk length and a digest of the statistics file; UserError if unusable."""
+    if not cfg.stats:
+        raise UserError(
+            "model=vla-jepa needs model.stats=FILE, the checkpoint run's dataset_statistics.json: the server "
+            "answers normalized actions, and the client un-normalizes them with those statistics"
+        )
+    if cfg.chunk_length < 0:
+        raise UserError(f"model.chunk_length must be >= 0, got {cfg.chunk_length}")
+    path = Path(cfg.stats).expanduser()
+    try:
+        statistics = ActionStatistics.from_file(path, cfg.unnorm_key or None)
+        chunk_length = cfg.chunk_length
+        if not chunk_length:
+            config = path.parent / "config.yaml"
+            if not config.is_file():
+                raise StatisticsError(
+                    f"no config.yaml beside {path} to read the chunk length from: give model.chunk_length=N "
+                    "(future_action_window_size + 1 of the checkpoint)"
+                )
+            chunk_length = chunk_length_from_config(config)
+    except StatisticsError as exc:
+        raise UserError(str(exc)) from None
+    digest = "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()[:24]
+    return statistics, chunk_length, digest
+
+
+def load(name: str, cfg: VlaJepaConfig) -> VlaJepaPolicy:
+    """The policy for ``model=vla-jepa``, connected to ``cfg.server``."""
+    return VlaJepaPolicy.load(name, cfg)
