@@ -8,6 +8,9 @@ episode, at the first initial state: two real LIBERO episodes, about half a minu
     out = run_cli(tmp_path, "model=mymodel", "model.server=...", "model.max_steps=16")
     assert out.returncode == 0 and episode_counts(out.stderr) == (2, 0, 0)
 
+and two checks every served model's plugin can run against its own servers:
+:func:`check_failed_episode_is_replayed` and :func:`check_killed_server_run_resumes`.
+
 Needs the simulator (the ``sim`` extra); mark such tests ``@pytest.mark.sim``.
 """
 
@@ -16,8 +19,11 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-from collections.abc import Mapping
+import threading
+import time
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Protocol
 
 #: One physical L1 case of libero_spatial and its reference, first initial state, no progress bar or report.
 ONE_CASE = ("suite=physical", "level=L1", "run.cases_per_cell=1", "run.libero_suites=[libero_spatial]")
@@ -64,3 +70,85 @@ def planned_conflict_instruction() -> str:
     )  # fmt: skip
     [conflict] = [spec for spec in plan if spec.case is not None]
     return conflict.case.instruction
+
+
+class _Stoppable(Protocol):
+    def stop(self, grace_s: float = ...) -> None: ...
+
+
+#: ``start() -> (server, url)``: a policy server started for a test (anything with ``stop(grace_s)``).
+StartServer = Callable[[], tuple[_Stoppable, str]]
+#: ``run(url, *overrides) -> CompletedProcess``: the plugin's one-case run against the server at ``url``.
+RunAgainst = Callable[..., subprocess.CompletedProcess]
+
+
+def check_failed_episode_is_replayed(
+    tmp_path: Path, start_failing: StartServer, start_healthy: StartServer, run: RunAgainst, error_text: str
+) -> None:
+    """A server failing on the one-case run's conflict episode (``start_failing``, e.g. told to fail on
+    :func:`planned_conflict_instruction`): that episode is stored as an infrastructure failure naming
+    ``error_text``, left out and listed for replay; the same command against ``start_healthy`` plays it again."""
+    from .core import INFRASTRUCTURE_ERROR_PREFIX
+    from .store import EpisodeStore
+
+    server, url = start_failing()
+    try:
+        out = run(url)
+    finally:
+        server.stop()
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert episode_counts(out.stderr) == (2, 0, 1)
+    store = EpisodeStore(tmp_path / "results")
+    [failed] = [r for r in store.records() if r.error is not None]
+    assert failed.case_id is not None and failed.error.startswith(INFRASTRUCTURE_ERROR_PREFIX)
+    assert error_text in failed.error and store.replay_ids() == {failed.episode_id}, failed.error
+
+    server, url = start_healthy()
+    try:
+        out = run(url)
+    finally:
+        server.stop()
+    assert episode_counts(out.stderr) == (1, 1, 0), out.stderr[-3000:]
+    assert store.replay_ids() == set() and all(r.error is None for r in store.records())
+
+
+def check_killed_server_run_resumes(tmp_path: Path, start: StartServer, run: RunAgainst) -> None:
+    """A server killed once the first of four episodes is stored (one worker) stops the run with one line naming
+    its URL (exit 3, no traceback), nothing half-played is stored, and the same command against a new server
+    plays exactly the rest, leaving the stored episodes as they were."""
+    import numpy as np
+
+    from .store import EpisodeStore
+
+    settings = ["run.init_states=2", "run.workers=1", "model.connect_retries=1", "model.backoff_s=0.2"]
+    episodes = tmp_path / "results" / "episodes"
+    server, url = start()
+
+    def kill_after_the_first_episode() -> None:
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and not (episodes.exists() and any(episodes.rglob("*.parquet"))):
+            time.sleep(0.1)
+        server.stop(grace_s=0)
+
+    killer = threading.Thread(target=kill_after_the_first_episode)
+    killer.start()
+    try:
+        out = run(url, *settings)
+    finally:
+        killer.join()
+        server.stop()
+    assert out.returncode == 3, out.stderr[-3000:]
+    errors = [line for line in out.stderr.splitlines() if line.startswith("conflictbench: error:")]
+    assert len(errors) == 1 and url in errors[0] and "Traceback" not in out.stderr, out.stderr[-3000:]
+    stored = {r.episode_id: r.raw_actions for r in EpisodeStore(tmp_path / "results").records()}
+    assert 1 <= len(stored) < 4
+
+    server, url = start()
+    try:
+        out = run(url, *settings)
+    finally:
+        server.stop()
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert episode_counts(out.stderr) == (4 - len(stored), len(stored), 0)
+    after = {r.episode_id: r.raw_actions for r in EpisodeStore(tmp_path / "results").records()}
+    assert len(after) == 4 and all(np.array_equal(after[e], stored[e]) for e in stored)

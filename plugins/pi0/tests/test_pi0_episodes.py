@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 from test_pi0_client import start_openpi_server
 
-from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX
 from conflictbench.store import EpisodeStore
-from conflictbench.testing import planned_conflict_instruction, run_cli
+from conflictbench.testing import check_failed_episode_is_replayed, planned_conflict_instruction, run_cli
 
 pytestmark = pytest.mark.sim
 STEPS = 12
@@ -38,24 +37,11 @@ def test_episodes_play_against_openpis_server_executing_five_actions_of_each_chu
 
 
 def test_an_error_frame_is_stored_as_an_infrastructure_failure_left_out_and_played_again(tmp_path):
-    settings = ["model=pi05", "model.checkpoint=stand-in", f"model.max_steps={STEPS}", "run.report=true"]
-    failing, url = start_openpi_server(tmp_path, "--fail-on", planned_conflict_instruction())
-    try:
-        out = run_cli(tmp_path, *settings, f"model.server={url}")
-    finally:
-        failing.stop()
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert "2 played, 0 already stored, 0 played by another job, 1 with errors" in out.stderr
-    assert "1 episode(s) ended with an infrastructure failure and are left out" in out.stdout + out.stderr
-    store = EpisodeStore(tmp_path / "results")
-    [failed] = [r for r in store.records() if r.error is not None]
-    assert failed.case_id is not None and failed.error.startswith(INFRASTRUCTURE_ERROR_PREFIX)
-    assert "the model failed on purpose" in failed.error and store.replay_ids() == {failed.episode_id}
-
-    healthy, url = start_openpi_server(tmp_path)
-    try:
-        out = run_cli(tmp_path, *settings, f"model.server={url}")
-    finally:
-        healthy.stop()
-    assert "1 played, 1 already stored, 0 played by another job, 0 with errors" in out.stderr, out.stderr[-3000:]
-    assert store.replay_ids() == set() and all(r.error is None for r in store.records())
+    settings = ["model=pi05", "model.checkpoint=stand-in", f"model.max_steps={STEPS}"]
+    check_failed_episode_is_replayed(
+        tmp_path,
+        start_failing=lambda: start_openpi_server(tmp_path, "--fail-on", planned_conflict_instruction()),
+        start_healthy=lambda: start_openpi_server(tmp_path),
+        run=lambda url, *more: run_cli(tmp_path, *settings, f"model.server={url}", *more),
+        error_text="the model failed on purpose",
+    )

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +13,7 @@ from tiny_fixtures import MODEL_PYTHON, TINY_DIR, needs_model_env
 
 from conflictbench.core import ServerProcess, free_port
 from conflictbench.store import EpisodeStore
+from conflictbench.testing import check_killed_server_run_resumes
 from conflictbench.testing import episode_counts as counts
 from conflictbench.testing import run_cli as run_cli_on_one_case
 
@@ -97,42 +96,15 @@ def test_one_or_two_workers_play_the_same_actions_and_another_batch_shape_is_ano
 def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(
     tmp_path, tiny_checkpoints, tiny_env
 ):
-    checkpoint, port = tiny_checkpoints["pi05"], free_port()
-    url = f"ws://127.0.0.1:{port}"
-    settings = [f"model.server={url}", "model.checkpoint=tiny-pi05", "run.init_states=2", "run.workers=1"]
-    settings += ["model.connect_retries=1", "model.backoff_s=0.2"]
-    server = our_server(checkpoint, tiny_env, port)
-    episodes = tmp_path / "results" / "episodes"
+    checkpoint, port = tiny_checkpoints["pi05"], free_port()  # the new server comes back at the same URL
 
-    def kill_after_the_first_episode() -> None:
-        deadline = time.monotonic() + 600
-        while time.monotonic() < deadline and not (episodes.exists() and any(episodes.rglob("*.parquet"))):
-            time.sleep(0.2)
-        server.stop(grace_s=0)
+    def start() -> tuple[ServerProcess, str]:
+        return our_server(checkpoint, tiny_env, port), f"ws://127.0.0.1:{port}"
 
-    killer = threading.Thread(target=kill_after_the_first_episode)
-    killer.start()
-    try:
-        out = run_cli(tmp_path, tiny_env, *settings)
-    finally:
-        killer.join()
-        server.stop()
-    assert out.returncode == 3, out.stderr[-3000:]
-    errors = [line for line in out.stderr.splitlines() if line.startswith("conflictbench: error:")]
-    assert len(errors) == 1 and url in errors[0] and "Traceback" not in out.stderr, out.stderr[-3000:]
-    store = EpisodeStore(tmp_path / "results")
-    stored = {r.episode_id: r.raw_actions for r in store.records()}
-    assert 1 <= len(stored) < 4 and all(r.error is None for r in store.records())
+    def run(url: str, *more: str):
+        return run_cli(tmp_path, tiny_env, f"model.server={url}", "model.checkpoint=tiny-pi05", *more)
 
-    server = our_server(checkpoint, tiny_env, port)  # back at the same URL
-    try:
-        out = run_cli(tmp_path, tiny_env, *settings)
-    finally:
-        server.stop()
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert counts(out.stderr) == (4 - len(stored), len(stored), 0)
-    after = {r.episode_id: r.raw_actions for r in EpisodeStore(tmp_path / "results").records()}
-    assert len(after) == 4 and all(np.array_equal(after[e], stored[e]) for e in stored)
+    check_killed_server_run_resumes(tmp_path, start=start, run=run)
 
 
 @needs_model_env
