@@ -170,7 +170,8 @@ def test_requests_queued_while_the_model_is_busy_share_one_call(
         replies = [unpackb(connection.recv(timeout=TIMEOUT_S)) for connection in connections]
         for reply, request in zip(replies, requests, strict=True):
             np.testing.assert_array_equal(reply[ACTIONS], stand_in_actions(request))  # each gets its own chunk
-        assert [reply["server_timing"]["batch_size"] for reply in replies] == served_together
+        # which connection's request reached the queue first is the event loop's order, not the send order
+        assert sorted(reply["server_timing"]["batch_size"] for reply in replies) == sorted(served_together)
         assert model.batch_sizes == model_calls
         assert model.most_running == 1  # model calls never overlap
         _, metadata = open_connection(url)
