@@ -11,19 +11,11 @@ from nvidia_standin_server import actions_for
 
 from conflictbench import InfrastructureError, Observation, ServerUnavailable, UserError, sampling_seed
 from conflictbench.core import LIBERO_SUITES, PolicyTraits
+from conflictbench.testing import camera_observation
 from conflictbench_gr00t.client import Gr00tConfig, load
 from conflictbench_gr00t.processing import env_actions, gr00t_observation
 
-
-def observation(step: int = 0, instruction: str = "put the bowl on the plate", stream: int = 0) -> Observation:
-    rng = np.random.default_rng(step)
-    state = np.array([0.1, 0.2, 1.0, 3.1, 0.1, -0.2, 0.04, -0.04])
-    return Observation(
-        step=step, instruction=instruction, eef_pos=state[:3], eef_quat=np.array([0, 0, 0, 1.0]),
-        gripper_qpos=state[6:], state=state, stream=stream, episode_id=f"episode-{stream}",
-        agentview_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
-        wrist_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
-    )  # fmt: skip
+observation = camera_observation
 
 
 def config(url: str, **settings) -> Gr00tConfig:
