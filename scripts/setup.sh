@@ -93,7 +93,7 @@ has_server() {  # a plugin whose pyproject has a `server` extra has a model envi
 }
 case "$MODELS" in
   none) MODELS="" ;;
-  all) MODELS=$(for p in plugins/*/; do has_server "$(basename "$p")" && basename "$p"; done) ;;
+  all) MODELS=$(for p in plugins/*/; do if has_server "$(basename "$p")"; then basename "$p"; fi; done) ;;
   *) MODELS=${MODELS//,/ } ;;
 esac
 if [ -n "$MODELS" ]; then
