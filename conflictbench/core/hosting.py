@@ -42,8 +42,6 @@ from .policy import DEFAULT_MAX_STEPS
 from .serving import PolicyClient, ServedPolicy, ServingConfig
 from .transport import Transport
 
-#: Where a started server may run its model (``model.device``).
-DEVICES = ("auto", "cpu", "cuda", "cuda:N")
 #: Set for every model process unless the user set it: bfloat16 kernels beyond AVX512 kill some CPUs' VMs
 #: (SIGILL), and CPU inference of these models never needs them.
 MODEL_PROCESS_ENV: Mapping[str, str] = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"}
