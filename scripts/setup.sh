@@ -73,7 +73,13 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   "$VENV/bin/python" -m pip install -q -e ".[sim,test]"
   touch "$stamp"
 fi
-# 4. The model plugins' clients, with the upstream counterparts their tests talk to.
+# 4. The model plugins' clients, with the upstream counterparts their tests talk to; first the server half
+#    they share (serving/: not on PyPI, so pip must find it installed before a plugin asks for it).
+stamp="$VENV/.conflictbench-serving"
+if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ]; then
+  "$VENV/bin/python" -m pip install -q -e serving
+  touch "$stamp"
+fi
 for plugin in plugins/*/; do
   name=$(basename "$plugin")
   stamp="$VENV/.conflictbench-plugin-$name"
@@ -85,8 +91,8 @@ for plugin in plugins/*/; do
 done
 
 # 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack
-#    cannot share). Each gets its plugin without dependencies (no conflictbench, no simulator), exactly
-#    the plugin's `server` extra, and its `server-test` extra without dependencies (upstream servers the
+#    cannot share). Each gets the shared server half (serving/), its plugin without dependencies (no
+#    conflictbench, no simulator), exactly the plugin's `server` extra, and its `server-test` extra without dependencies (upstream servers the
 #    tests compare with). About 5 GB and 90 s each on the first build (torch).
 has_server() {  # a plugin whose pyproject has a `server` extra has a model environment to build
   grep -q '^server = \[' "plugins/$1/pyproject.toml" 2>/dev/null
@@ -116,12 +122,13 @@ for name in $MODELS; do
   has_server "$name" || { say "the $name plugin has no server of its own (no model environment to build)"; exit 2; }
   env_dir="$VENV/models/$name"
   stamp="$env_dir/.conflictbench-installed"
-  if [ -f "$stamp" ] && [ ! "$plugin/pyproject.toml" -nt "$stamp" ]; then
+  if [ -f "$stamp" ] && [ ! "$plugin/pyproject.toml" -nt "$stamp" ] && [ ! serving/pyproject.toml -nt "$stamp" ]; then
     continue
   fi
   say "building the $name model environment in $env_dir with $MODEL_PYTHON (first time: a few minutes)"
   [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
   "$env_dir/bin/python" -m pip install -q --upgrade pip
+  "$env_dir/bin/python" -m pip install -q -e serving
   mapfile -t requirements < <("$env_dir/bin/python" - "$plugin/pyproject.toml" <<'EOF'
 import sys, tomllib
 project = tomllib.load(open(sys.argv[1], "rb"))["project"]

@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from conflictbench_serving.checkpoints import SEED_MODULUS, reduce_seed
+
 from .checkpoints import POLICY_TYPES, CheckpointError, checkpoint_type, fingerprint
 from .protocol import IMAGE, NOISE_SEED, PROMPT, STATE, STATE_SIZE, WRIST_IMAGE, validate_request
 
@@ -41,20 +43,18 @@ __all__ = ["POLICY_TYPES", "CheckpointError", "PiBackend", "checkpoint_type", "l
 PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
 #: Lines LeRobot's pi ``from_pretrained`` prints, instead of raising, when the weights did not load.
 _WEIGHT_FAILURES = ("Could not load state dict", "Returning model without loading pretrained weights")
-_SEED_MODULUS = 2**64
-DEFAULT_SEED = 0
 
 
 def request_seed(request: dict) -> int:
     """The request's noise seed (``NOISE_SEED``, default 0), reduced to torch's seed range."""
-    return int(request.get(NOISE_SEED, DEFAULT_SEED)) % _SEED_MODULUS
+    return reduce_seed(request.get(NOISE_SEED))
 
 
 def noise_for_seed(seed: int, chunk_size: int, max_action_dim: int):
     """The flow-matching noise of one request: standard normal, from a CPU generator seeded with ``seed``."""
     import torch
 
-    generator = torch.Generator(device="cpu").manual_seed(seed % _SEED_MODULUS)
+    generator = torch.Generator(device="cpu").manual_seed(seed % SEED_MODULUS)
     return torch.randn((chunk_size, max_action_dim), generator=generator, dtype=torch.float32)
 
 

@@ -7,20 +7,17 @@ normalization statistics sit beside them in the processor files).
 
 from __future__ import annotations
 
-import hashlib
 import json
-import re
 from pathlib import Path
+
+from conflictbench_serving import checkpoints as shared
+from conflictbench_serving.checkpoints import CheckpointError
+
+__all__ = ["POLICY_TYPES", "WEIGHTS_FILE", "CheckpointError", "check_checkpoint", "checkpoint_type", "fingerprint"]
 
 #: conflictbench's policy names and the LeRobot config ``type`` each loads.
 POLICY_TYPES = {"pi0": "pi0", "pi05": "pi05", "pi0-fast": "pi0_fast"}
 WEIGHTS_FILE = "model.safetensors"
-#: Where a checkpoint can be loaded (``model.device``, ``serve --device``).
-DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
-
-
-class CheckpointError(Exception):
-    """The folder is not a usable π checkpoint (the message is one line for the user)."""
 
 
 def checkpoint_type(checkpoint: str | Path) -> str:
@@ -42,24 +39,20 @@ def checkpoint_type(checkpoint: str | Path) -> str:
     return kind
 
 
-def check_checkpoint(checkpoint: str | Path, policy: str) -> Path:
-    """The folder, checked to hold a checkpoint of ``policy`` (pi0, pi05 or pi0-fast)."""
+def check_checkpoint(checkpoint: str | Path, policy: str, option: str = "model=") -> Path:
+    """The folder, checked to hold a checkpoint of ``policy`` (pi0, pi05 or pi0-fast); ``option`` is how the
+    user names the policy where it is wrong (``model=`` in a run, ``--policy`` for the serve command)."""
     kind = checkpoint_type(checkpoint)
     if kind != POLICY_TYPES[policy]:
         wanted = next(name for name, t in POLICY_TYPES.items() if t == kind)
-        raise CheckpointError(f"{checkpoint} is a {kind} checkpoint: use model={wanted}, not model={policy}")
+        raise CheckpointError(f"{checkpoint} is a {kind} checkpoint: use {option}{wanted}, not {option}{policy}")
     return Path(checkpoint).expanduser()
 
 
 def fingerprint(checkpoint: str | Path) -> str:
     """A digest of what decides the model's actions: the config, the weights and the processor files
-    (normalization statistics), by content. The same weights under another path give the same digest;
-    new weights written to the same path give another. Reads every byte (a 7 GB checkpoint: seconds)."""
+    (normalization statistics), by content."""
     folder = Path(checkpoint).expanduser()
-    digest = hashlib.sha256()
-    files = [folder / "config.json", folder / WEIGHTS_FILE, *sorted(folder.glob("policy_*processor*"))]
-    for path in files:
-        digest.update(f"{path.name}\0".encode())
-        with open(path, "rb") as handle:
-            digest.update(hashlib.file_digest(handle, "sha256").digest())
-    return f"sha256:{digest.hexdigest()[:24]}"
+    return shared.fingerprint(
+        [folder / "config.json", folder / WEIGHTS_FILE, *sorted(folder.glob("policy_*processor*"))]
+    )

@@ -11,6 +11,9 @@ The facts, from openpi-client's ``msgpack_numpy`` and ``websocket_policy_server`
   after which the server closes the connection (code 1011);
 - ``GET /healthz`` answers ``OK`` (readiness without a websocket).
 
+The codec (``packb``/``unpackb``) and the framing are conflictbench-serving's, shared with the other
+plugins whose upstream speaks openpi's format.
+
 :func:`validate_request` says what a LIBERO request must hold (our server checks each one with it before
 queueing, and the backend before every forward pass). This module imports neither conflictbench nor
 torch: the model environment's server uses it too.
@@ -20,8 +23,11 @@ from __future__ import annotations
 
 from typing import Any
 
-import msgpack
 import numpy as np
+
+from conflictbench_serving import checkpoints as seeds
+from conflictbench_serving.msgpack_numpy import packb as packb  # re-exported: the codec of this protocol
+from conflictbench_serving.msgpack_numpy import unpackb as unpackb
 
 #: Request keys of openpi's LIBERO client (``examples/libero/main.py``).
 IMAGE = "observation/image"
@@ -30,49 +36,12 @@ STATE = "observation/state"
 PROMPT = "prompt"
 #: Reply key holding the action chunk (horizon x 7).
 ACTIONS = "actions"
-#: Our one addition to a request: the seed of the episode's sampling noise at this step, an int in
-#: [0, 2**63) (fits a signed 64-bit integer everywhere). openpi's own LIBERO input transform reads only
-#: the four keys above, so its server ignores it; ours seeds with it.
-NOISE_SEED = "conflictbench/noise_seed"
-NOISE_SEED_LIMIT = 2**63
+#: Our one addition to a request: the seed of the episode's sampling noise at this step (conflictbench-serving's
+#: convention). openpi's own LIBERO input transform reads only the four keys above, so its server ignores it.
+NOISE_SEED, NOISE_SEED_LIMIT = seeds.NOISE_SEED, seeds.NOISE_SEED_LIMIT
 #: What openpi's LIBERO client sends: both images letterboxed to 224, LIBERO's 8-D state.
 IMAGE_SHAPE = (224, 224, 3)
 STATE_SIZE = 8
-
-_UNSENDABLE_KINDS = "OVc"  # object, void (structured), complex
-
-
-def _encode(value: Any) -> Any:
-    if isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind in _UNSENDABLE_KINDS:
-        raise TypeError(f"arrays of dtype {value.dtype} cannot be sent")
-    if isinstance(value, np.ndarray):
-        return {
-            b"__ndarray__": True,
-            b"data": np.ascontiguousarray(value).tobytes(),
-            b"dtype": value.dtype.str,
-            b"shape": value.shape,
-        }
-    if isinstance(value, np.generic):
-        return {b"__npgeneric__": True, b"data": value.item(), b"dtype": value.dtype.str}
-    return value
-
-
-def _decode(obj: dict) -> Any:
-    if b"__ndarray__" in obj:
-        return np.ndarray(buffer=obj[b"data"], dtype=np.dtype(obj[b"dtype"]), shape=obj[b"shape"])
-    if b"__npgeneric__" in obj:
-        return np.dtype(obj[b"dtype"]).type(obj[b"data"])
-    return obj
-
-
-def packb(obj: Any) -> bytes:
-    """``obj`` (maps, lists, strings, numbers, numpy arrays and scalars) as one openpi frame."""
-    return msgpack.packb(obj, default=_encode)
-
-
-def unpackb(data: bytes) -> Any:
-    """The value in one openpi frame. Arrays come back read-only (they view the frame's bytes)."""
-    return msgpack.unpackb(data, object_hook=_decode)
 
 
 class InvalidRequest(ValueError):

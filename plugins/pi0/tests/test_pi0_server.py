@@ -289,8 +289,8 @@ def fake_checkpoint(folder: Path, kind: str | None = "pi05", weights: bool = Tru
         ("pi05", None, True, "is not a LeRobot checkpoint (no config.json)"),
         ("pi05", "act", True, "holds a act policy, not a π one"),
         ("pi05", "pi05", False, "has no model.safetensors"),
-        ("pi0", "pi05", True, "is a pi05 checkpoint: use --policy pi05, not pi0"),
-        ("pi0-fast", "pi0", True, "is a pi0 checkpoint: use --policy pi0, not pi0-fast"),
+        ("pi0", "pi05", True, "is a pi05 checkpoint: use --policy pi05, not --policy pi0"),
+        ("pi0-fast", "pi0", True, "is a pi0 checkpoint: use --policy pi0, not --policy pi0-fast"),
     ],
 )
 def test_cli_checkpoint_errors_are_one_line_and_exit_2(tmp_path, policy, kind, weights, fragment):

@@ -1,0 +1,106 @@
+"""One model, many connections: every request waiting while a model call runs joins the next call.
+
+A server's connection handlers ``await batcher.submit(request)``; :meth:`Batcher.run` hands everything
+queued (up to ``max_batch``) to ``infer_batch`` in a single worker thread, so model calls never overlap
+and N simulator workers keep one model busy with batches of up to N. With ``fixed_shape`` every call is
+padded to exactly ``max_batch`` rows (copies of its last request): float rounding depends on a batch's
+shape, and which requests share a call depends on timing, so only a fixed shape keeps every episode's
+actions reproducible. A failing call fails every request of its batch; nothing else.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+logger = logging.getLogger(__name__)
+
+InferBatch = Callable[[list[Any]], list[Any]]
+
+
+class ServerStopping(Exception):
+    """The server stopped before this request's batch ran."""
+
+
+@dataclass
+class _Pending:
+    request: Any
+    reply: asyncio.Future = field(default_factory=lambda: asyncio.get_running_loop().create_future())
+
+
+class Batcher:
+    """Queues requests and runs ``infer_batch`` on batches of them, one call at a time."""
+
+    def __init__(self, infer_batch: InferBatch, max_batch: int, fixed_shape: bool, name: str = "model") -> None:
+        if max_batch < 1:
+            raise ValueError(f"max_batch must be at least 1, got {max_batch}")
+        self.infer_batch = infer_batch
+        self.max_batch = max_batch
+        self.fixed_shape = fixed_shape
+        self._queue: asyncio.Queue[_Pending] = asyncio.Queue()
+        # One thread: model calls never overlap, and torch sees the same thread every time.
+        self._model_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{name}-model")
+
+    @property
+    def queued(self) -> int:
+        """Requests waiting for the next batch."""
+        return self._queue.qsize()
+
+    async def submit(self, request: Any) -> tuple[Any, dict]:
+        """The model's answer to ``request`` and the call's timing (``infer_ms``, ``batch_size``); raises
+        what the call raised, or :class:`ServerStopping`."""
+        pending = _Pending(request)
+        self._queue.put_nowait(pending)
+        return await pending.reply
+
+    async def run(self) -> None:
+        """Serve batches until cancelled; requests still waiting then fail with :class:`ServerStopping`."""
+        loop = asyncio.get_running_loop()
+        batch: list[_Pending] = []
+        try:
+            while True:
+                batch = [await self._queue.get()]
+                while len(batch) < self.max_batch and not self._queue.empty():
+                    batch.append(self._queue.get_nowait())
+                requests = [pending.request for pending in batch]
+                if self.fixed_shape:
+                    requests += [requests[-1]] * (self.max_batch - len(requests))
+                started = time.monotonic()
+                try:
+                    answers = await loop.run_in_executor(self._model_thread, self.infer_batch, requests)
+                    if len(answers) != len(requests):
+                        raise RuntimeError(f"infer_batch returned {len(answers)} answers for {len(requests)} requests")
+                except Exception as error:
+                    logger.error("inference failed for a batch of %d: %s", len(batch), error)
+                    for pending in batch:
+                        _settle(pending, error=error)
+                else:
+                    timing = {"infer_ms": (time.monotonic() - started) * 1000, "batch_size": len(batch)}
+                    logger.debug("batch of %d in %.1f ms", len(batch), timing["infer_ms"])
+                    for pending, answer in zip(batch, answers[: len(batch)], strict=True):
+                        _settle(pending, result=(answer, timing))
+                batch = []
+        finally:
+            stopping = ServerStopping()
+            for pending in batch:
+                _settle(pending, error=stopping)
+            while not self._queue.empty():
+                _settle(self._queue.get_nowait(), error=stopping)
+
+    def shutdown(self) -> None:
+        """Let go of the model thread; a call still running finishes there, nothing waits for it."""
+        self._model_thread.shutdown(wait=False, cancel_futures=True)
+
+
+def _settle(pending: _Pending, result: Any = None, error: BaseException | None = None) -> None:
+    if pending.reply.done():
+        return
+    if error is not None:
+        pending.reply.set_exception(error)
+    else:
+        pending.reply.set_result(result)
