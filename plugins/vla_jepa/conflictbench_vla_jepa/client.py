@@ -1,11 +1,13 @@
-"""VLA-JEPA as conflictbench sees it: VLA-JEPA's LIBERO client, talking to its websocket policy server.
+"""VLA-JEPA as conflictbench sees it: VLA-JEPA's LIBERO client, talking to a VLA-JEPA websocket policy server.
 
-``conflictbench model=vla-jepa model.server=ws://HOST:PORT model.checkpoint=NAME model.stats=FILE`` plays
-against a running server (VLA-JEPA's ``deployment/model_server/server_policy.py --ckpt_path ...`` on a GPU
-machine). Its replies are normalized: the client un-normalizes them with the checkpoint's statistics
-(``model.stats``: the run's ``dataset_statistics.json``; the chunk length is read from the ``config.yaml``
-beside it, or given as ``model.chunk_length``), as upstream's client reads them from the checkpoint folder.
-Upstream's server says nothing of the model (``model.checkpoint`` names it), and its sampling noise is its own.
+``conflictbench model=vla-jepa model.checkpoint=DIR`` starts our server (``conflictbench-vla-jepa serve``) for a
+LeRobot checkpoint in the model environment, waits until it answers, plays, and stops it.
+``model.server=ws://HOST:PORT model.checkpoint=NAME model.stats=FILE`` plays against a running server
+(VLA-JEPA's ``deployment/model_server/server_policy.py --ckpt_path ...`` on a GPU machine, or ours). Replies
+are normalized: the client un-normalizes them with the checkpoint's statistics, as upstream's client does:
+``model.stats`` (the run's ``dataset_statistics.json``; the chunk length read from the ``config.yaml`` beside
+it, or given as ``model.chunk_length``), or what our server's metadata says. Upstream's server says nothing
+of the model (``model.checkpoint`` names it), and its sampling noise is its own.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 from conflictbench import HostedConfig, HostedPolicy, InfrastructureError, Observation, UserError, sampling_seed
 from conflictbench_pi0.transport import OpenpiTransport
 
+from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
 from .processing import (
     MAX_STEPS,
     ActionStatistics,
@@ -38,12 +41,14 @@ class VlaJepaConfig(HostedConfig):
     # The statistics count by content (in the policy's identity), not by where the file lies.
     identity_exempt: ClassVar[tuple[str, ...]] = (*HostedConfig.identity_exempt, "stats")
 
-    server: str = ""
-    """``ws://HOST:PORT`` of a running VLA-JEPA policy server."""
     checkpoint: str = ""
-    """With ``server``: the name of the checkpoint that server hosts (part of every episode's identity)."""
+    """A LeRobot VLA-JEPA checkpoint folder (a server is started for it); with ``server``, the name of what
+    that server hosts (upstream's server does not say)."""
+    server: str = ""
+    """``ws://HOST:PORT`` of a running VLA-JEPA policy server; empty: start one for ``checkpoint``."""
     stats: str = ""
-    """The checkpoint run's ``dataset_statistics.json`` (the action statistics the client un-normalizes with)."""
+    """The checkpoint run's ``dataset_statistics.json`` (the action statistics the client un-normalizes with);
+    empty: the ones our server sends (upstream's sends none)."""
     unnorm_key: str = ""
     """Which dataset's statistics to use; empty: the file's only one (sent to the server as ``unnorm_key``)."""
     chunk_length: int = 0
@@ -54,30 +59,66 @@ class VlaJepaConfig(HostedConfig):
 
 
 class VlaJepaPolicy(HostedPolicy):
-    """VLA-JEPA's LIBERO client: upright area-resized 224-px images, the 8-D state, the task text; whole chunks."""
+    """VLA-JEPA's LIBERO client: upright area-resized 224-px images, the 8-D state, the task text; whole chunks.
+
+    The action statistics and chunk length come from ``model.stats`` where given, else from what our server
+    says it hosts (its metadata; read when the policy connects, or when it starts the server).
+    """
 
     needs_images = True
     environment = "vla_jepa"
     server_module = "conflictbench_vla_jepa"
     transport = OpenpiTransport
     url_scheme = "ws"
-    policy_types = {"vla-jepa": "vla_jepa"}
+    policy_types = {"vla-jepa": POLICY_TYPE}
     default_max_steps = MAX_STEPS
 
     def __init__(self, name: str, cfg: VlaJepaConfig, checkpoint: Path | None = None, python: Path | None = None):
-        self.statistics, self.chunk_length, digest = read_statistics(cfg)
+        self.statistics: ActionStatistics | None = None
+        self.chunk_length = 0
+        identity = {}
+        if cfg.stats:  # read before connecting: a bad file is the user's mistake, reported at once
+            self.statistics, self.chunk_length, digest = read_statistics(cfg)
+            identity = {"stats": digest, "chunk_length": self.chunk_length}
         super().__init__(name, cfg, checkpoint, python)
-        self.identity = {**self.identity, "stats": digest, "chunk_length": self.chunk_length}
+        if self.statistics is None and checkpoint is None:
+            try:
+                self._statistics_from_metadata()
+            except BaseException:
+                self.close()
+                raise
+        self.identity = {**self.identity, **identity}
 
     @classmethod
-    def load(cls, name: str, cfg: VlaJepaConfig) -> VlaJepaPolicy:
-        if not cfg.server:
+    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
+        try:
+            return check_checkpoint(folder)
+        except CheckpointError as exc:
+            raise UserError(str(exc)) from None
+
+    @classmethod
+    def fingerprint(cls, folder: Path) -> str:
+        return fingerprint(folder)
+
+    def start(self) -> None:
+        super().start()
+        if self.statistics is None:
+            self._statistics_from_metadata()
+
+    def _statistics_from_metadata(self) -> None:
+        """The statistics and chunk length our server sends; UserError where the server sends none."""
+        statistics, chunk_length = self.metadata.get("action_statistics"), self.metadata.get("chunk_length")
+        if statistics is None or not chunk_length:
             raise UserError(
-                "model=vla-jepa needs model.server=ws://HOST:PORT, model.checkpoint=NAME and model.stats=FILE: serve "
-                "the checkpoint with VLA-JEPA's `deployment/model_server/server_policy.py --ckpt_path ...` (this "
-                "plugin does not start a server of its own yet)"
+                f"the server at {self.cfg.server} does not send its action statistics (VLA-JEPA's own server "
+                "does not): give model.stats=FILE, the checkpoint run's dataset_statistics.json; the server "
+                "answers normalized actions, and the client un-normalizes them with those statistics"
             )
-        return super().load(name, cfg)
+        try:
+            self.statistics = ActionStatistics.from_mapping(statistics)
+        except StatisticsError as exc:
+            raise InfrastructureError(f"the server at {self.cfg.server} sent unusable statistics: {exc}") from None
+        self.chunk_length = self.cfg.chunk_length or int(chunk_length)
 
     def encode(self, observation: Observation) -> dict[str, Any]:
         if observation.agentview_image is None or observation.wrist_image is None:
@@ -101,12 +142,7 @@ class VlaJepaPolicy(HostedPolicy):
 
 
 def read_statistics(cfg: VlaJepaConfig) -> tuple[ActionStatistics, int, str]:
-    """The action statistics, the chunk length and a digest of the statistics file; UserError if unusable."""
-    if not cfg.stats:
-        raise UserError(
-            "model=vla-jepa needs model.stats=FILE, the checkpoint run's dataset_statistics.json: the server "
-            "answers normalized actions, and the client un-normalizes them with those statistics"
-        )
+    """``model.stats``' action statistics, the chunk length and a digest of the file; UserError if unusable."""
     if cfg.chunk_length < 0:
         raise UserError(f"model.chunk_length must be >= 0, got {cfg.chunk_length}")
     path = Path(cfg.stats).expanduser()
@@ -128,5 +164,6 @@ def read_statistics(cfg: VlaJepaConfig) -> tuple[ActionStatistics, int, str]:
 
 
 def load(name: str, cfg: VlaJepaConfig) -> VlaJepaPolicy:
-    """The policy for ``model=vla-jepa``, connected to ``cfg.server``."""
+    """The policy for ``model=vla-jepa``: connected to ``cfg.server``, or ready to start a server for
+    ``cfg.checkpoint``."""
     return VlaJepaPolicy.load(name, cfg)

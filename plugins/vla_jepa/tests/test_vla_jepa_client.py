@@ -111,8 +111,11 @@ def test_a_server_that_dies_stops_the_run_with_its_address(tmp_path, standin):
 @pytest.mark.parametrize(
     "settings, message",
     [
-        ({"server": ""}, "model=vla-jepa needs model.server=ws://HOST:PORT"),
-        ({"stats": ""}, "needs model.stats=FILE"),
+        ({"server": ""}, "no checkpoint folder at x"),
+        (
+            {"server": "", "checkpoint": "{run}"},
+            "is not a LeRobot checkpoint .no config.json.*upstream's server_policy",
+        ),
         ({"stats": "{missing}"}, "cannot read the statistics file"),
         ({"stats": "{nocfg}"}, "no config.yaml beside"),
         ({"stats": "{two}"}, "choose one with model.unnorm_key"),
@@ -123,8 +126,14 @@ def test_user_mistakes_are_user_errors(tmp_path, settings, message):
     two = write_run(tmp_path / "two", datasets={"a": {"action": ACTION_STATS}, "b": {"action": ACTION_STATS}})
     nocfg = write_run(tmp_path / "nocfg")
     (nocfg.parent / "config.yaml").unlink()
-    values = {"missing": tmp_path / "none.json", "two": two, "nocfg": nocfg}
+    values = {"missing": tmp_path / "none.json", "two": two, "nocfg": nocfg, "run": tmp_path / "two"}
     cfg = {"server": "ws://127.0.0.1:9", "checkpoint": "x", "stats": str(write_run(tmp_path / "run"))}
     cfg.update({k: v.format(**values) if isinstance(v, str) else v for k, v in settings.items()})
     with pytest.raises(UserError, match=message):
         load("vla-jepa", VlaJepaConfig(**cfg))
+
+
+def test_against_upstreams_server_the_statistics_must_be_given(tmp_path, standin):
+    """Upstream's server sends no statistics: without model.stats the client cannot un-normalize."""
+    with pytest.raises(UserError, match="does not send its action statistics.*give model.stats=FILE"):
+        load("vla-jepa", VlaJepaConfig(server=standin, checkpoint="stand-in", connect_retries=0))

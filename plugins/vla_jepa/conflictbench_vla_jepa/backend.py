@@ -1,0 +1,179 @@
+"""A LeRobot VLA-JEPA checkpoint as a batch function of request rows (model environment only).
+
+The server side of VLA-JEPA's split: its LIBERO client has already turned both images upright and resized them
+to 224 (area), and built the 8-D state and the text; the server runs the model and answers the NORMALIZED chunk
+(the client clips, snaps the gripper, un-normalizes). Here LeRobot runs the model with what the checkpoint
+saved: ``from_pretrained`` of its config type and its preprocessor (state mean/std normalization); the
+postprocessor is not applied, only its action statistics are read, for the metadata (the client un-normalizes
+with them, as LeRobot's postprocessor would: clip, gripper to 0/1 at 0.5, min/max on every dimension).
+
+Rows enter as LeRobot's environment path makes observations: HWC uint8 images become CHW float32 in [0, 1]
+(Qwen3-VL's processor runs with ``do_rescale=False``) under LeRobot's LIBERO camera names
+(``observation.images.image``, ``...image2`` for the wrist; the checkpoint's own names where it has two others,
+wrist by name), ``task`` is the list of instructions.
+
+Sampling depends on the request, never on the call order or batch company. LeRobot's ``predict_action_chunk``
+ignores ``noise=``: the action head draws ``torch.randn(B, chunk_size, action_dim)`` itself
+(``VLAJEPAActionHead.predict_action``), so a row's noise would be a slice of one draw for the whole batch. This
+backend hands the head each row's own noise instead, drawn from a CPU generator seeded with the row's seed (0
+when it has none), by standing in for that module's ``torch`` during the call; a call in which the head does
+not draw exactly once fails (a LeRobot whose head samples otherwise cannot be seeded per request so).
+
+Imports torch and LeRobot only inside :func:`load_backend`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from conflictbench_serving.checkpoints import reduce_seed
+
+from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
+from .protocol import STATE_SIZE, Row
+
+#: Lines LeRobot's ``from_pretrained`` prints, instead of raising, when the weights did not load.
+_WEIGHT_FAILURES = ("Could not load state dict", "Returning model without loading pretrained weights")
+
+
+def camera_keys(names: list[str]) -> list[str]:
+    """The checkpoint's two camera inputs as (agentview, wrist): a name with ``wrist``, else LeRobot's
+    LIBERO ``...image2``, takes the wrist image; with neither, the config's order."""
+    wrist = [n for n in names if "wrist" in n.lower()] or [n for n in names if n.endswith("image2")]
+    if len(wrist) != 1:
+        return list(names)
+    return [next(n for n in names if n != wrist[0]), wrist[0]]
+
+
+def row_noise(seed: int | None, chunk_size: int, action_dim: int):
+    """One row's initial flow-matching noise: standard normal from a CPU generator seeded with ``seed``."""
+    import torch
+
+    generator = torch.Generator(device="cpu").manual_seed(reduce_seed(seed))
+    return torch.randn((chunk_size, action_dim), generator=generator, dtype=torch.float32)
+
+
+class _HeadNoise:
+    """Stands in for the action head module's ``torch`` during one call: ``randn`` answers the batch's
+    per-row noise (once); everything else is torch's."""
+
+    def __init__(self, torch_module: Any, noise: Any) -> None:
+        self._torch, self._noise, self.draws = torch_module, noise, 0
+
+    def randn(self, *size: Any, dtype: Any = None, device: Any = None, **_: Any) -> Any:
+        shape = tuple(size[0]) if len(size) == 1 and isinstance(size[0], (tuple, list)) else tuple(size)
+        if shape != tuple(self._noise.shape) or self.draws:
+            raise RuntimeError(
+                f"the action head drew noise of shape {shape} (draw {self.draws + 1}); expected one draw of "
+                f"{tuple(self._noise.shape)}: this LeRobot samples otherwise, and sampling cannot be seeded per request"
+            )
+        self.draws += 1
+        return self._noise.to(device=device, dtype=dtype)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._torch, name)
+
+
+class JepaBackend:
+    """One loaded checkpoint: :meth:`infer_batch` runs one forward pass for any number of rows."""
+
+    def __init__(self, checkpoint: Path, policy, preprocessor, action_statistics: dict, device: str) -> None:
+        import lerobot
+        from lerobot.policies.vla_jepa import action_head
+
+        config = policy.config
+        self.chunk_length = int(config.chunk_size)
+        self.action_dim = int(config.output_features["action"].shape[0])
+        cameras = [n for n, f in config.input_features.items() if f.type.value.endswith("VISUAL")]
+        if len(cameras) != 2:
+            raise CheckpointError(f"{checkpoint} takes {len(cameras)} camera images; VLA-JEPA's LIBERO client sends 2")
+        self.image_keys = camera_keys(cameras)
+        self.metadata: dict = {
+            "policy_type": POLICY_TYPE,
+            "checkpoint": str(checkpoint),
+            "checkpoint_fingerprint": fingerprint(checkpoint),
+            "chunk_length": self.chunk_length,
+            "action_dim": self.action_dim,
+            "action_statistics": action_statistics,
+            "image_keys": list(self.image_keys),
+            "lerobot_version": str(lerobot.__version__),
+        }
+        self._policy, self._preprocessor, self._device = policy, preprocessor, device
+        self._head_module = action_head
+
+    def infer_batch(self, rows: list[Row]) -> list[np.ndarray]:
+        """The normalized chunk (chunk_length, action_dim) float32 of each row; a row's chunk does not depend
+        on the other rows (its noise comes from its own seed)."""
+        import torch
+
+        if not rows:
+            return []
+
+        def images(pick) -> Any:
+            stacked = torch.from_numpy(np.stack([np.asarray(pick(row)) for row in rows]))
+            return stacked.permute(0, 3, 1, 2).contiguous().to(torch.float32) / 255.0
+
+        batch = {
+            self.image_keys[0]: images(lambda row: row.image),
+            self.image_keys[1]: images(lambda row: row.wrist_image),
+            "observation.state": torch.from_numpy(np.stack([row.state for row in rows]).astype(np.float32)),
+            "task": [row.instruction for row in rows],
+        }
+        noise = torch.stack([row_noise(row.seed, self.chunk_length, self.action_dim) for row in rows])
+        stand_in = _HeadNoise(torch, noise)
+        real_torch = self._head_module.torch
+        self._head_module.torch = stand_in
+        try:
+            with torch.inference_mode():
+                chunks = self._policy.predict_action_chunk(self._preprocessor(batch))
+        finally:
+            self._head_module.torch = real_torch
+        if stand_in.draws != 1:
+            raise RuntimeError("the action head drew no noise: this LeRobot samples otherwise (cannot seed it)")
+        chunks = chunks.to("cpu", torch.float32).numpy()
+        return [np.array(chunk) for chunk in chunks]
+
+
+def action_statistics(postprocessor) -> dict:
+    """The min/max the checkpoint's postprocessor un-normalizes actions with, as the client reads them (every
+    dimension un-normalized, as LeRobot does: its gripper snap comes first, so a -1..1 gripper range keeps 0/1)."""
+    for step in postprocessor.steps:
+        stats = getattr(step, "stats", None)
+        if type(step).__name__.startswith("Unnormalizer") and stats and "action" in stats:
+            low, high = (np.asarray(stats["action"][key], dtype=np.float64).reshape(-1) for key in ("min", "max"))
+            return {"min": low.tolist(), "max": high.tolist(), "mask": [True] * len(low)}
+    raise CheckpointError("the checkpoint's postprocessor has no min/max action statistics")
+
+
+def load_backend(checkpoint: Path, device: str = "cpu") -> JepaBackend:
+    """Load a LeRobot VLA-JEPA checkpoint folder with its saved processors; CheckpointError if not usable."""
+    folder = check_checkpoint(checkpoint)
+    config_json = json.loads((folder / "config.json").read_text())
+    state = (config_json.get("input_features") or {}).get("observation.state") or {}
+    if list(state.get("shape", [])) != [STATE_SIZE]:
+        raise CheckpointError(f"{folder} takes a state of shape {state.get('shape')}; the client sends {STATE_SIZE}")
+
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    config = PreTrainedConfig.from_pretrained(str(folder))
+    config.device = device
+    log = io.StringIO()
+    with contextlib.redirect_stdout(log):  # LeRobot prints banners, and prints (not raises) load failures
+        policy = get_policy_class(POLICY_TYPE).from_pretrained(str(folder), config=config)
+    failure = next((line for line in log.getvalue().splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
+    if failure is not None:
+        raise CheckpointError(f"{folder / 'model.safetensors'} does not fit the {POLICY_TYPE} model: {failure}")
+    policy.to(device)
+    policy.eval()
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy.config,
+        pretrained_path=str(folder),
+        preprocessor_overrides={"device_processor": {"device": device}},
+    )
+    return JepaBackend(folder, policy, preprocessor, action_statistics(postprocessor), device)

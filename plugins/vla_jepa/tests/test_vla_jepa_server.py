@@ -1,0 +1,171 @@
+"""Our VLA-JEPA server's protocol with a numpy stand-in backend (real websocket on 127.0.0.1), upstream's
+client codec, our client reading the statistics from its metadata, and the serve command's user errors."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+from jepa_standin import ACTION_STATS
+from openpi_client import msgpack_numpy as upstream_codec
+from websockets.exceptions import ConnectionClosedError
+from websockets.sync.client import connect
+
+from conflictbench.testing import camera_observation
+from conflictbench_vla_jepa.client import VlaJepaConfig, load
+from conflictbench_vla_jepa.processing import ActionStatistics, camera_image, env_actions
+from conflictbench_vla_jepa.protocol import Row, infer_request
+from conflictbench_vla_jepa.server import JepaPolicyServer
+
+PLUGIN_ROOT = Path(__file__).resolve().parents[1]
+CHUNK = 5
+
+
+class StandInBackend:
+    """Normalized chunks that follow every field of a row; records each call's rows."""
+
+    def __init__(self):
+        self.calls: list[list[Row]] = []
+        self.metadata = {"policy_type": "vla_jepa", "checkpoint_fingerprint": "sha256:standin",
+                         "chunk_length": CHUNK, "action_statistics": ACTION_STATS}  # fmt: skip
+
+    def infer_batch(self, rows: list[Row]) -> list[np.ndarray]:
+        self.calls.append(rows)
+        if any("fail" in row.instruction for row in rows):
+            raise RuntimeError("the model failed on purpose")
+        return [chunk_for(row) for row in rows]
+
+
+def chunk_for(row: Row) -> np.ndarray:
+    features = [row.image.mean() / 255, row.wrist_image[:, :112].mean() / 255, row.state[0], len(row.instruction) / 99,
+                (row.seed or 0) % 1000 / 1000, row.state[7]]  # fmt: skip
+    return np.array([[*(np.array(features) * (t + 1) / CHUNK), (0.2, 0.9)[t % 2]] for t in range(CHUNK)], np.float32)
+
+
+@contextmanager
+def serving(backend, max_batch: int = 2):
+    bound, ready = {}, threading.Event()
+
+    def main() -> None:
+        async def go() -> None:
+            bound["stop"], bound["loop"] = asyncio.Event(), asyncio.get_running_loop()
+            server = JepaPolicyServer(backend, max_batch)
+            await server.run("127.0.0.1", 0, bound["stop"], lambda h, p: (bound.update(port=p), ready.set()))
+
+        asyncio.run(go())
+
+    thread = threading.Thread(target=main, daemon=True)
+    thread.start()
+    assert ready.wait(10)
+    try:
+        yield f"ws://127.0.0.1:{bound['port']}"
+    finally:
+        bound["loop"].call_soon_threadsafe(bound["stop"].set)
+        thread.join(10)
+
+
+def ask(connection, message) -> dict:
+    connection.send(upstream_codec.Packer().pack(message))
+    return upstream_codec.unpackb(connection.recv())
+
+
+def request(step: int = 0, instruction: str = "put the bowl on the plate", seed: int = 11) -> dict:
+    obs = camera_observation(step, instruction)
+    images = [camera_image(obs.agentview_image), camera_image(obs.wrist_image)]
+    return infer_request(images, instruction, obs.state, f"r{step}", None, seed)
+
+
+def test_upstreams_envelope_ping_infer_errors_in_frame_and_the_connection_stays_open():
+    backend = StandInBackend()
+    with serving(backend) as url, connect(url, proxy=None) as connection:
+        metadata = upstream_codec.unpackb(connection.recv())
+        assert metadata["max_batch"] == 2 and metadata["fixed_shape"] is True and metadata["chunk_length"] == CHUNK
+        assert ask(connection, {"type": "ping", "request_id": "p"}) == {
+            "status": "ok", "ok": True, "type": "ping", "request_id": "p"}  # fmt: skip
+        reply = ask(connection, request(3))
+        assert reply["status"] == "ok" and reply["type"] == "inference_result" and reply["request_id"] == "r3"
+        row = backend.calls[-1][0]
+        assert row.seed == 11 and row.state.shape == (8,) and row.image.shape == (224, 224, 3)
+        np.testing.assert_array_equal(reply["data"]["normalized_actions"], chunk_for(row)[None])
+        assert len(backend.calls[-1]) == 2  # padded to the fixed shape
+        bad = request(1)
+        bad["payload"]["state"] = [np.zeros((1, 7))]
+        for message, fragment in [
+            ({"type": "train"}, "Unsupported message type 'train'"),
+            (bad, "row 0: 'state' must be 8 finite numbers"),
+            (request(2, "fail here"), "RuntimeError: the model failed on purpose"),
+        ]:
+            answer = ask(connection, message)
+            assert answer["status"] == "error" and answer["ok"] is False and fragment in answer["error"]["message"]
+        assert ask(connection, request(4))["status"] == "ok"  # the same connection goes on
+
+
+def test_rows_of_one_payload_are_answered_in_order_and_a_non_map_ends_the_connection():
+    backend = StandInBackend()
+    first, second = request(1, seed=5), request(2, "open the drawer", seed=5)
+    both = dict(first)
+    both["payload"] = {**first["payload"], **{key: first["payload"][key] + second["payload"][key]
+                                              for key in ("batch_images", "instructions", "state")}}  # fmt: skip
+    with serving(backend) as url, connect(url, proxy=None) as connection:
+        connection.recv()
+        chunks = ask(connection, both)["data"]["normalized_actions"]
+        assert chunks.shape == (2, CHUNK, 7)
+        assert [row.instruction for row in backend.calls[-1]] == ["put the bowl on the plate", "open the drawer"]
+        np.testing.assert_array_equal(chunks[1], chunk_for(backend.calls[-1][1]))
+        connection.send(upstream_codec.Packer().pack([1, 2]))
+        assert "binary msgpack map" in connection.recv()
+        with pytest.raises(ConnectionClosedError):
+            connection.recv()
+
+
+def test_our_client_takes_the_statistics_and_chunk_length_from_our_servers_metadata():
+    backend = StandInBackend()
+    with serving(backend, max_batch=1) as url:
+        policy = load("vla-jepa", VlaJepaConfig(server=url, checkpoint="ignored", connect_retries=0))
+        try:
+            obs = camera_observation(5)
+            actions = policy.act(obs)
+            expected = env_actions(chunk_for(backend.calls[-1][0]).astype(np.float64),
+                                   ActionStatistics.from_mapping(ACTION_STATS), CHUNK)  # fmt: skip
+            np.testing.assert_allclose(actions, expected, rtol=1e-6)
+            assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1}
+        finally:
+            policy.close()
+
+
+def _serve(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "conflictbench_vla_jepa", *args], capture_output=True, text=True,
+                          timeout=120, cwd=PLUGIN_ROOT)  # fmt: skip
+
+
+def _checkpoint(folder: Path, kind: str | None = "vla_jepa", files=("model.safetensors", "policy_preprocessor.json",
+                "policy_postprocessor.json")) -> Path:  # fmt: skip
+    folder.mkdir()
+    if kind:
+        (folder / "config.json").write_text(json.dumps({"type": kind}))
+    for name in files:
+        (folder / name).write_text("")
+    return folder
+
+
+@pytest.mark.parametrize(
+    "make, fragment",
+    [
+        (lambda tmp: tmp / "nowhere", "no checkpoint folder at"),
+        (lambda tmp: _checkpoint(tmp / "c", None), "is not a LeRobot checkpoint (no config.json) (a VLA-JEPA training"),
+        (lambda tmp: _checkpoint(tmp / "c", "pi05"), "holds a pi05 policy, not a vla_jepa one"),
+        (lambda tmp: _checkpoint(tmp / "c", files=("model.safetensors",)), "has no policy_preprocessor.json"),
+        (lambda tmp: _checkpoint(tmp / "c"), "run this with the model environment's python"),  # no torch here
+    ],
+)
+def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragment):
+    done = _serve("serve", "--policy", "vla-jepa", "--checkpoint", str(make(tmp_path)))
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith("conflictbench-vla-jepa: ") and fragment in done.stderr
