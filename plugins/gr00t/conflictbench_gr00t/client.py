@@ -1,5 +1,7 @@
 """GR00T N1.7 as conflictbench sees it: GR00T's LIBERO client, talking to a GR00T policy server over ZeroMQ.
 
+``conflictbench model=gr00t model.checkpoint=DIR`` starts our server (``conflictbench-gr00t serve``) for a
+LeRobot checkpoint in the model environment, waits until it answers a ping, plays, and stops it.
 ``conflictbench model=gr00t model.server=tcp://HOST:5555 model.checkpoint=NAME`` plays against a running
 server: NVIDIA's own (``gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag NEW_EMBODIMENT
 --use-sim-policy-wrapper`` on a GPU machine) or ours. NVIDIA's server does not say what it hosts, so
@@ -18,9 +20,10 @@ import numpy as np
 from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, sampling_seed
 from conflictbench.core import LIBERO_SUITES
 
+from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
 from .processing import ACTION_STEPS, MAX_EPISODE_STEPS, WARMUP_STEPS, env_actions, gr00t_observation
 from .protocol import NOISE_SEED_LIMIT, get_action_request
-from .transport import Gr00tTransport
+from .transport import Gr00tTransport, answers_ping
 
 
 @dataclass
@@ -29,10 +32,12 @@ class Gr00tConfig(HostedConfig):
 
     identity_exempt: ClassVar[tuple[str, ...]] = (*HostedConfig.identity_exempt, "api_token")
 
-    server: str = ""
-    """``tcp://HOST:PORT`` of a running GR00T server (NVIDIA's ``run_gr00t_server.py``, port 5555 by default)."""
     checkpoint: str = ""
-    """With ``server``: the name of the checkpoint that server hosts (part of every episode's identity)."""
+    """A LeRobot GR00T checkpoint folder (a server is started for it); with ``server``, the name of what that
+    server hosts (NVIDIA's does not say)."""
+    server: str = ""
+    """``tcp://HOST:PORT`` of a running GR00T server (NVIDIA's ``run_gr00t_server.py``, port 5555 by default,
+    or ours); empty: start one for ``checkpoint``."""
     action_steps: int = ACTION_STEPS
     """Actions of each chunk executed before asking again (GR00T's LIBERO evaluation: 8)."""
     max_steps: int = 0
@@ -50,7 +55,7 @@ class Gr00tPolicy(HostedPolicy):
     server_module = "conflictbench_gr00t"
     transport = Gr00tTransport
     url_scheme = "tcp"
-    policy_types = {"gr00t": "groot"}
+    policy_types = {"gr00t": POLICY_TYPE}
     default_max_steps = {suite: MAX_EPISODE_STEPS for suite in LIBERO_SUITES}
 
     def __init__(self, name: str, cfg: Gr00tConfig, checkpoint: Path | None = None, python: Path | None = None):
@@ -60,16 +65,24 @@ class Gr00tPolicy(HostedPolicy):
     def make_transport(self, url: str) -> Gr00tTransport:
         return Gr00tTransport(url, api_token=self.cfg.api_token or None)  # its ping carries the token too
 
+    def ready_check(self, url: str):
+        return lambda: answers_ping(url)  # ZeroMQ has no HTTP health endpoint: a started server answers a ping
+
+    @classmethod
+    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
+        try:
+            return check_checkpoint(folder)
+        except CheckpointError as exc:
+            raise UserError(str(exc)) from None
+
+    @classmethod
+    def fingerprint(cls, folder: Path) -> str:
+        return fingerprint(folder)
+
     @classmethod
     def load(cls, name: str, cfg: Gr00tConfig) -> Gr00tPolicy:
         if cfg.action_steps < 1:
             raise UserError(f"model.action_steps must be >= 1, got {cfg.action_steps}")
-        if not cfg.server:
-            raise UserError(
-                "model=gr00t needs model.server=tcp://HOST:PORT and model.checkpoint=NAME: serve the checkpoint "
-                "with NVIDIA's `gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag NEW_EMBODIMENT "
-                "--use-sim-policy-wrapper` (this plugin does not start a server of its own yet)"
-            )
         return super().load(name, cfg)
 
     def encode(self, observation: Observation) -> dict[str, Any]:
@@ -88,5 +101,6 @@ class Gr00tPolicy(HostedPolicy):
 
 
 def load(name: str, cfg: Gr00tConfig) -> Gr00tPolicy:
-    """The policy for ``model=gr00t``, connected to ``cfg.server``."""
+    """The policy for ``model=gr00t``: connected to ``cfg.server``, or ready to start a server for
+    ``cfg.checkpoint``."""
     return Gr00tPolicy.load(name, cfg)

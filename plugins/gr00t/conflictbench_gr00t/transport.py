@@ -115,3 +115,15 @@ class Gr00tTransport(Transport):
             socket.close(linger=0)
         if monitor is not None:
             monitor.close(linger=0)
+
+
+def answers_ping(url: str, api_token: str | None = None, timeout: float = 1.0) -> bool:
+    """Whether a GR00T server at ``url`` answers a ping now (how a started server is known to be ready)."""
+    transport = Gr00tTransport(url, api_token=api_token)
+    try:
+        transport.connect(timeout=timeout)
+        return transport.exchange(endpoint_request(PING, api_token), timeout=timeout).get("status") == "ok"
+    except (OSError, InfrastructureError):
+        return False
+    finally:
+        transport.close()

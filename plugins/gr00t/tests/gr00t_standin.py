@@ -6,21 +6,9 @@ import sys
 from pathlib import Path
 
 from conflictbench import ServerProcess, free_port
-from conflictbench_gr00t.protocol import PING, endpoint_request
-from conflictbench_gr00t.transport import Gr00tTransport
+from conflictbench_gr00t.transport import answers_ping
 
 STANDIN = Path(__file__).resolve().parent / "nvidia_standin_server.py"
-
-
-def answers_ping(url: str, api_token: str | None = None) -> bool:
-    transport = Gr00tTransport(url, api_token=api_token)
-    try:
-        transport.connect(timeout=1.0)
-        return transport.exchange(endpoint_request(PING, api_token), timeout=1.0)["status"] == "ok"
-    except OSError:
-        return False
-    finally:
-        transport.close()
 
 
 def start_standin(tmp_path: Path, *options: str, api_token: str | None = None) -> tuple[ServerProcess, str]:

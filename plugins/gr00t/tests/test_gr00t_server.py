@@ -1,0 +1,214 @@
+"""Our GR00T server's protocol with a numpy stand-in backend (real ZeroMQ on 127.0.0.1): NVIDIA's REQ clients
+unchanged, its error answers, batching across clients, and our client reading what is hosted."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import threading
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+import zmq
+from nvidia_standin_server import from_bytes, to_bytes
+
+from conflictbench.testing import camera_observation
+from conflictbench_gr00t.client import Gr00tConfig, load
+from conflictbench_gr00t.processing import env_actions, gr00t_observation
+from conflictbench_gr00t.protocol import ACTION_KEYS, LANGUAGE_KEY
+from conflictbench_gr00t.server import Gr00tPolicyServer, Row
+
+HORIZON = 16
+
+
+class StandInBackend:
+    """Chunks that follow each row's image, state, text and seed; records each call's rows; can be held."""
+
+    def __init__(self):
+        self.calls: list[list[Row]] = []
+        self.hold, self.entered = threading.Event(), threading.Event()
+        self.hold.set()
+        self.metadata = {"policy_type": "groot", "checkpoint_fingerprint": "sha256:standin", "action_horizon": HORIZON}
+
+    def infer_batch(self, rows: list[Row]) -> list[dict[str, np.ndarray]]:
+        self.entered.set()
+        self.hold.wait(10)
+        self.calls.append(rows)
+        if any("fail" in row.instruction for row in rows):
+            raise RuntimeError("the model failed on purpose")
+        return [chunk_for(row) for row in rows]
+
+
+def chunk_for(row: Row) -> dict[str, np.ndarray]:
+    obs = row.observation
+    values = [obs["video.image"][0, 0, :128].mean() / 255, obs["video.wrist_image"][0, 0, :, :128].mean() / 255,
+              obs["state.x"][0, 0, 0], obs["state.gripper"][0, 0, 1], len(row.instruction) / 99,
+              (row.seed or 0) % 1000 / 1000]  # fmt: skip
+    steps = np.arange(1, HORIZON + 1, dtype=np.float32)[:, None]
+    chunk = {key: (values[i] * steps).astype(np.float32) for i, key in enumerate(ACTION_KEYS[:-1])}
+    chunk["action.gripper"] = np.tile(np.array([[0.0], [1.0]], np.float32), (HORIZON // 2, 1))
+    return chunk
+
+
+@contextmanager
+def serving(backend, max_batch: int = 2, api_token: str | None = None):
+    bound, ready = {}, threading.Event()
+
+    def main() -> None:
+        async def go() -> None:
+            bound["stop"], bound["loop"] = asyncio.Event(), asyncio.get_running_loop()
+            server = bound["server"] = Gr00tPolicyServer(backend, max_batch, api_token)
+            await server.run("127.0.0.1", 0, bound["stop"], lambda h, p: (bound.update(port=p), ready.set()))
+
+        asyncio.run(go())
+
+    thread = threading.Thread(target=main, daemon=True)
+    thread.start()
+    assert ready.wait(10)
+    try:
+        backend.server = bound["server"]  # for tests that watch its queue
+        yield f"tcp://127.0.0.1:{bound['port']}"
+    finally:
+        backend.hold.set()
+        bound["loop"].call_soon_threadsafe(bound["stop"].set)
+        thread.join(10)
+        assert not thread.is_alive()
+
+
+@contextmanager
+def nvidia_client(url: str):
+    """A REQ socket as NVIDIA's ``PolicyClient`` uses it, with the stand-in's independent codec."""
+    context = zmq.Context()
+    socket = context.socket(zmq.REQ)
+    socket.setsockopt(zmq.RCVTIMEO, 10_000)
+    socket.connect(url)
+
+    def call(request: dict):
+        socket.send(to_bytes(request))
+        return from_bytes(socket.recv())
+
+    try:
+        yield call
+    finally:
+        socket.close(linger=0)
+        context.term()
+
+
+def observation_request(step: int = 0, text: str = "put the bowl on the plate", seed: int | None = 3) -> dict:
+    obs = camera_observation(step, text)
+    sent = gr00t_observation(obs.agentview_image, obs.wrist_image, obs.state, obs.instruction)
+    options = None if seed is None else {"conflictbench/noise_seed": seed}
+    return {"endpoint": "get_action", "data": {"observation": sent, "options": options}}
+
+
+def test_nvidias_client_gets_actions_errors_as_answers_and_the_server_goes_on():
+    backend = StandInBackend()
+    with serving(backend) as url, nvidia_client(url) as call:
+        assert call({"endpoint": "ping"}) == {"status": "ok", "message": "Server is running"}
+        action, info = call(observation_request(2))
+        row = backend.calls[-1][0]
+        assert row.seed == 3 and row.instruction == "put the bowl on the plate" and len(backend.calls[-1]) == 2
+        for key in ACTION_KEYS:
+            assert action[key].dtype == np.float32 and action[key].shape == (1, HORIZON, 1)
+            np.testing.assert_array_equal(action[key][0], chunk_for(row)[key])
+        assert info == {"batch_size": 1}
+        broken = observation_request(1)
+        broken["data"]["observation"]["state.x"] = np.zeros((1, 1, 2), np.float32)
+        assert call({"endpoint": "kill"}) == {"error": "Unknown endpoint: kill"}
+        assert "'state.x' must be float32 (B, 1, 1)" in call(broken)["error"]
+        assert call(observation_request(4, "fail here")) == {"error": "RuntimeError: the model failed on purpose"}
+        assert isinstance(call(observation_request(5))[0], dict)  # still serving
+        assert call({"endpoint": "conflictbench_metadata"})["max_batch"] == 2
+
+
+def test_requests_waiting_from_several_clients_share_one_call_of_the_fixed_shape():
+    backend = StandInBackend()
+    with (
+        serving(backend, max_batch=4) as url,
+        nvidia_client(url) as a,
+        nvidia_client(url) as b,
+        nvidia_client(url) as c,
+    ):
+        backend.hold.clear()  # the first request's call is held, so the next two wait for one call together
+        replies: dict[str, dict] = {}
+
+        def ask(call, text: str) -> None:
+            replies[text] = call(observation_request(0, text))[0]
+
+        first = threading.Thread(target=ask, args=(a, "task one"))
+        first.start()
+        assert backend.entered.wait(10)  # the first call is in the model, held
+        rest = [threading.Thread(target=ask, args=(call, text)) for call, text in ((b, "task two"), (c, "task six"))]
+        for thread in rest:
+            thread.start()
+        for _ in range(200):
+            if backend.server.batcher.queued == 2:
+                break
+            threading.Event().wait(0.05)
+        backend.hold.set()
+        for thread in (first, *rest):
+            thread.join(10)
+    assert [len(call) for call in backend.calls] == [4, 4]  # every call padded to max_batch rows
+    assert [row.instruction for row in backend.calls[0]] == ["task one"] * 4
+    assert sorted(row.instruction for row in backend.calls[1][:2]) == ["task six", "task two"]
+    for text, action in replies.items():
+        row = next(row for call in backend.calls for row in call if row.instruction == text)
+        np.testing.assert_array_equal(action["action.x"][0], chunk_for(row)["action.x"])
+
+
+def test_the_api_token_is_required_when_set():
+    with serving(StandInBackend(), api_token="s3cret") as url, nvidia_client(url) as call:
+        assert call({"endpoint": "ping"}) == {"error": "Unauthorized: Invalid API token"}
+        assert call({"endpoint": "ping", "api_token": "s3cret"})["status"] == "ok"
+
+
+def test_our_client_reads_what_is_hosted_and_executes_eight_actions():
+    backend = StandInBackend()
+    with serving(backend, max_batch=1) as url:
+        policy = load("gr00t", Gr00tConfig(server=url, checkpoint="ignored", connect_retries=0))
+        try:
+            obs = camera_observation(6)
+            actions = policy.act(obs)
+            expected = env_actions({key: value[None] for key, value in chunk_for(backend.calls[-1][0]).items()})
+            np.testing.assert_allclose(actions, expected[:8], rtol=1e-6)
+            assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1}
+        finally:
+            policy.close()
+
+
+@pytest.mark.parametrize("language", [["a", "b"], "text"])
+def test_a_text_list_that_does_not_match_the_rows_is_refused(language):
+    request = observation_request(0)
+    request["data"]["observation"][LANGUAGE_KEY] = language
+    with serving(StandInBackend()) as url, nvidia_client(url) as call:
+        assert "must be a list of 1 strings" in call(request)["error"]
+
+
+def _checkpoint(folder, kind: str | None = "groot", files=("model.safetensors", "policy_preprocessor.json",
+                "policy_postprocessor.json")):  # fmt: skip
+    folder.mkdir()
+    if kind:
+        (folder / "config.json").write_text(json.dumps({"type": kind}))
+    for name in files:
+        (folder / name).write_text("")
+    return folder
+
+
+@pytest.mark.parametrize(
+    "make, fragment",
+    [
+        (lambda tmp: tmp / "nowhere", "no checkpoint folder at"),
+        (lambda tmp: _checkpoint(tmp / "c", None), "not a LeRobot checkpoint (no config.json) (an Isaac-GR00T"),
+        (lambda tmp: _checkpoint(tmp / "c", "vla_jepa"), "holds a vla_jepa policy, not a groot one"),
+        (lambda tmp: _checkpoint(tmp / "c", files=("model.safetensors",)), "has no policy_preprocessor.json"),
+        (lambda tmp: _checkpoint(tmp / "c"), "run this with the model environment's python"),  # no torch here
+    ],
+)
+def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragment):
+    argv = [sys.executable, "-m", "conflictbench_gr00t", "serve", "--policy", "gr00t", "--checkpoint"]
+    done = subprocess.run([*argv, str(make(tmp_path))], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith("conflictbench-gr00t: ") and fragment in done.stderr
