@@ -16,8 +16,8 @@ Sampling depends on the request, never on the call order or batch company. LeRob
 ignores ``noise=``: the action head draws ``torch.randn(B, chunk_size, action_dim)`` itself
 (``VLAJEPAActionHead.predict_action``), so a row's noise would be a slice of one draw for the whole batch. This
 backend hands the head each row's own noise instead, drawn from a CPU generator seeded with the row's seed (0
-when it has none), by standing in for that module's ``torch`` during the call; a call in which the head does
-not draw exactly once fails (a LeRobot whose head samples otherwise cannot be seeded per request so).
+when it has none): conflictbench-serving's :func:`~conflictbench_serving.seeding.seeded_draw`, which fails a
+call in which the head does not draw exactly once.
 
 Imports torch and LeRobot only inside :func:`load_backend`.
 """
@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from conflictbench_serving.checkpoints import reduce_seed
+from conflictbench_serving.seeding import row_noise, seeded_draw
 
 from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
 from .protocol import STATE_SIZE, Row
@@ -48,35 +48,6 @@ def camera_keys(names: list[str]) -> list[str]:
     if len(wrist) != 1:
         return list(names)
     return [next(n for n in names if n != wrist[0]), wrist[0]]
-
-
-def row_noise(seed: int | None, chunk_size: int, action_dim: int):
-    """One row's initial flow-matching noise: standard normal from a CPU generator seeded with ``seed``."""
-    import torch
-
-    generator = torch.Generator(device="cpu").manual_seed(reduce_seed(seed))
-    return torch.randn((chunk_size, action_dim), generator=generator, dtype=torch.float32)
-
-
-class _HeadNoise:
-    """Stands in for the action head module's ``torch`` during one call: ``randn`` answers the batch's
-    per-row noise (once); everything else is torch's."""
-
-    def __init__(self, torch_module: Any, noise: Any) -> None:
-        self._torch, self._noise, self.draws = torch_module, noise, 0
-
-    def randn(self, *size: Any, dtype: Any = None, device: Any = None, **_: Any) -> Any:
-        shape = tuple(size[0]) if len(size) == 1 and isinstance(size[0], (tuple, list)) else tuple(size)
-        if shape != tuple(self._noise.shape) or self.draws:
-            raise RuntimeError(
-                f"the action head drew noise of shape {shape} (draw {self.draws + 1}); expected one draw of "
-                f"{tuple(self._noise.shape)}: this LeRobot samples otherwise, and sampling cannot be seeded per request"
-            )
-        self.draws += 1
-        return self._noise.to(device=device, dtype=dtype)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._torch, name)
 
 
 class JepaBackend:
@@ -124,17 +95,9 @@ class JepaBackend:
             "observation.state": torch.from_numpy(np.stack([row.state for row in rows]).astype(np.float32)),
             "task": [row.instruction for row in rows],
         }
-        noise = torch.stack([row_noise(row.seed, self.chunk_length, self.action_dim) for row in rows])
-        stand_in = _HeadNoise(torch, noise)
-        real_torch = self._head_module.torch
-        self._head_module.torch = stand_in
-        try:
-            with torch.inference_mode():
-                chunks = self._policy.predict_action_chunk(self._preprocessor(batch))
-        finally:
-            self._head_module.torch = real_torch
-        if stand_in.draws != 1:
-            raise RuntimeError("the action head drew no noise: this LeRobot samples otherwise (cannot seed it)")
+        noise = torch.stack([row_noise(row.seed, (self.chunk_length, self.action_dim)) for row in rows])
+        with torch.inference_mode(), seeded_draw(self._head_module, noise):
+            chunks = self._policy.predict_action_chunk(self._preprocessor(batch))
         chunks = chunks.to("cpu", torch.float32).numpy()
         return [np.array(chunk) for chunk in chunks]
 
