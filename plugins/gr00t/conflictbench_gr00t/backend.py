@@ -25,28 +25,16 @@ Imports torch and LeRobot only inside :func:`load_backend`.
 
 from __future__ import annotations
 
-import contextlib
-import io
 from pathlib import Path
 
 import numpy as np
 
+from conflictbench_serving.lerobot import camera_order, load_policy
 from conflictbench_serving.seeding import row_noise, seeded_draw
 
 from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
 from .protocol import ACTION_KEYS, STATE_KEYS, VIDEO_KEYS
 from .server import Row
-
-_WEIGHT_FAILURES = ("Could not load state dict", "Returning model without loading pretrained weights")
-
-
-def camera_keys(names: list[str]) -> list[str]:
-    """The checkpoint's two camera inputs as (agentview, wrist): a name with ``wrist``, else LeRobot's
-    LIBERO ``...image2``, takes the wrist image; with neither, the config's order."""
-    wrist = [n for n in names if "wrist" in n.lower()] or [n for n in names if n.endswith("image2")]
-    if len(wrist) != 1:
-        return list(names)
-    return [next(n for n in names if n != wrist[0]), wrist[0]]
 
 
 def nvidia_actions(chunk: np.ndarray) -> dict[str, np.ndarray]:
@@ -67,7 +55,7 @@ class GrootBackend:
         cameras = [n for n, f in config.input_features.items() if f.type.value.endswith("VISUAL")]
         if len(cameras) != 2:
             raise CheckpointError(f"{checkpoint} takes {len(cameras)} camera images; GR00T's LIBERO client sends 2")
-        self.image_keys = camera_keys(cameras)
+        self.image_keys = camera_order(cameras)
         heads = [m for m in policy.modules() if isinstance(m, groot_n1_7.GR00TN17ActionHead)]
         if len(heads) != 1:
             raise CheckpointError(f"{checkpoint}: expected one GR00T N1.7 action head, found {len(heads)}")
@@ -112,25 +100,5 @@ class GrootBackend:
 def load_backend(checkpoint: Path, device: str = "cpu") -> GrootBackend:
     """Load a LeRobot GR00T checkpoint folder with its saved processors; CheckpointError if not usable."""
     folder = check_checkpoint(checkpoint)
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
-    config = PreTrainedConfig.from_pretrained(str(folder))
-    config.device = device
-    log = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(log):  # LeRobot prints banners, and prints (not raises) load failures
-            policy = get_policy_class(POLICY_TYPE).from_pretrained(str(folder), config=config)
-    except OSError as error:  # the base model or the VLM processor is not in the Hugging Face cache
-        raise CheckpointError(f"cannot load {folder}'s base model or processor: {error}".splitlines()[0]) from None
-    failure = next((line for line in log.getvalue().splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
-    if failure is not None:
-        raise CheckpointError(f"{folder / 'model.safetensors'} does not fit the {POLICY_TYPE} model: {failure}")
-    policy.to(device)
-    policy.eval()
-    preprocessor, postprocessor = make_pre_post_processors(
-        policy.config,
-        pretrained_path=str(folder),
-        preprocessor_overrides={"device_processor": {"device": device}},
-    )
+    policy, preprocessor, postprocessor = load_policy(folder, POLICY_TYPE, device)
     return GrootBackend(folder, policy, preprocessor, postprocessor, device)

@@ -24,25 +24,31 @@ Imports torch and LeRobot only inside :func:`load_backend`, so the pure checks b
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from conflictbench_serving.checkpoints import SEED_MODULUS, reduce_seed
+from conflictbench_serving.checkpoints import reduce_seed
+from conflictbench_serving.lerobot import camera_order, load_policy
+from conflictbench_serving.seeding import row_noise
 
 from .checkpoints import POLICY_TYPES, CheckpointError, checkpoint_type, fingerprint
 from .protocol import IMAGE, NOISE_SEED, PROMPT, STATE, STATE_SIZE, WRIST_IMAGE, validate_request
 
-__all__ = ["POLICY_TYPES", "CheckpointError", "PiBackend", "checkpoint_type", "load_backend", "noise_for_seed"]
+__all__ = [
+    "POLICY_TYPES",
+    "CheckpointError",
+    "PiBackend",
+    "camera_order",
+    "checkpoint_type",
+    "load_backend",
+    "noise_for_seed",
+]
 
 #: The processor pipelines LeRobot saves beside the weights; without them there are no normalization stats.
 PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
-#: Lines LeRobot's pi ``from_pretrained`` prints, instead of raising, when the weights did not load.
-_WEIGHT_FAILURES = ("Could not load state dict", "Returning model without loading pretrained weights")
 
 
 def request_seed(request: dict) -> int:
@@ -52,10 +58,7 @@ def request_seed(request: dict) -> int:
 
 def noise_for_seed(seed: int, chunk_size: int, max_action_dim: int):
     """The flow-matching noise of one request: standard normal, from a CPU generator seeded with ``seed``."""
-    import torch
-
-    generator = torch.Generator(device="cpu").manual_seed(seed % SEED_MODULUS)
-    return torch.randn((chunk_size, max_action_dim), generator=generator, dtype=torch.float32)
+    return row_noise(seed, (chunk_size, max_action_dim))
 
 
 def image_feature_names(config_features: dict[str, Any]) -> list[str]:
@@ -66,16 +69,6 @@ def image_feature_names(config_features: dict[str, Any]) -> list[str]:
         if str(kind).endswith("VISUAL") and "empty_camera" not in name:
             names.append(name)
     return names
-
-
-def camera_order(names: list[str]) -> list[str]:
-    """The checkpoint's two camera inputs as (agentview, wrist): the one named like a wrist camera
-    (``wrist`` in its name, or LeRobot's LIBERO ``...image2``) takes the wrist image, whatever the order
-    in the config; with no such name, the config's order."""
-    wrist = [n for n in names if "wrist" in n.lower()] or [n for n in names if n.endswith("image2")]
-    if len(wrist) != 1:
-        return list(names)
-    return [next(n for n in names if n != wrist[0]), wrist[0]]
 
 
 def _check_inputs(folder: Path) -> None:
@@ -191,22 +184,5 @@ def load_backend(checkpoint: Path, device: str = "cpu") -> PiBackend:
     policy_type = checkpoint_type(folder)
     _check_inputs(folder)
 
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
-    config = PreTrainedConfig.from_pretrained(str(folder))
-    config.device = device
-    log = io.StringIO()
-    with contextlib.redirect_stdout(log):  # LeRobot prints banners, and prints (not raises) load failures
-        policy = get_policy_class(policy_type).from_pretrained(str(folder), config=config)
-    failure = next((line for line in log.getvalue().splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
-    if failure is not None:
-        raise CheckpointError(f"{folder / 'model.safetensors'} does not fit the {policy_type} model: {failure}")
-    policy.to(device)
-    policy.eval()
-    preprocessor, postprocessor = make_pre_post_processors(
-        policy.config,
-        pretrained_path=str(folder),
-        preprocessor_overrides={"device_processor": {"device": device}},
-    )
+    policy, preprocessor, postprocessor = load_policy(folder, policy_type, device)
     return PiBackend(folder, policy, preprocessor, postprocessor, device)

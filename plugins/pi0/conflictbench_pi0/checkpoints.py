@@ -7,10 +7,9 @@ normalization statistics sit beside them in the processor files).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from conflictbench_serving import checkpoints as shared
+from conflictbench_serving import lerobot
 from conflictbench_serving.checkpoints import CheckpointError
 
 __all__ = ["POLICY_TYPES", "WEIGHTS_FILE", "CheckpointError", "check_checkpoint", "checkpoint_type", "fingerprint"]
@@ -23,17 +22,9 @@ WEIGHTS_FILE = "model.safetensors"
 def checkpoint_type(checkpoint: str | Path) -> str:
     """The LeRobot policy type of the checkpoint folder; :class:`CheckpointError` if it is not a π one."""
     folder = Path(checkpoint).expanduser()
-    if not folder.is_dir():
-        raise CheckpointError(f"no checkpoint folder at {folder}")
-    config = folder / "config.json"
-    try:
-        kind = json.loads(config.read_text()).get("type")
-    except FileNotFoundError:
-        raise CheckpointError(f"{folder} is not a LeRobot checkpoint (no config.json)") from None
-    except (OSError, ValueError, AttributeError) as exc:
-        raise CheckpointError(f"cannot read {config}: {exc}") from None
+    kind = lerobot.checkpoint_type(folder)
     if kind not in POLICY_TYPES.values():
-        raise CheckpointError(f"{folder} holds a {kind or 'untyped'} policy, not a π one (pi0, pi05, pi0_fast)")
+        raise CheckpointError(f"{folder} holds a {kind} policy, not a π one (pi0, pi05, pi0_fast)")
     if not (folder / WEIGHTS_FILE).is_file():
         raise CheckpointError(f"{folder} has no {WEIGHTS_FILE}")
     return kind
@@ -52,7 +43,4 @@ def check_checkpoint(checkpoint: str | Path, policy: str, option: str = "model="
 def fingerprint(checkpoint: str | Path) -> str:
     """A digest of what decides the model's actions: the config, the weights and the processor files
     (normalization statistics), by content."""
-    folder = Path(checkpoint).expanduser()
-    return shared.fingerprint(
-        [folder / "config.json", folder / WEIGHTS_FILE, *sorted(folder.glob("policy_*processor*"))]
-    )
+    return lerobot.checkpoint_fingerprint(Path(checkpoint))

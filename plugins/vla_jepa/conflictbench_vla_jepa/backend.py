@@ -24,30 +24,17 @@ Imports torch and LeRobot only inside :func:`load_backend`.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from conflictbench_serving.lerobot import camera_order, load_policy
 from conflictbench_serving.seeding import row_noise, seeded_draw
 
 from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
 from .protocol import STATE_SIZE, Row
-
-#: Lines LeRobot's ``from_pretrained`` prints, instead of raising, when the weights did not load.
-_WEIGHT_FAILURES = ("Could not load state dict", "Returning model without loading pretrained weights")
-
-
-def camera_keys(names: list[str]) -> list[str]:
-    """The checkpoint's two camera inputs as (agentview, wrist): a name with ``wrist``, else LeRobot's
-    LIBERO ``...image2``, takes the wrist image; with neither, the config's order."""
-    wrist = [n for n in names if "wrist" in n.lower()] or [n for n in names if n.endswith("image2")]
-    if len(wrist) != 1:
-        return list(names)
-    return [next(n for n in names if n != wrist[0]), wrist[0]]
 
 
 class JepaBackend:
@@ -63,7 +50,7 @@ class JepaBackend:
         cameras = [n for n, f in config.input_features.items() if f.type.value.endswith("VISUAL")]
         if len(cameras) != 2:
             raise CheckpointError(f"{checkpoint} takes {len(cameras)} camera images; VLA-JEPA's LIBERO client sends 2")
-        self.image_keys = camera_keys(cameras)
+        self.image_keys = camera_order(cameras)
         self.metadata: dict = {
             "policy_type": POLICY_TYPE,
             "checkpoint": str(checkpoint),
@@ -121,22 +108,5 @@ def load_backend(checkpoint: Path, device: str = "cpu") -> JepaBackend:
     if list(state.get("shape", [])) != [STATE_SIZE]:
         raise CheckpointError(f"{folder} takes a state of shape {state.get('shape')}; the client sends {STATE_SIZE}")
 
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
-    config = PreTrainedConfig.from_pretrained(str(folder))
-    config.device = device
-    log = io.StringIO()
-    with contextlib.redirect_stdout(log):  # LeRobot prints banners, and prints (not raises) load failures
-        policy = get_policy_class(POLICY_TYPE).from_pretrained(str(folder), config=config)
-    failure = next((line for line in log.getvalue().splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
-    if failure is not None:
-        raise CheckpointError(f"{folder / 'model.safetensors'} does not fit the {POLICY_TYPE} model: {failure}")
-    policy.to(device)
-    policy.eval()
-    preprocessor, postprocessor = make_pre_post_processors(
-        policy.config,
-        pretrained_path=str(folder),
-        preprocessor_overrides={"device_processor": {"device": device}},
-    )
+    policy, preprocessor, postprocessor = load_policy(folder, POLICY_TYPE, device)
     return JepaBackend(folder, policy, preprocessor, action_statistics(postprocessor), device)
