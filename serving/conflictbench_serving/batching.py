@@ -43,6 +43,7 @@ class Batcher:
         self.max_batch = max_batch
         self.fixed_shape = fixed_shape
         self._queue: asyncio.Queue[_Pending] = asyncio.Queue()
+        self._stopped = False
         # One thread: model calls never overlap, and torch sees the same thread every time.
         self._model_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{name}-model")
 
@@ -53,7 +54,10 @@ class Batcher:
 
     async def submit(self, request: Any) -> tuple[Any, dict]:
         """The model's answer to ``request`` and the call's timing (``infer_ms``, ``batch_size``); raises
-        what the call raised, or :class:`ServerStopping`."""
+        what the call raised, or :class:`ServerStopping` (also for a request that arrives once it has stopped:
+        a connection still closing may deliver one, and nothing would ever answer it)."""
+        if self._stopped:
+            raise ServerStopping()
         pending = _Pending(request)
         self._queue.put_nowait(pending)
         return await pending.reply
@@ -86,6 +90,7 @@ class Batcher:
                         _settle(pending, result=(answer, timing))
                 batch = []
         finally:
+            self._stopped = True
             stopping = ServerStopping()
             for pending in batch:
                 _settle(pending, error=stopping)
@@ -93,7 +98,8 @@ class Batcher:
                 _settle(self._queue.get_nowait(), error=stopping)
 
     def shutdown(self) -> None:
-        """Let go of the model thread; a call still running finishes there, nothing waits for it."""
+        """Let go of the model thread: queued calls are cancelled; one still running finishes in its thread
+        (the interpreter waits for it at exit)."""
         self._model_thread.shutdown(wait=False, cancel_futures=True)
 
 

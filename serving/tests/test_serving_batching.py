@@ -110,3 +110,19 @@ def test_requests_still_waiting_when_it_stops_are_told_so():
 def test_max_batch_must_be_positive():
     with pytest.raises(ValueError, match="at least 1"):
         Batcher(Recorder(), max_batch=0, fixed_shape=True)
+
+
+def test_a_request_arriving_after_the_stop_is_told_so_at_once():
+    """A connection still closing may deliver one more request; nothing would ever answer it."""
+    batcher = Batcher(Recorder(), max_batch=1, fixed_shape=False)
+
+    async def body():
+        runner = asyncio.create_task(batcher.run())
+        await asyncio.sleep(0)
+        runner.cancel()
+        await asyncio.gather(runner, return_exceptions=True)
+        batcher.shutdown()
+        with pytest.raises(ServerStopping):
+            await asyncio.wait_for(batcher.submit("late"), timeout=2)
+
+    asyncio.run(body())

@@ -3,12 +3,15 @@
 NVIDIA's ``PolicyServer`` binds a ZeroMQ REP socket and answers one request at a time. Ours binds a ROUTER
 socket, which the same REQ clients talk to unchanged, so requests of many clients (one per simulator worker)
 are read as they come and their rows handed to conflictbench-serving's batcher (one model thread, a fixed call
-shape of ``max_batch`` rows). What NVIDIA's server does, kept: ``{"endpoint", "data"}`` requests (``get_action``
-when no endpoint is named), ``ping``, ``reset``, ``get_modality_config``, the API token, ``[action, info]``
-replies with ``action.<name>`` float32 (B, T, D), and ``{"error": message}`` for every failure (an unknown
-endpoint, a malformed observation, a failed model call), the server going on. ``kill`` is refused (the process
-that started the server stops it). Ours adds ``conflictbench_metadata`` (what is hosted) and the per-request
-seed in ``options``.
+shape of ``max_batch`` rows; the backend runs each distinct row as its own forward pass, see :mod:`.backend`).
+Every row of one request gets the request's seed.
+
+What NVIDIA's server does, kept: ``{"endpoint", "data"}`` requests (``get_action`` when no endpoint is named),
+``ping``, ``reset``, ``get_modality_config``, the API token, ``[action, info]`` replies with ``action.<name>``
+float32 (B, T, D), and ``{"error": message}`` for every failure (an unknown endpoint, a malformed observation, a
+failed model call, a reply that cannot be built), the server going on. ``kill`` is refused (the process that
+started the server stops it). Ours adds ``conflictbench_metadata`` (what is hosted) and the per-request seed in
+``options``.
 
 This module imports neither conflictbench nor torch: it runs in the model environment.
 """
@@ -104,12 +107,12 @@ class Gr00tPolicyServer:
                 raise InvalidRequest(f"'data' must be a map, got {type(data).__name__}")
             rows = split_rows(data.get("observation"), request_seed(data.get("options")))
             answers = await asyncio.gather(*(self.batcher.submit(row) for row in rows))
+            actions = {key: np.stack([chunk[key] for chunk, _ in answers]).astype(np.float32) for key in answers[0][0]}
         except ServerStopping:
             raise
         except Exception as error:  # NVIDIA's server answers every failure as {"error": ...} and goes on
             text = str(error) if isinstance(error, InvalidRequest) else f"{type(error).__name__}: {error}"
             return {ERROR: text}
-        actions = {key: np.stack([chunk[key] for chunk, _ in answers]).astype(np.float32) for key in answers[0][0]}
         return [actions, {"batch_size": answers[0][1]["batch_size"]}]
 
     async def run(self, host: str, port: int, stop: asyncio.Event, on_ready: Callable[[str, int], None] | None = None):
@@ -120,10 +123,13 @@ class Gr00tPolicyServer:
         batcher = asyncio.create_task(self.batcher.run(), name="batcher")
         handlers: set[asyncio.Task] = set()
         try:
-            if port == 0:
-                port = socket.bind_to_random_port(f"tcp://{host}")
-            else:
-                socket.bind(f"tcp://{host}:{port}")
+            try:
+                if port == 0:
+                    port = socket.bind_to_random_port(f"tcp://{host}")
+                else:
+                    socket.bind(f"tcp://{host}:{port}")
+            except zmq.ZMQError as error:  # the serve command reports an OSError as "cannot listen on ..."
+                raise OSError(error.errno, error.strerror) from None
             if on_ready is not None:
                 on_ready(host, port)
             receiving = asyncio.ensure_future(socket.recv_multipart())
@@ -148,10 +154,16 @@ class Gr00tPolicyServer:
     async def _reply(self, socket: zmq.asyncio.Socket, frames: list[bytes]) -> None:
         *envelope, message = frames  # a REQ client's identity and empty delimiter, then its message
         try:
-            reply = await self.answer(message)
+            reply = packb(await self.answer(message))
         except ServerStopping:
             return
-        await socket.send_multipart([*envelope, packb(reply)])
+        except Exception as error:  # a reply that cannot be built is still an answer: the client must not wait
+            logger.error("cannot answer a request: %s", error)
+            reply = packb({ERROR: f"{type(error).__name__}: {error}"})
+        try:
+            await socket.send_multipart([*envelope, reply])
+        except zmq.ZMQError as error:  # the socket is closing: the client reconnects and asks again
+            logger.warning("cannot send a reply: %s", error)
 
 
 def serve(

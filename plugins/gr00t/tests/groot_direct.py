@@ -3,9 +3,10 @@
     python groot_direct.py CHECKPOINT REQUESTS.npz OUT.npz
 
 For each request (the ``get_action`` observations our client sent, saved as ``obs<i>/<key>`` arrays with
-``texts`` and ``seeds``) writes ``lerobot`` (LeRobot's own sampling and postprocessing of that row alone:
-``torch.manual_seed(seed)``, then the preprocessor, ``predict_action_chunk`` untouched and the postprocessor) and
-``backend`` (our backend's chunk for the row, in the same units).
+``texts``, ``seeds`` and ``states``, the episode's own 8-D LIBERO state) writes ``lerobot`` (LeRobot's own
+sampling and postprocessing of that row alone, on a batch built here from the camera arrays and the episode's
+state under LeRobot's LIBERO names: ``torch.manual_seed(seed)``, then the preprocessor, ``predict_action_chunk``
+untouched and the postprocessor) and ``backend`` (our backend's chunk for the row as the server received it).
 """
 
 from __future__ import annotations
@@ -31,11 +32,9 @@ def main(checkpoint: str, requests_path: str, out: str) -> None:
         observation = {key: data[f"obs{i}/{key}"] for key in (*VIDEO_KEYS, *STATE_KEYS)}
         row = Row(observation, text, int(seeds[i]))
         batch = {
-            backend.image_keys[0]: torch.from_numpy(observation[VIDEO_KEYS[0]][:, 0]).permute(0, 3, 1, 2),
-            backend.image_keys[1]: torch.from_numpy(observation[VIDEO_KEYS[1]][:, 0]).permute(0, 3, 1, 2),
-            "observation.state": torch.from_numpy(
-                np.concatenate([observation[key][:, 0] for key in STATE_KEYS], axis=-1).astype(np.float32)
-            ),
+            "observation.images.image": torch.from_numpy(observation[VIDEO_KEYS[0]][:, 0]).permute(0, 3, 1, 2),
+            "observation.images.image2": torch.from_numpy(observation[VIDEO_KEYS[1]][:, 0]).permute(0, 3, 1, 2),
+            "observation.state": torch.from_numpy(data["states"][i : i + 1].astype(np.float32)),
             "task": [text],
         }
         torch.manual_seed(row.seed)

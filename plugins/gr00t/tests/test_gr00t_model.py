@@ -34,11 +34,12 @@ def test_served_actions_are_lerobots_own_sampling_and_processing(tiny_groot_chec
               for key, value in request["observation"].items() if isinstance(value, np.ndarray)}  # fmt: skip
     texts = [request["observation"]["annotation.human.action.task_description"][0] for request in requests]
     seeds = np.array([request["options"]["conflictbench/noise_seed"] for request in requests], dtype=np.uint64)
-    np.savez(tmp_path / "requests.npz", texts=json.dumps(texts), seeds=seeds, **arrays)
+    states = np.stack([obs.state for obs in observations])
+    np.savez(tmp_path / "requests.npz", texts=json.dumps(texts), seeds=seeds, states=states, **arrays)
     run_in_model_env([str(TESTS / "groot_direct.py"), str(tiny_groot_checkpoint), str(tmp_path / "requests.npz"),
                       str(tmp_path / "direct.npz")], tiny_groot_checkpoint)  # fmt: skip
     direct = np.load(tmp_path / "direct.npz")
-    # Our per-row noise and one-row passes are exactly LeRobot's own sampling of that row alone.
+    # Our per-row noise, one-row passes and key mapping are exactly LeRobot's own sampling of that row alone.
     np.testing.assert_array_equal(direct["backend"], direct["lerobot"])
     for actions, chunk in zip(served, direct["lerobot"], strict=True):
         assert actions.shape == (8, 7)  # GR00T's client executes 8 of each chunk

@@ -212,3 +212,25 @@ def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragm
     done = subprocess.run([*argv, str(make(tmp_path))], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith("conflictbench-gr00t: ") and fragment in done.stderr
+
+
+def test_a_reply_that_cannot_be_built_is_still_answered_as_an_error():
+    backend = StandInBackend()
+    # The first row's chunk has a key the second's lacks: the two cannot be stacked into one reply.
+    chunk = {"action.x": np.zeros((HORIZON, 1), np.float32)}
+    backend.infer_batch = lambda rows: [chunk if row.instruction == "first" else {} for row in rows]
+    with serving(backend, max_batch=1) as url, nvidia_client(url) as call:
+        request = observation_request(0)
+        observation = request["data"]["observation"]
+        for key, value in list(observation.items()):  # the same row twice, with two texts
+            observation[key] = ["first", "second"] if isinstance(value, list) else np.concatenate([value] * 2)
+        assert call(request) == {"error": "KeyError: 'action.x'"}
+        assert call({"endpoint": "ping"})["status"] == "ok"
+
+
+def test_a_port_in_use_is_an_os_error_the_serve_command_reports_in_one_line():
+    with serving(StandInBackend()) as url:
+        port = int(url.rsplit(":", 1)[1])
+        server = Gr00tPolicyServer(StandInBackend(), 1)
+        with pytest.raises(OSError, match="Address already in use"):
+            asyncio.run(server.run("127.0.0.1", port, asyncio.Event()))

@@ -90,6 +90,12 @@ class VlaJepaPolicy(HostedPolicy):
         self.identity = {**self.identity, **identity}
 
     @classmethod
+    def load(cls, name: str, cfg: VlaJepaConfig) -> VlaJepaPolicy:
+        if cfg.chunk_length < 0:
+            raise UserError(f"model.chunk_length must be >= 0, got {cfg.chunk_length}")
+        return super().load(name, cfg)
+
+    @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
         try:
             return check_checkpoint(folder)
@@ -118,6 +124,11 @@ class VlaJepaPolicy(HostedPolicy):
             self.statistics = ActionStatistics.from_mapping(statistics)
         except StatisticsError as exc:
             raise InfrastructureError(f"the server at {self.cfg.server} sent unusable statistics: {exc}") from None
+        if self.cfg.chunk_length > int(chunk_length):
+            raise UserError(
+                f"model.chunk_length={self.cfg.chunk_length} is more than the {chunk_length} actions a chunk of "
+                f"the server at {self.cfg.server} holds"
+            )
         self.chunk_length = self.cfg.chunk_length or int(chunk_length)
 
     def encode(self, observation: Observation) -> dict[str, Any]:
@@ -143,8 +154,6 @@ class VlaJepaPolicy(HostedPolicy):
 
 def read_statistics(cfg: VlaJepaConfig) -> tuple[ActionStatistics, int, str]:
     """``model.stats``' action statistics, the chunk length and a digest of the file; UserError if unusable."""
-    if cfg.chunk_length < 0:
-        raise UserError(f"model.chunk_length must be >= 0, got {cfg.chunk_length}")
     path = Path(cfg.stats).expanduser()
     try:
         statistics = ActionStatistics.from_file(path, cfg.unnorm_key or None)

@@ -4,9 +4,11 @@
 
 For each request row (``images``, ``wrist_images``, ``states``, ``seeds``, and ``instructions`` as JSON) writes:
 ``lerobot_alone``, LeRobot's own sampling for that row alone (``torch.manual_seed(seed)``, then
-``predict_action_chunk`` untouched); ``backend_alone``, our backend's chunk for the row alone; ``backend_served``,
-our backend's chunk in a call of the server's fixed shape (the row padded with copies); ``executed``, LeRobot's
-postprocessor applied to that chunk (the actions LeRobot itself would execute).
+``predict_action_chunk`` untouched, on a batch built here under LeRobot's LIBERO camera names); ``backend_alone``,
+our backend's chunk for the row alone; ``backend_served``, our backend's chunk in a call of the server's fixed
+shape (the row padded with copies); ``backend_in_company``, the row's chunk in a call beside a row with a much
+longer instruction; ``executed``, LeRobot's postprocessor applied to the served chunk (the actions LeRobot itself
+would execute).
 """
 
 from __future__ import annotations
@@ -39,11 +41,12 @@ def main(checkpoint: str, requests_path: str, max_batch: int, out: str) -> None:
     from lerobot.policies.factory import make_pre_post_processors
 
     _, postprocessor = make_pre_post_processors(backend._policy.config, pretrained_path=checkpoint)
-    results = {"lerobot_alone": [], "backend_alone": [], "backend_served": [], "executed": []}
+    results = {"lerobot_alone": [], "backend_alone": [], "backend_served": [], "backend_in_company": [], "executed": []}
+    other = Row(rows[0].wrist_image, rows[0].image, rows[0].state[::-1].copy(), "a much longer instruction " * 4, 99)
     for row in rows:
         batch = {
-            backend.image_keys[0]: torch.from_numpy(row.image).permute(2, 0, 1)[None].float() / 255.0,
-            backend.image_keys[1]: torch.from_numpy(row.wrist_image).permute(2, 0, 1)[None].float() / 255.0,
+            "observation.images.image": torch.from_numpy(row.image).permute(2, 0, 1)[None].float() / 255.0,
+            "observation.images.image2": torch.from_numpy(row.wrist_image).permute(2, 0, 1)[None].float() / 255.0,
             "observation.state": torch.from_numpy(row.state)[None],
             "task": [row.instruction],
         }
@@ -54,6 +57,7 @@ def main(checkpoint: str, requests_path: str, max_batch: int, out: str) -> None:
             )
         results["backend_alone"].append(backend.infer_batch([row])[0])
         served = backend.infer_batch([row] * max_batch)[0]
+        results["backend_in_company"].append(backend.infer_batch([row, other])[0])
         results["backend_served"].append(served)
         results["executed"].append(postprocessor(torch.from_numpy(served)[None]).numpy()[0])
     np.savez(out, **{name: np.stack(values) for name, values in results.items()})

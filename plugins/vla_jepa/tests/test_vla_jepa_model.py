@@ -49,8 +49,11 @@ def test_served_actions_are_lerobots_own_sampling_and_postprocessing(tiny_checkp
     finally:
         policy.close()
     results = direct(tiny_checkpoint, payloads, tmp_path)
-    # Our per-row noise is exactly LeRobot's own draw for that row alone, seeded with its seed.
+    # Our per-row noise is exactly LeRobot's own draw for that row alone, seeded with its seed; and a row's chunk
+    # is the same alone, in the server's fixed-shape call and beside another row with a longer prompt.
     np.testing.assert_array_equal(results["backend_alone"], results["lerobot_alone"])
+    np.testing.assert_array_equal(results["backend_served"], results["backend_alone"])
+    np.testing.assert_array_equal(results["backend_in_company"], results["backend_alone"])
     for actions, executed in zip(served, results["executed"], strict=True):
         assert actions.shape == (7, 7)
         np.testing.assert_allclose(actions, executed, atol=1e-5)  # the client's un-normalizing is LeRobot's

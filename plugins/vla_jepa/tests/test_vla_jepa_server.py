@@ -18,6 +18,7 @@ from openpi_client import msgpack_numpy as upstream_codec
 from websockets.exceptions import ConnectionClosedError
 from websockets.sync.client import connect
 
+from conflictbench import UserError
 from conflictbench.testing import camera_observation
 from conflictbench_vla_jepa.client import VlaJepaConfig, load
 from conflictbench_vla_jepa.processing import ActionStatistics, camera_image, env_actions
@@ -69,6 +70,7 @@ def serving(backend, max_batch: int = 2):
     finally:
         bound["loop"].call_soon_threadsafe(bound["stop"].set)
         thread.join(10)
+        assert not thread.is_alive(), "the server did not stop"
 
 
 def ask(connection, message) -> dict:
@@ -140,6 +142,12 @@ def test_our_client_takes_the_statistics_and_chunk_length_from_our_servers_metad
             policy.close()
 
 
+def test_a_chunk_length_beyond_what_our_server_sends_is_a_user_error():
+    with serving(StandInBackend(), max_batch=1) as url:
+        with pytest.raises(UserError, match=f"model.chunk_length=6 is more than the {CHUNK} actions"):
+            load("vla-jepa", VlaJepaConfig(server=url, checkpoint="x", chunk_length=6, connect_retries=0))
+
+
 def _serve(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "conflictbench_vla_jepa", *args], capture_output=True, text=True,
                           timeout=120, cwd=PLUGIN_ROOT)  # fmt: skip
@@ -169,3 +177,29 @@ def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragm
     done = _serve("serve", "--policy", "vla-jepa", "--checkpoint", str(make(tmp_path)))
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith("conflictbench-vla-jepa: ") and fragment in done.stderr
+
+
+@pytest.mark.parametrize(
+    "change, fragment",
+    [
+        ({}, None),
+        ({"clip_normalized_actions": False}, "sets clip_normalized_actions=False; the VLA-JEPA client does True"),
+        ({"gripper_threshold": 0.3}, "sets gripper_threshold=0.3"),
+        ({"normalization_mapping": {"ACTION": "MEAN_STD"}}, "normalizes actions with MEAN_STD"),
+    ],
+)
+def test_a_checkpoint_post_processing_otherwise_than_the_client_is_refused(change, fragment):
+    """The client restates LeRobot's default postprocessing; a checkpoint configured otherwise would have its
+    actions un-normalized wrongly and scored as its behaviour."""
+    from types import SimpleNamespace
+
+    from conflictbench_vla_jepa.backend import CLIENT_POSTPROCESSING, CheckpointError, check_postprocessing
+
+    config = SimpleNamespace(**CLIENT_POSTPROCESSING, normalization_mapping={"ACTION": "MIN_MAX"})
+    for name, value in change.items():
+        setattr(config, name, value)
+    if fragment is None:
+        check_postprocessing(Path("ckpt"), config)
+        return
+    with pytest.raises(CheckpointError, match=fragment):
+        check_postprocessing(Path("ckpt"), config)
