@@ -41,6 +41,9 @@ def test_served_actions_are_lerobots_own_sampling_and_processing(tiny_groot_chec
     direct = np.load(tmp_path / "direct.npz")
     # Our per-row noise, one-row passes and key mapping are exactly LeRobot's own sampling of that row alone.
     np.testing.assert_array_equal(direct["backend"], direct["lerobot"])
+    np.testing.assert_array_equal(
+        direct["in_company_x"], direct["lerobot"][:, :, 0]
+    )  # left-padded prompts: not batched
     for actions, chunk in zip(served, direct["lerobot"], strict=True):
         assert actions.shape == (8, 7)  # GR00T's client executes 8 of each chunk
         np.testing.assert_allclose(actions[:, :6], chunk[:8, :6], atol=1e-6)
