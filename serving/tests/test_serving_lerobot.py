@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from conflictbench_serving.checkpoints import CheckpointError
 from conflictbench_serving.lerobot import camera_order, check_checkpoint, checkpoint_fingerprint
+from conflictbench_serving.requests import describe, is_noise_seed
 
 
 def checkpoint(folder, kind="groot", files=("model.safetensors", "policy_preprocessor.json",
@@ -57,3 +59,14 @@ def test_a_checkpoint_is_known_by_its_content(tmp_path):
 )
 def test_the_wrist_camera_is_found_by_name_whatever_the_order(names, order):
     assert camera_order([f"observation.images.{n}" for n in names]) == [f"observation.images.{n}" for n in order]
+
+
+@pytest.mark.parametrize("value, valid", [(0, True), (2**63 - 1, True), (np.int64(5), True), (2**63, False),
+                                          (-1, False), (True, False), (1.0, False), ("3", False)])  # fmt: skip
+def test_the_seed_rule_every_server_checks(value, valid):
+    assert is_noise_seed(value) is valid
+
+
+def test_a_bad_value_is_described_briefly():
+    assert describe(np.zeros((2, 3), np.float32)) == "float32 array of shape (2, 3)"
+    assert describe("x" * 100) == f"str '{'x' * 36}..."

@@ -19,10 +19,11 @@ import numpy as np
 
 from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, sampling_seed
 from conflictbench.core import LIBERO_SUITES
+from conflictbench_serving.checkpoints import NOISE_SEED_LIMIT
 
 from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
 from .processing import ACTION_STEPS, MAX_EPISODE_STEPS, WARMUP_STEPS, env_actions, gr00t_observation
-from .protocol import NOISE_SEED_LIMIT, get_action_request
+from .protocol import get_action_request
 from .transport import Gr00tTransport, answers_ping
 
 

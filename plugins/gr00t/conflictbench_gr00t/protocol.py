@@ -29,6 +29,9 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from conflictbench_serving.checkpoints import NOISE_SEED
+from conflictbench_serving.requests import describe, is_noise_seed
+
 #: The sim wrapper's flat observation keys for LIBERO (``gr00t/eval/sim/LIBERO/libero_env.py``).
 VIDEO_KEYS = ("video.image", "video.wrist_image")
 STATE_KEYS = ("state.x", "state.y", "state.z", "state.roll", "state.pitch", "state.yaw", "state.gripper")
@@ -41,9 +44,8 @@ ACTION_KEYS = ("action.x", "action.y", "action.z", "action.roll", "action.pitch"
 IMAGE_SIZE = 256
 
 GET_ACTION, PING, METADATA = "get_action", "ping", "conflictbench_metadata"
-#: Our one addition to a request's ``options``: the seed of this request's sampling noise, in [0, 2**63).
-NOISE_SEED = "conflictbench/noise_seed"
-NOISE_SEED_LIMIT = 2**63
+#: Our one addition to a request's ``options``: the seed of this request's sampling noise, in [0, 2**63)
+#: (``NOISE_SEED``, conflictbench-serving's convention for every server).
 ERROR = "error"
 
 _ARRAY_TAG = "__ndarray_class__"
@@ -115,7 +117,7 @@ def validate_observation(observation: Any) -> int:
         if good and not video and not np.all(np.isfinite(value)):
             good = False
         if not good:
-            raise InvalidRequest(f"{key!r} must be {wanted}, got {_describe(value)}")
+            raise InvalidRequest(f"{key!r} must be {wanted}, got {describe(value)}")
         if batch is None:
             batch = len(value)
         elif len(value) != batch:
@@ -123,7 +125,7 @@ def validate_observation(observation: Any) -> int:
     language = observation.get(LANGUAGE_KEY)
     texts = isinstance(language, (list, tuple)) and all(isinstance(text, str) for text in language)
     if not texts or len(language) != batch:
-        raise InvalidRequest(f"{LANGUAGE_KEY!r} must be a list of {batch} strings, got {_describe(language)}")
+        raise InvalidRequest(f"{LANGUAGE_KEY!r} must be a list of {batch} strings, got {describe(language)}")
     if not batch:
         raise InvalidRequest("an observation must hold at least one row")
     return batch
@@ -134,13 +136,6 @@ def request_seed(options: Any) -> int | None:
     if not isinstance(options, dict) or NOISE_SEED not in options:
         return None
     seed = options[NOISE_SEED]
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < NOISE_SEED_LIMIT:
-        raise InvalidRequest(f"options[{NOISE_SEED!r}] must be an int in [0, 2**63), got {_describe(seed)}")
+    if not is_noise_seed(seed):
+        raise InvalidRequest(f"options[{NOISE_SEED!r}] must be an int in [0, 2**63), got {describe(seed)}")
     return seed
-
-
-def _describe(value: Any) -> str:
-    if isinstance(value, np.ndarray):
-        return f"{value.dtype} array of shape {value.shape}"
-    text = repr(value)
-    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"

@@ -28,6 +28,7 @@ import numpy as np
 from conflictbench_serving import checkpoints as seeds
 from conflictbench_serving.msgpack_numpy import packb as packb  # re-exported: the codec of this protocol
 from conflictbench_serving.msgpack_numpy import unpackb as unpackb
+from conflictbench_serving.requests import describe, is_noise_seed
 
 #: Request keys of openpi's LIBERO client (``examples/libero/main.py``).
 IMAGE = "observation/image"
@@ -58,7 +59,7 @@ def validate_request(request: Any) -> dict:
     for key in (IMAGE, WRIST_IMAGE):
         image = request[key]
         if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != IMAGE_SHAPE:
-            raise InvalidRequest(f"{key!r} must be a uint8 array of shape {IMAGE_SHAPE}, got {_describe(image)}")
+            raise InvalidRequest(f"{key!r} must be a uint8 array of shape {IMAGE_SHAPE}, got {describe(image)}")
     state = request[STATE]
     try:
         state_array = np.asarray(state)
@@ -70,18 +71,11 @@ def validate_request(request: Any) -> dict:
         or state_array.shape != (STATE_SIZE,)
         or not np.all(np.isfinite(state_array))
     ):
-        raise InvalidRequest(f"{STATE!r} must be {STATE_SIZE} finite numbers, got {_describe(state)}")
+        raise InvalidRequest(f"{STATE!r} must be {STATE_SIZE} finite numbers, got {describe(state)}")
     if not isinstance(request[PROMPT], str):
-        raise InvalidRequest(f"{PROMPT!r} must be a string, got {_describe(request[PROMPT])}")
+        raise InvalidRequest(f"{PROMPT!r} must be a string, got {describe(request[PROMPT])}")
     if NOISE_SEED in request:
         seed = request[NOISE_SEED]
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < NOISE_SEED_LIMIT:
-            raise InvalidRequest(f"{NOISE_SEED!r} must be an int in [0, 2**63), got {_describe(seed)}")
+        if not is_noise_seed(seed):
+            raise InvalidRequest(f"{NOISE_SEED!r} must be an int in [0, 2**63), got {describe(seed)}")
     return request
-
-
-def _describe(value: Any) -> str:
-    if isinstance(value, np.ndarray):
-        return f"{value.dtype} array of shape {value.shape}"
-    text = repr(value)
-    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"

@@ -26,6 +26,7 @@ import numpy as np
 
 from conflictbench_serving.checkpoints import NOISE_SEED, NOISE_SEED_LIMIT
 from conflictbench_serving.msgpack_numpy import packb, unpackb
+from conflictbench_serving.requests import describe, is_noise_seed
 
 __all__ = [
     "NOISE_SEED",
@@ -107,18 +108,17 @@ def request_rows(payload: Any) -> list[Row]:
 
     A row's seed is the payload's ``NOISE_SEED`` (the same for every row; None when absent)."""
     if not isinstance(payload, dict):
-        raise InvalidRequest(f"the payload must be a map, got {_describe(payload)}")
+        raise InvalidRequest(f"the payload must be a map, got {describe(payload)}")
     for key in ("batch_images", "instructions", "state"):
         if not isinstance(payload.get(key), (list, tuple)):
-            raise InvalidRequest(f"{key!r} must be a list (one entry per batch row), got {_describe(payload.get(key))}")
+            raise InvalidRequest(f"{key!r} must be a list (one entry per batch row), got {describe(payload.get(key))}")
     images, instructions, states = payload["batch_images"], payload["instructions"], payload["state"]
     if not len(images) == len(instructions) == len(states) >= 1:
         lengths = f"{len(images)}, {len(instructions)}, {len(states)}"
         raise InvalidRequest(f"'batch_images', 'instructions' and 'state' need the same number of rows, got {lengths}")
     seed = payload.get(NOISE_SEED)
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
-                             or not 0 <= int(seed) < NOISE_SEED_LIMIT):  # fmt: skip
-        raise InvalidRequest(f"{NOISE_SEED!r} must be an int in [0, 2**63), got {_describe(seed)}")
+    if seed is not None and not is_noise_seed(seed):
+        raise InvalidRequest(f"{NOISE_SEED!r} must be an int in [0, 2**63), got {describe(seed)}")
     rows = []
     for index, (cameras, instruction, state) in enumerate(zip(images, instructions, states, strict=True)):
         if not isinstance(cameras, (list, tuple)) or len(cameras) != 2:
@@ -126,12 +126,12 @@ def request_rows(payload: Any) -> list[Row]:
         for image in cameras:
             if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != IMAGE_SHAPE:
                 raise InvalidRequest(f"row {index}: images must be uint8 arrays of shape {IMAGE_SHAPE}, "
-                                     f"got {_describe(image)}")  # fmt: skip
+                                     f"got {describe(image)}")  # fmt: skip
         state = np.asarray(state) if isinstance(state, (np.ndarray, list, tuple)) else None
         if state is None or state.dtype.kind not in "iuf" or state.size != STATE_SIZE or not np.isfinite(state).all():
             raise InvalidRequest(f"row {index}: 'state' must be {STATE_SIZE} finite numbers")
         if not isinstance(instruction, str):
-            raise InvalidRequest(f"row {index}: the instruction must be a string, got {_describe(instruction)}")
+            raise InvalidRequest(f"row {index}: the instruction must be a string, got {describe(instruction)}")
         rows.append(Row(cameras[0], cameras[1], state.reshape(STATE_SIZE).astype(np.float32), instruction,
                         None if seed is None else int(seed)))  # fmt: skip
     return rows
@@ -143,10 +143,3 @@ def reply(kind: str, request_id: Any, data: dict | None = None, error: str | Non
     if error is not None:
         return {"status": "error", "ok": False, "type": kind, "request_id": request_id, "error": {"message": error}}
     return {"status": "ok", "ok": True, "type": kind, "request_id": request_id, **({"data": data} if data else {})}
-
-
-def _describe(value: Any) -> str:
-    if isinstance(value, np.ndarray):
-        return f"{value.dtype} array of shape {value.shape}"
-    text = repr(value)
-    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
