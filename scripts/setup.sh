@@ -92,8 +92,8 @@ done
 
 # 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack
 #    cannot share). Each gets the shared server half (serving/), its plugin without dependencies (no
-#    conflictbench, no simulator), exactly the plugin's `server` extra, and its `server-test` extra without dependencies (upstream servers the
-#    tests compare with). About 5 GB and 90 s each on the first build (torch).
+#    conflictbench, no simulator), exactly the plugin's `server` extra, and its `server-test` extra
+#    without dependencies (upstream servers the tests compare with). About 5 GB and 90 s each on the first build (torch).
 has_server() {  # a plugin whose pyproject has a `server` extra has a model environment to build
   grep -q '^server = \[' "plugins/$1/pyproject.toml" 2>/dev/null
 }
