@@ -154,9 +154,12 @@ def check_killed_server_run_resumes(tmp_path: Path, start: StartServer, run: Run
     assert len(after) == 4 and all(np.array_equal(after[e], stored[e]) for e in stored)
 
 
-def camera_observation(step: int = 0, instruction: str = "put the bowl on the plate", stream: int = 0):
+def camera_observation(
+    step: int = 0, instruction: str = "put the bowl on the plate", stream: int = 0, suite: str = "libero_goal"
+):
     """An observation as a worker sends it to a policy that looks: two random 256-px renders (fixed by ``step``),
-    a plausible 8-D state whose gripper fingers differ, episode ``episode-{stream}`` on stream ``stream``."""
+    a plausible 8-D state whose gripper fingers differ, episode ``episode-{stream}`` of ``suite`` on stream
+    ``stream``."""
     import numpy as np
 
     from .core import Observation
@@ -165,7 +168,7 @@ def camera_observation(step: int = 0, instruction: str = "put the bowl on the pl
     state = np.array([0.1, 0.2, 1.0, 3.1, 0.1, -0.2, 0.04, -0.03])
     return Observation(
         step=step, instruction=instruction, eef_pos=state[:3], eef_quat=np.array([0, 0, 0, 1.0]),
-        gripper_qpos=state[6:], state=state, stream=stream, episode_id=f"episode-{stream}",
+        gripper_qpos=state[6:], state=state, stream=stream, episode_id=f"episode-{stream}", suite=suite,
         agentview_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
         wrist_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
     )  # fmt: skip

@@ -173,6 +173,9 @@ class Observation:
     """Which concurrent episode this belongs to (worker slot); batched policies key state by it."""
     episode_id: str = ""
     """The episode's identity in the store; with ``step`` it seeds sampling (:func:`rng_for`)."""
+    suite: str = ""
+    """The LIBERO suite of the episode's base task (``libero_goal``, ...): the same for a conflict and its
+    reference. Native clients of per-suite checkpoints pick their normalization statistics by it."""
 
 
 @dataclass(frozen=True)

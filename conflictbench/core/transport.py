@@ -46,7 +46,8 @@ class HttpJsonTransport(Transport):
 
     numpy arrays and scalars in the request are sent as (nested) lists and numbers. A reply with a
     status of 400 or more, or a JSON object whose only key is ``error``, raises
-    :class:`InfrastructureError`.
+    :class:`InfrastructureError`. A protocol with another JSON dialect (json-numpy's arrays) overrides
+    :meth:`dumps` and :meth:`loads`.
     """
 
     def __init__(self, url: str):
@@ -67,8 +68,16 @@ class HttpJsonTransport(Transport):
         self._conn.connect()
         self._conn.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # small requests: no Nagle wait
 
+    def dumps(self, request: Any) -> str:
+        """The request's JSON text."""
+        return json.dumps(request, default=_json_default)
+
+    def loads(self, text: bytes) -> Any:
+        """The reply's JSON text read (raise ValueError where it is not JSON)."""
+        return json.loads(text)
+
     def exchange(self, request: Any, timeout: float) -> Any:
-        body = json.dumps(request, default=_json_default).encode()
+        body = self.dumps(request).encode()
         conn = self._conn
         if conn is None:
             raise ConnectionError("not connected")
@@ -91,7 +100,7 @@ class HttpJsonTransport(Transport):
                 f"{one_line(data.decode(errors='replace'))}"
             )
         try:
-            reply = json.loads(data)
+            reply = self.loads(data)
         except ValueError:
             raise InfrastructureError(
                 f"{self.url} answered something that is not JSON: {one_line(data.decode(errors='replace'))}"

@@ -254,6 +254,7 @@ def make_observation(
     instruction: str,
     stream: int,
     episode_id: str,
+    suite: str,
     images: bool,
     privileged: PrivilegedState | None,
 ) -> Observation:
@@ -277,4 +278,5 @@ def make_observation(
         privileged=privileged,
         stream=stream,
         episode_id=episode_id,
+        suite=suite,
     )

@@ -123,6 +123,7 @@ class EpisodePlayer:
                             instruction=job.instruction,
                             stream=job.stream,
                             episode_id=job.episode_id,
+                            suite=job.suite,
                             images=gate is not None,
                             privileged=priv,
                         )

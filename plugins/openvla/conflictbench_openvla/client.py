@@ -1,0 +1,134 @@
+"""OpenVLA and OpenVLA-OFT as conflictbench sees them: their LIBERO clients, talking to a ``deploy.py`` server.
+
+``conflictbench model=openvla model.server=http://HOST:8000 model.checkpoint=NAME`` plays against OpenVLA's
+``vla-scripts/deploy.py``; ``model=openvla-oft model.server=http://HOST:8777`` against OpenVLA-OFT's (started
+with ``--num_images_in_input 2 --unnorm_key <key>``). Upstream splits the work differently for the two, and each
+client does exactly what upstream's own does, so that no step runs twice or never:
+
+========================  =====================================  ======================================
+step                      OpenVLA (client / deploy.py)           OpenVLA-OFT (client / deploy.py)
+========================  =====================================  ======================================
+rotate, JPEG, Lanczos     client (agentview)                     client (agentview and wrist)
+centre crop               client                                 server
+prompt template           server                                 server
+proprio                   not used                               client sends raw; server normalizes
+unnorm_key                client sends it (per suite)            fixed when the server started
+un-normalization          server                                 server
+gripper sign and invert   client                                 client
+actions per query         1                                      the chunk of 8, open loop
+========================  =====================================  ======================================
+
+The server names no model (deploy.py has no metadata), so ``model.checkpoint`` names what it hosts; it is part
+of every episode's identity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from conflictbench import HostedConfig, HostedPolicy, Observation, UserError
+
+from .images import policy_image
+from .processing import MAX_STEPS, env_gripper, unnorm_key
+from .protocol import JsonNumpyTransport, oft_request, openvla_request, read_action, read_chunk
+
+OFT_CHUNK = 8
+
+
+@dataclass
+class OpenVlaConfig(HostedConfig):
+    """Settings of ``openvla`` (``model.<field>=value``; the shared ones are :class:`conflictbench.HostedConfig`'s)."""
+
+    checkpoint: str = ""
+    """With ``server``: the name of what that server hosts (deploy.py does not say), e.g.
+    ``openvla/openvla-7b-finetuned-libero-goal``."""
+    server: str = ""
+    """``http://HOST:PORT`` of a running ``deploy.py`` (``/act`` is added where the URL has no path)."""
+    unnorm_key: str = "suite"
+    """The statistics the server un-normalizes with: ``suite`` (the episode's LIBERO suite, ``libero_goal``),
+    ``suite_no_noops`` (``libero_goal_no_noops``, self-trained checkpoints), or a key as it is."""
+    center_crop: bool = True
+    """Crop the centre 0.9 of the image's area, as OpenVLA's LIBERO evaluation does (``--center_crop True``)."""
+
+
+@dataclass
+class OftConfig(HostedConfig):
+    """Settings of ``openvla-oft`` (``model.<field>=value``; shared ones: :class:`conflictbench.HostedConfig`'s)."""
+
+    checkpoint: str = ""
+    """With ``server``: the name of what that server hosts, with its ``--unnorm_key`` (deploy.py says
+    neither), e.g. ``moojink/openvla-7b-oft-finetuned-libero-goal``."""
+    server: str = ""
+    """``http://HOST:PORT`` of a running OFT ``deploy.py`` (``/act`` is added where the URL has no path)."""
+    chunk_length: int = OFT_CHUNK
+    """Actions of each chunk executed before asking again (``num_open_loop_steps``; OFT's LIBERO value 8)."""
+
+
+class _DeployClient(HostedPolicy):
+    """What both clients share: deploy.py's transport, the family's step budget and gripper mapping."""
+
+    needs_images = True
+    environment = "openvla"
+    server_module = "conflictbench_openvla"
+    transport = JsonNumpyTransport
+    url_scheme = "http"
+    default_max_steps = MAX_STEPS
+
+    @classmethod
+    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
+        raise UserError(
+            f"model={name} plays against a running deploy.py server here: give model.server=http://HOST:PORT "
+            "and model.checkpoint=NAME (what it hosts); serving a local checkpoint folder is not built yet"
+        )
+
+
+class OpenVlaPolicy(_DeployClient):
+    """OpenVLA's LIBERO client: the cropped agentview image and the suite's ``unnorm_key``; one action per query."""
+
+    def encode(self, observation: Observation) -> dict[str, Any]:
+        if observation.agentview_image is None:
+            raise UserError(f"{self.name} needs the agentview camera image")
+        image = policy_image(observation.agentview_image, crop=self.cfg.center_crop)
+        return openvla_request(image, observation.instruction, unnorm_key(self.cfg.unnorm_key, observation.suite))
+
+    def decode(self, reply: Any, observation: Observation) -> np.ndarray:
+        return env_gripper(read_action(reply))
+
+
+class OftPolicy(_DeployClient):
+    """OpenVLA-OFT's LIBERO client: both images resized (not cropped), the raw state; chunks executed open loop."""
+
+    @classmethod
+    def load(cls, name: str, cfg: OftConfig) -> OftPolicy:
+        if cfg.chunk_length < 1:
+            raise UserError(f"model.chunk_length must be >= 1, got {cfg.chunk_length}")
+        return super().load(name, cfg)
+
+    def encode(self, observation: Observation) -> dict[str, Any]:
+        if observation.agentview_image is None or observation.wrist_image is None:
+            raise UserError(f"{self.name} needs both camera images")
+        full = policy_image(observation.agentview_image, crop=False)
+        wrist = policy_image(observation.wrist_image, crop=False)
+        return oft_request(full, wrist, observation.state, observation.instruction)
+
+    def decode(self, reply: Any, observation: Observation) -> np.ndarray:
+        chunk = read_chunk(reply)
+        if len(chunk) < self.cfg.chunk_length:
+            raise ValueError(f"the server answered {len(chunk)} actions, fewer than model.chunk_length")
+        return env_gripper(chunk[: self.cfg.chunk_length])
+
+
+POLICIES: dict[str, tuple[type[_DeployClient], type[HostedConfig]]] = {
+    "openvla": (OpenVlaPolicy, OpenVlaConfig),
+    "openvla-oft": (OftPolicy, OftConfig),
+}
+
+
+def load(name: str, cfg: HostedConfig) -> _DeployClient:
+    """The policy for ``model=name``, connected to ``cfg.server``."""
+    policy_class, _config = POLICIES[name]
+    return policy_class.load(name, cfg)

@@ -1,0 +1,76 @@
+"""deploy.py's wire format: json-numpy bodies, as upstream's ``json_numpy.patch()``-ed FastAPI reads and writes them."""
+
+from __future__ import annotations
+
+import base64
+import json
+
+import numpy as np
+import pytest
+
+from conflictbench import InfrastructureError
+from conflictbench_openvla.protocol import (
+    JsonNumpyTransport,
+    oft_request,
+    openvla_request,
+    read_action,
+    read_chunk,
+)
+
+
+def test_an_openvla_body_carries_the_image_as_json_numpys_base64_of_its_bytes():
+    image = np.arange(224 * 224 * 3, dtype=np.uint8).reshape(224, 224, 3)
+    body = json.loads(JsonNumpyTransport("http://h:8000").dumps(openvla_request(image, "Do It", "libero_goal")))
+    assert set(body) == {"image", "instruction", "unnorm_key"}
+    assert body["instruction"] == "Do It" and body["unnorm_key"] == "libero_goal"  # the server lower-cases
+    assert body["image"]["dtype"] == "|u1" and body["image"]["shape"] == [224, 224, 3]
+    assert base64.b64decode(body["image"]["__numpy__"]) == image.tobytes()
+
+
+def test_an_oft_body_carries_both_images_and_the_raw_state_as_float64():
+    full, wrist = np.zeros((224, 224, 3), np.uint8), np.ones((224, 224, 3), np.uint8)
+    state = np.array([0.1, 0.2, 1.0, 3.1, 0.1, -0.2, 0.04, -0.03])
+    body = json.loads(JsonNumpyTransport("http://h:8777").dumps(oft_request(full, wrist, state, "go")))
+    assert list(body) == ["full_image", "wrist_image", "state", "instruction"]
+    assert body["state"]["dtype"] == "<f8" and body["state"]["shape"] == [8]
+    assert np.frombuffer(base64.b64decode(body["state"]["__numpy__"]), "<f8").tolist() == state.tolist()
+    assert base64.b64decode(body["wrist_image"]["__numpy__"]) == wrist.tobytes()
+
+
+def test_replies_decode_to_writable_float64_arrays():
+    action = np.linspace(-1, 1, 7)
+    text = json.dumps({"__numpy__": base64.b64encode(action.tobytes()).decode(), "dtype": "<f8", "shape": [7]})
+    decoded = read_action(JsonNumpyTransport("http://h").loads(text.encode()))
+    assert decoded.tolist() == action.tolist() and decoded.flags.writeable
+    chunk = [{"__numpy__": base64.b64encode((action * i).tobytes()).decode(), "dtype": "<f8", "shape": [7]}
+             for i in range(8)]  # fmt: skip
+    assert read_chunk(JsonNumpyTransport("http://h").loads(json.dumps(chunk).encode())).shape == (8, 7)
+
+
+def test_deploys_error_string_is_an_infrastructure_error():
+    with pytest.raises(InfrastructureError, match='answered "error".*log has the traceback'):
+        JsonNumpyTransport("http://h:8000").loads(b'"error"')
+
+
+@pytest.mark.parametrize("reply", [[1.0, 2.0], "oops", {"a": 1}])
+def test_a_reply_that_is_no_action_is_refused(reply):
+    with pytest.raises(ValueError):
+        read_action(reply)
+
+
+@pytest.mark.parametrize("reply", [[], "oops", [[1.0, 2.0]]])
+def test_a_reply_that_is_no_chunk_is_refused(reply):
+    with pytest.raises(ValueError):
+        read_chunk(reply)
+
+
+@pytest.mark.parametrize(
+    "given, used",
+    [
+        ("http://h:8000", "http://h:8000/act"),
+        ("http://h:8000/", "http://h:8000/act"),
+        ("http://h:9/x/act", "http://h:9/x/act"),
+    ],
+)
+def test_a_url_without_a_path_gets_deploys_route(given, used):
+    assert JsonNumpyTransport(given).url == used

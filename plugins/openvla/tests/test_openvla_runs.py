@@ -1,0 +1,86 @@
+"""Real LIBERO episodes through ``conflictbench model=openvla|openvla-oft model.server=...``, deploy.py stand-ins."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from deploy_standin import start_standin
+from deploy_standin_model import STATS
+
+from conflictbench.store import EpisodeStore
+from conflictbench.testing import (
+    check_failed_episode_is_replayed,
+    check_killed_server_run_resumes,
+    episode_counts,
+    planned_conflict_instruction,
+    run_cli,
+)
+
+pytestmark = pytest.mark.sim
+STEPS = 16  # two OFT chunks of eight
+
+
+def run(tmp_path: Path, name: str, url: str, *overrides: str):
+    return run_cli(tmp_path, f"model={name}", f"model.server={url}", "model.checkpoint=stand-in",
+                   f"model.max_steps={STEPS}", *overrides)  # fmt: skip
+
+
+def played(tmp_path: Path, name: str, kind: str):
+    server, url = start_standin(tmp_path, kind)
+    try:
+        out = run(tmp_path, name, url)
+    finally:
+        server.stop()
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert episode_counts(out.stderr) == (2, 0, 0)
+    records = list(EpisodeStore(tmp_path / "results").records())
+    assert len(records) == 2 and all(r.steps == STEPS and r.error is None for r in records)
+    return sorted(records, key=lambda r: r.case_id is not None)
+
+
+def in_the_suites_range(raw: np.ndarray, key: str, epsilon: float) -> bool:
+    action = STATS[key]["action"]
+    low, high = np.array(action["q01"][:6]), np.array(action["q99"][:6]) + epsilon
+    return bool(np.all(raw[:, :6] >= low - 1e-12) and np.all(raw[:, :6] <= high + 1e-12))
+
+
+def test_openvla_episodes_query_every_step_with_the_episodes_suite_key(tmp_path):
+    reference, conflict = played(tmp_path, "openvla", "openvla")
+    for record in (reference, conflict):
+        raw = record.raw_actions
+        assert in_the_suites_range(raw, "libero_spatial", 0.0)  # the suite's statistics (the worker says which)
+        assert len({tuple(row) for row in raw[:, :3]}) > STEPS // 2  # a new image, a new action, every step
+        assert set(raw[:, 6]) <= {-1.0, 1.0}
+    assert reference.raw_actions[0, 3] != conflict.raw_actions[0, 3]  # each episode's own text reached the server
+
+
+def test_oft_episodes_execute_each_chunk_open_loop(tmp_path):
+    reference, conflict = played(tmp_path, "openvla-oft", "oft")
+    for record in (reference, conflict):
+        raw = record.raw_actions
+        assert in_the_suites_range(raw, "libero_goal", 1e-8)  # the key the server was started with
+        for start in (0, 8):  # within a chunk the stand-in's rows grow linearly with the step (dims 0, 1)
+            chunk = raw[start : start + 8, :2]
+            np.testing.assert_allclose(chunk - chunk[0], np.outer(np.arange(8), chunk[1] - chunk[0]), atol=1e-9)
+        assert not np.allclose(raw[8, :2], raw[0, :2] + 8 * (raw[1, :2] - raw[0, :2]))  # a new query at step 8
+    assert reference.raw_actions[0, 3] != conflict.raw_actions[0, 3]
+
+
+def test_a_server_error_is_an_infrastructure_failure_left_out_and_played_again(tmp_path):
+    check_failed_episode_is_replayed(
+        tmp_path,
+        start_failing=lambda: start_standin(tmp_path, "openvla", "--fail-on", planned_conflict_instruction()),
+        start_healthy=lambda: start_standin(tmp_path, "openvla"),
+        run=lambda url, *more: run(tmp_path, "openvla", url, *more),
+        error_text='answered "error"',
+    )
+
+
+def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(tmp_path):
+    check_killed_server_run_resumes(
+        tmp_path,
+        start=lambda: start_standin(tmp_path, "oft"),
+        run=lambda url, *more: run(tmp_path, "openvla-oft", url, *more),
+    )
