@@ -1,8 +1,10 @@
 """OpenVLA and OpenVLA-OFT as conflictbench sees them: their LIBERO clients, talking to a ``deploy.py`` server.
 
-``conflictbench model=openvla model.server=http://HOST:8000 model.checkpoint=NAME`` plays against OpenVLA's
-``vla-scripts/deploy.py``; ``model=openvla-oft model.server=http://HOST:8777`` against OpenVLA-OFT's (started
-with ``--num_images_in_input 2 --unnorm_key <key>``). Upstream splits the work differently for the two, and each
+``conflictbench model=openvla model.checkpoint=DIR`` starts our server (``conflictbench-openvla serve``, in the
+model environment) for a checkpoint folder in Hugging Face format; ``model.server=http://HOST:8000
+model.checkpoint=NAME`` plays against a running one, OpenVLA's ``vla-scripts/deploy.py`` or ours;
+``model=openvla-oft model.server=http://HOST:8777`` against OpenVLA-OFT's ``deploy.py`` (started with
+``--num_images_in_input 2 --unnorm_key <key>``). Upstream splits the work differently for the two, and each
 client does exactly what upstream's own does, so that no step runs twice or never:
 
 ========================  =====================================  ======================================
@@ -18,8 +20,8 @@ gripper sign and invert   client                                 client
 actions per query         1                                      the chunk of 8, open loop
 ========================  =====================================  ======================================
 
-The server names no model (deploy.py has no metadata), so ``model.checkpoint`` names what it hosts; it is part
-of every episode's identity.
+``deploy.py`` names no model, so ``model.checkpoint`` names what it hosts; our server says (its checkpoint's
+fingerprint). Either is part of every episode's identity.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import numpy as np
 
 from conflictbench import HostedConfig, HostedPolicy, Observation, UserError
 
+from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
 from .images import policy_image
 from .processing import MAX_STEPS, env_gripper, unnorm_key
 from .protocol import JsonNumpyTransport, oft_request, openvla_request, read_action, read_chunk
@@ -44,10 +47,10 @@ class OpenVlaConfig(HostedConfig):
     """Settings of ``openvla`` (``model.<field>=value``; the shared ones are :class:`conflictbench.HostedConfig`'s)."""
 
     checkpoint: str = ""
-    """With ``server``: the name of what that server hosts (deploy.py does not say), e.g.
-    ``openvla/openvla-7b-finetuned-libero-goal``."""
+    """An OpenVLA checkpoint folder in Hugging Face format (our server is started for it); with ``server``, the
+    name of what that server hosts where it does not say (deploy.py), e.g. ``openvla-7b-finetuned-libero-goal``."""
     server: str = ""
-    """``http://HOST:PORT`` of a running ``deploy.py`` (``/act`` is added where the URL has no path)."""
+    """``http://HOST:PORT`` of a running ``deploy.py`` or ours (``/act`` is added where the URL has no path)."""
     unnorm_key: str = "suite"
     """The statistics the server un-normalizes with: ``suite`` (the episode's LIBERO suite, ``libero_goal``),
     ``suite_no_noops`` (``libero_goal_no_noops``, self-trained checkpoints), or a key as it is."""
@@ -78,12 +81,18 @@ class _DeployClient(HostedPolicy):
     url_scheme = "http"
     default_max_steps = MAX_STEPS
 
+    policy_types = {"openvla": POLICY_TYPE}
+
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        raise UserError(
-            f"model={name} plays against a running deploy.py server here: give model.server=http://HOST:PORT "
-            "and model.checkpoint=NAME (what it hosts); serving a local checkpoint folder is not built yet"
-        )
+        try:
+            return check_checkpoint(folder, name)
+        except CheckpointError as exc:
+            raise UserError(str(exc)) from None
+
+    @classmethod
+    def fingerprint(cls, folder: Path) -> str:
+        return fingerprint(folder)
 
 
 class OpenVlaPolicy(_DeployClient):

@@ -16,6 +16,8 @@ Requests and replies go through the ``json-numpy`` package itself (:class:`JsonN
 
 from __future__ import annotations
 
+import http.client
+import json
 import urllib.parse
 from typing import Any
 
@@ -26,19 +28,40 @@ from conflictbench import InfrastructureError
 from conflictbench.core.transport import HttpJsonTransport
 
 ROUTE = "/act"
+METADATA_ROUTE = "/metadata"
 ERROR_REPLY = "error"
 
 
 class JsonNumpyTransport(HttpJsonTransport):
-    """HTTP POST of json-numpy bodies to ``/act`` (a URL without a path gets it); ``"error"`` replies raise."""
+    """HTTP POST of json-numpy bodies to ``/act`` (a URL without a path gets it); ``"error"`` replies raise.
 
-    metadata: dict[str, Any] = {}
+    On connecting it asks ``GET /metadata`` (beside ``/act``): our server says what it hosts there; upstream's
+    ``deploy.py`` has no such route (404), and ``metadata`` stays empty.
+    """
 
     def __init__(self, url: str):
         parts = urllib.parse.urlsplit(url)
         if parts.path in ("", "/"):
-            url = urllib.parse.urlunsplit(parts._replace(path=ROUTE))
-        super().__init__(url)
+            parts = parts._replace(path=ROUTE)
+        super().__init__(urllib.parse.urlunsplit(parts))
+        self._metadata_path = parts.path.rsplit("/", 1)[0] + METADATA_ROUTE
+        self.metadata: dict[str, Any] = {}
+
+    def connect(self, timeout: float) -> None:
+        super().connect(timeout)
+        self.metadata = {}
+        try:
+            self._conn.request("GET", self._metadata_path)
+            response = self._conn.getresponse()
+            data = response.read()
+        except http.client.HTTPException as exc:
+            raise ConnectionError(f"{type(exc).__name__}: {exc}") from exc
+        if response.status == 200:
+            try:
+                metadata = json.loads(data)
+            except ValueError:
+                metadata = None
+            self.metadata = metadata if isinstance(metadata, dict) else {}
 
     def dumps(self, request: Any) -> str:
         return json_numpy.dumps(request)

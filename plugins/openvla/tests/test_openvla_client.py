@@ -174,15 +174,18 @@ def test_a_server_that_dies_stops_the_run_with_its_address(tmp_path):
     "name, settings, message",
     [
         ("openvla", {"server": "", "checkpoint": ""}, "needs model.checkpoint=DIR .* or model.server=http://HOST:PORT"),
-        ("openvla", {"server": "", "checkpoint": "/tmp"}, "serving a local checkpoint folder is not built yet"),
+        ("openvla", {"server": "", "checkpoint": "{tmp}"}, "is not an OpenVLA checkpoint .config.json"),
+        ("openvla", {"server": "", "checkpoint": "{tmp}/none"}, "no checkpoint folder at"),
+        ("openvla-oft", {"server": "", "checkpoint": "{tmp}"}, "served by OFT's own vla-scripts/deploy.py"),
         ("openvla", {"checkpoint": ""}, "also needs model.checkpoint=NAME"),
         ("openvla", {"server": "ftp://h:1"}, "not an http:// or https:// URL"),
         ("openvla-oft", {"chunk_length": 0}, "model.chunk_length must be >= 1"),
         ("openvla", {"server": "http://127.0.0.1:9"}, "cannot be reached"),
     ],
 )
-def test_user_mistakes_are_one_line_errors(name, settings, message):
+def test_user_mistakes_are_one_line_errors(tmp_path, name, settings, message):
     config = {"openvla": OpenVlaConfig, "openvla-oft": OftConfig}[name]
+    settings = {key: value.format(tmp=tmp_path) if isinstance(value, str) else value for key, value in settings.items()}
     values = {"server": "http://127.0.0.1:9", "checkpoint": "x", "connect_retries": 0, **settings}
     with pytest.raises((UserError, ServerUnavailable), match=message):
         load(name, config(**values))
