@@ -13,8 +13,8 @@ and the models' ``modeling_prismatic.py`` (``docs/upstream/openvla_oft_univla.md
 - **q01/q99 un-normalization**: ``0.5 (a + 1)(q99 - q01) + q01`` on the dimensions the statistics' ``mask``
   keeps (LIBERO's excludes the gripper, which stays a bin centre); OpenVLA-OFT adds 1e-8 to ``q99 - q01``;
 - **OFT's proprio**: ``2 (x - q01) / (q99 - q01 + 1e-8) - 1`` clipped to [-1, 1];
-- **steps**: 220 / 280 / 300 / 520 policy steps for libero_spatial / object / goal / 10 (OpenVLA and OFT),
-  240 / 300 / 320 / 550 (UniVLA), after 10 no-op warm-up steps.
+- **steps**: 220 / 280 / 300 / 520 policy steps for libero_spatial / object / goal / 10 (OpenVLA and OFT), after
+  10 no-op warm-up steps.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ from __future__ import annotations
 import numpy as np
 
 MAX_STEPS = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
-UNIVLA_MAX_STEPS = {"libero_spatial": 240, "libero_object": 300, "libero_goal": 320, "libero_10": 550}
 ACTION_BINS = 256
 OFT_EPSILON = 1e-8
 #: ``model.unnorm_key`` values that name the episode's LIBERO suite rather than a literal key.

@@ -90,6 +90,3 @@ def test_ofts_proprio_is_scaled_to_minus_one_one_and_clipped():
 
 def test_the_step_budgets_are_upstreams():
     assert processing.MAX_STEPS == {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
-    assert processing.UNIVLA_MAX_STEPS == {
-        "libero_spatial": 240, "libero_object": 300, "libero_goal": 320, "libero_10": 550,
-    }  # fmt: skip

@@ -1,0 +1,127 @@
+"""UniVLA as conflictbench sees it: UniVLA's LIBERO evaluation loop, with the model behind our REST server.
+
+``conflictbench model=univla model.server=http://HOST:PORT`` plays against ``conflictbench-univla serve`` (upstream
+has no server: its evaluation runs the model in-process). The server answers each query's normalized chunk and
+latent tokens; this client keeps, per episode, what upstream's loop keeps: the previous query's latent tokens (the
+next prompt's history) and the action decoder's ensembling window; it un-normalizes the ensembled action with the
+statistics the server's metadata carries and maps the gripper as OpenVLA's client does. One action per step.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from conflictbench import HostedConfig, HostedPolicy, InfrastructureError, Observation, UserError, sampling_seed
+from conflictbench_openvla.images import policy_image
+from conflictbench_openvla.processing import env_gripper, unnorm_key, unnormalize
+from conflictbench_openvla.protocol import JsonNumpyTransport
+
+from .processing import UNIVLA_MAX_STEPS, TemporalEnsemble, history_text
+from .protocol import NOISE_SEED_LIMIT, act_request, read_reply
+
+POLICY_TYPE = "univla"
+
+
+@dataclass
+class UnivlaConfig(HostedConfig):
+    """Settings of ``univla`` (``model.<field>=value``; the shared ones are :class:`conflictbench.HostedConfig`'s)."""
+
+    checkpoint: str = ""
+    """With ``server``: the name of what that server hosts where it does not say."""
+    server: str = ""
+    """``http://HOST:PORT`` of a running ``conflictbench-univla serve``."""
+    unnorm_key: str = "suite"
+    """The statistics to un-normalize with: ``suite`` (the episode's LIBERO suite), ``suite_no_noops``, or a key."""
+    center_crop: bool = True
+    """Crop the centre 0.9 of the image's area, as UniVLA's LIBERO evaluation does."""
+
+
+@dataclass
+class _Episode:
+    """One stream's episode: the latent tokens of its last query and its ensembling window."""
+
+    history: str
+    ensemble: TemporalEnsemble
+
+
+class UnivlaPolicy(HostedPolicy):
+    """UniVLA's LIBERO client: the cropped agentview image, the task text and the latent history; one action a step."""
+
+    needs_images = True
+    environment = "univla"
+    server_module = "conflictbench_univla"
+    transport = JsonNumpyTransport
+    url_scheme = "http"
+    policy_types = {"univla": POLICY_TYPE}
+    default_max_steps = UNIVLA_MAX_STEPS
+
+    @classmethod
+    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
+        raise UserError(
+            "model=univla plays against a running conflictbench-univla serve: give model.server=http://HOST:PORT "
+            "(serving a checkpoint folder from here is not built yet)"
+        )
+
+    def __init__(self, *args, **kwargs):
+        self._episodes: dict[int, _Episode] = {}
+        self._lock = threading.Lock()
+        self.window = 0
+        self.statistics: dict[str, dict] = {}
+        super().__init__(*args, **kwargs)
+        if self.checkpoint is None:
+            try:
+                self._read_metadata()
+            except BaseException:
+                self.close()
+                raise
+
+    def start(self) -> None:
+        super().start()
+        if not self.window:
+            self._read_metadata()
+
+    def _read_metadata(self) -> None:
+        window, statistics = self.metadata.get("window"), self.metadata.get("action_statistics")
+        if not window or not isinstance(statistics, dict):
+            raise UserError(
+                f"the server at {self.cfg.server} does not say its ensembling window and action statistics: "
+                "UniVLA plays against conflictbench-univla serve (upstream has no server)"
+            )
+        self.window, self.statistics = int(window), statistics
+
+    def _episode(self, observation: Observation) -> _Episode:
+        with self._lock:
+            episode = self._episodes.get(observation.stream)
+            if episode is None or observation.step == 0:  # a new episode on this stream: history and window anew
+                episode = self._episodes[observation.stream] = _Episode("", TemporalEnsemble(self.window))
+            return episode
+
+    def encode(self, observation: Observation) -> dict[str, Any]:
+        if observation.agentview_image is None:
+            raise UserError(f"{self.name} needs the agentview camera image")
+        key = unnorm_key(self.cfg.unnorm_key, observation.suite)
+        if key not in self.statistics:
+            raise InfrastructureError(
+                f"the server has no statistics {key!r} (it has: {', '.join(sorted(self.statistics))})"
+            )
+        image = policy_image(observation.agentview_image, crop=self.cfg.center_crop)
+        seed = sampling_seed(observation) % NOISE_SEED_LIMIT
+        return act_request(image, observation.instruction, self._episode(observation).history, key, seed)
+
+    def decode(self, reply: Any, observation: Observation) -> np.ndarray:
+        chunk, tokens = read_reply(reply, self.window)
+        episode = self._episode(observation)
+        episode.history = history_text(tokens)
+        ensembled = episode.ensemble.add(chunk)
+        stats = self.statistics[unnorm_key(self.cfg.unnorm_key, observation.suite)]
+        return env_gripper(unnormalize(ensembled, stats))
+
+
+def load(name: str, cfg: UnivlaConfig) -> UnivlaPolicy:
+    """The policy for ``model=univla``, connected to ``cfg.server``."""
+    return UnivlaPolicy.load(name, cfg)

@@ -1,0 +1,56 @@
+"""Real LIBERO episodes through ``conflictbench model=univla model.server=...`` against the stand-in server."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from univla_standin import start_standin
+from univla_standin_model import STATISTICS
+
+from conflictbench.store import EpisodeStore
+from conflictbench.testing import (
+    check_failed_episode_is_replayed,
+    episode_counts,
+    planned_conflict_instruction,
+    run_cli,
+)
+
+pytestmark = pytest.mark.sim
+STEPS = 14  # past one window of 12
+
+
+def run(tmp_path: Path, url: str, *overrides: str):
+    settings = [f"model.server={url}", "model.checkpoint=stand-in", f"model.max_steps={STEPS}"]
+    return run_cli(tmp_path, "model=univla", *settings, *overrides)
+
+
+def test_episodes_query_every_step_with_their_history_and_the_suites_statistics(tmp_path):
+    server, url = start_standin(tmp_path)
+    try:
+        out = run(tmp_path, url)
+    finally:
+        server.stop()
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert episode_counts(out.stderr) == (2, 0, 0)
+    records = sorted(EpisodeStore(tmp_path / "results").records(), key=lambda r: r.case_id is not None)
+    action = STATISTICS["libero_spatial"]
+    low, high = np.array(action["q01"][:6]), np.array(action["q99"][:6])
+    for record in records:
+        raw = record.raw_actions
+        assert record.steps == STEPS and record.error is None
+        assert np.all(raw[:, :6] >= low - 1e-12) and np.all(raw[:, :6] <= high + 1e-12)
+        assert set(raw[:, 6]) <= {-1.0, 1.0}
+        assert len({tuple(row) for row in raw[:, :3]}) == STEPS  # a new ensembled action every step
+    assert not np.array_equal(records[0].raw_actions[0], records[1].raw_actions[0])
+
+
+def test_a_server_error_is_an_infrastructure_failure_left_out_and_played_again(tmp_path):
+    check_failed_episode_is_replayed(
+        tmp_path,
+        start_failing=lambda: start_standin(tmp_path, "--fail-on", planned_conflict_instruction()),
+        start_healthy=lambda: start_standin(tmp_path),
+        run=lambda url, *more: run(tmp_path, url, *more),
+        error_text="the model failed on purpose",
+    )
