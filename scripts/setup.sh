@@ -92,7 +92,8 @@ done
 
 # 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack
 #    cannot share). Each gets the shared server half (serving/), its plugin without dependencies (no
-#    conflictbench, no simulator), exactly the plugin's `server` extra, and its `server-test` extra
+#    conflictbench, no simulator), exactly the plugin's `server` extra (a plugin of ours named there from its
+#    folder, without dependencies), and its `server-test` extra
 #    without dependencies (upstream servers the tests compare with). About 5 GB and 90 s each on the first build (torch).
 has_server() {  # a plugin whose pyproject has a `server` extra has a model environment to build
   grep -q '^server = \[' "plugins/$1/pyproject.toml" 2>/dev/null
@@ -130,14 +131,19 @@ for name in $MODELS; do
   "$env_dir/bin/python" -m pip install -q --upgrade pip
   "$env_dir/bin/python" -m pip install -q -e serving
   mapfile -t requirements < <("$env_dir/bin/python" - "$plugin/pyproject.toml" <<'EOF'
-import sys, tomllib
+import re, sys, tomllib
 project = tomllib.load(open(sys.argv[1], "rb"))["project"]
 extra = project.get("optional-dependencies", {})
-print("\n".join(extra.get("server", [])))
+# Another plugin of ours named in the server extra (not on PyPI) is installed from its folder, first.
+local = [r for r in extra.get("server", []) if re.match(r"conflictbench-(?!serving\b)", r)]
+print("--no-deps", *("plugins/" + re.split(r"[<>=!~;\[ ]", r)[0][len("conflictbench-"):].replace("-", "_") for r in local))
+print("\n".join(r for r in extra.get("server", []) if r not in local))
 print("--no-deps", *extra.get("server-test", []))  # counterparts for the tests, without their pins
 EOF
 )
-  ((${#requirements[@]} < 2)) || "$env_dir/bin/python" -m pip install -q "${requirements[@]:0:${#requirements[@]}-1}"
+  read -ra locals <<<"${requirements[0]}"
+  [ "${#locals[@]}" -le 1 ] || "$env_dir/bin/python" -m pip install -q "${locals[0]}" $(printf -- '-e %s ' "${locals[@]:1}")
+  ((${#requirements[@]} < 3)) || "$env_dir/bin/python" -m pip install -q "${requirements[@]:1:${#requirements[@]}-2}"
   read -ra counterparts <<<"${requirements[-1]}"
   [ "${#counterparts[@]}" -le 1 ] || "$env_dir/bin/python" -m pip install -q "${counterparts[@]}"
   "$env_dir/bin/python" -m pip install -q --no-deps -e "$plugin"

@@ -58,12 +58,17 @@ def request_row(body: bytes) -> tuple[Row, bool]:
     return Row(image, instruction, key), encoded
 
 
-def build_app(backend: Backend, max_batch: int):
-    """The FastAPI app; its lifespan runs the batcher."""
+#: A body read into the row the backend answers, and whether it came double-encoded.
+ParseRequest = Callable[[bytes], tuple[Any, bool]]
+
+
+def build_app(backend: Backend, max_batch: int, parse: ParseRequest = request_row, name: str = "openvla"):
+    """The FastAPI app; its lifespan runs the batcher. ``parse`` reads a body (raise :class:`InvalidRequest`);
+    the backend's answers go out as json-numpy (another model's protocol on the same server: UniVLA's)."""
     from fastapi import FastAPI, Request
     from fastapi.responses import JSONResponse, Response
 
-    batcher = Batcher(backend.infer_batch, max_batch, fixed_shape=True, name="openvla")
+    batcher = Batcher(backend.infer_batch, max_batch, fixed_shape=True, name=name)
     metadata = {**backend.metadata, "max_batch": max_batch, "fixed_shape": True}
 
     @contextlib.asynccontextmanager
@@ -83,16 +88,16 @@ def build_app(backend: Backend, max_batch: int):
     @app.post("/act")
     async def act(request: Request) -> Any:
         try:
-            row, encoded = request_row(await request.body())
+            row, encoded = parse(await request.body())
         except InvalidRequest as problem:
             return error(f"invalid request: {problem}", 400)
         try:
-            action, _timing = await batcher.submit(row)
+            answer, _timing = await batcher.submit(row)
         except ServerStopping:
             return error("the server is stopping", 503)
         except Exception as problem:  # the model call failed: this request's answer, the server goes on
             return error(f"{type(problem).__name__}: {problem}")
-        text = json_numpy.dumps(np.asarray(action, dtype=np.float64))
+        text = json_numpy.dumps(answer)
         return Response(json.dumps(text) if encoded else text, media_type="application/json")
 
     @app.get("/healthz")
@@ -106,7 +111,15 @@ def build_app(backend: Backend, max_batch: int):
     return app
 
 
-def serve(backend: Backend, host: str, port: int, max_batch: int, on_ready: Callable[[str, int], None]) -> None:
+def serve(
+    backend: Backend,
+    host: str,
+    port: int,
+    max_batch: int,
+    on_ready: Callable[[str, int], None],
+    parse: ParseRequest = request_row,
+    name: str = "openvla",
+) -> None:
     """Serve until SIGINT / SIGTERM (uvicorn's own handling: a clean exit). A port that cannot be bound raises
     OSError before anything is served."""
     import uvicorn
@@ -114,7 +127,8 @@ def serve(backend: Backend, host: str, port: int, max_batch: int, on_ready: Call
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind((host, port))
-    server = uvicorn.Server(uvicorn.Config(build_app(backend, max_batch), log_level="warning", access_log=False))
+    app = build_app(backend, max_batch, parse, name)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False))
 
     async def run() -> None:
         serving = asyncio.create_task(server.serve(sockets=[sock]))

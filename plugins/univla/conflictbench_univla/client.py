@@ -1,7 +1,9 @@
 """UniVLA as conflictbench sees it: UniVLA's LIBERO evaluation loop, with the model behind our REST server.
 
-``conflictbench model=univla model.server=http://HOST:PORT`` plays against ``conflictbench-univla serve`` (upstream
-has no server: its evaluation runs the model in-process). The server answers each query's normalized chunk and
+``UNIVLA_CODE=/path/to/UniVLA conflictbench model=univla model.checkpoint=DIR`` starts ``conflictbench-univla serve``
+in the model environment for a UniVLA checkpoint folder (UniVLA's code read from that checkout);
+``model.server=http://HOST:PORT`` plays against a running one (upstream has no server: its evaluation runs the
+model in-process). The server answers each query's normalized chunk and
 latent tokens; this client keeps, per episode, what upstream's loop keeps: the previous query's latent tokens (the
 next prompt's history) and the action decoder's ensembling window; it un-normalizes the ensembled action with the
 statistics the server's metadata carries and maps the gripper as OpenVLA's client does. One action per step.
@@ -21,10 +23,9 @@ from conflictbench_openvla.images import policy_image
 from conflictbench_openvla.processing import env_gripper, unnorm_key, unnormalize
 from conflictbench_openvla.protocol import JsonNumpyTransport
 
+from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, check_code, fingerprint
 from .processing import UNIVLA_MAX_STEPS, TemporalEnsemble, history_text
 from .protocol import NOISE_SEED_LIMIT, act_request, read_reply
-
-POLICY_TYPE = "univla"
 
 
 @dataclass
@@ -32,7 +33,8 @@ class UnivlaConfig(HostedConfig):
     """Settings of ``univla`` (``model.<field>=value``; the shared ones are :class:`conflictbench.HostedConfig`'s)."""
 
     checkpoint: str = ""
-    """With ``server``: the name of what that server hosts where it does not say."""
+    """A UniVLA checkpoint folder (the VLA and ``action_decoder.pt``; our server is started for it, with UniVLA's
+    code from ``UNIVLA_CODE``); with ``server``, the name of what that server hosts where it does not say."""
     server: str = ""
     """``http://HOST:PORT`` of a running ``conflictbench-univla serve``."""
     unnorm_key: str = "suite"
@@ -62,10 +64,15 @@ class UnivlaPolicy(HostedPolicy):
 
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        raise UserError(
-            "model=univla plays against a running conflictbench-univla serve: give model.server=http://HOST:PORT "
-            "(serving a checkpoint folder from here is not built yet)"
-        )
+        try:
+            check_code()  # the started server reads UniVLA's code from the same UNIVLA_CODE
+            return check_checkpoint(folder)
+        except CheckpointError as exc:
+            raise UserError(str(exc)) from None
+
+    @classmethod
+    def fingerprint(cls, folder: Path) -> str:
+        return fingerprint(folder)
 
     def __init__(self, *args, **kwargs):
         self._episodes: dict[int, _Episode] = {}

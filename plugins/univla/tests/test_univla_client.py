@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from univla_standin import start_standin
@@ -113,6 +115,12 @@ def test_a_server_that_does_not_say_its_window_and_statistics_is_refused(tmp_pat
         server.stop()
 
 
-def test_a_checkpoint_folder_is_not_served_from_here_yet(tmp_path):
-    with pytest.raises(UserError, match="give model.server=http://HOST:PORT"):
+def test_a_checkpoint_folder_needs_univlas_code_and_the_decoder(tmp_path, monkeypatch):
+    monkeypatch.delenv("UNIVLA_CODE", raising=False)
+    with pytest.raises(UserError, match="UniVLA's model code is in no package: set UNIVLA_CODE"):
+        load("univla", UnivlaConfig(checkpoint=str(tmp_path)))
+    monkeypatch.setenv("UNIVLA_CODE", str(Path(__file__).parent / "standin_univla_code"))
+    (tmp_path / "config.json").write_text('{"model_type": "openvla"}')
+    (tmp_path / "model.safetensors").write_bytes(b"")
+    with pytest.raises(UserError, match="lacks action_decoder.pt"):
         load("univla", UnivlaConfig(checkpoint=str(tmp_path)))

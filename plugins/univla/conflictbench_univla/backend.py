@@ -1,0 +1,172 @@
+"""A UniVLA checkpoint as a function of request rows (model environment only), as UniVLA's LIBERO evaluation runs it.
+
+UniVLA's steps, kept (``experiments/robot/libero/run_libero_eval.py``, ``experiments/robot/openvla_utils.py``):
+UniVLA's Hugging Face classes registered with the auto classes and the VLA loaded in bfloat16, the checkpoint's
+``dataset_statistics.json`` as its ``norm_stats``; the image as a PIL RGB image (the client has done the JPEG round
+trip, resize and crop); the prompt with the history; ``predict_latent_action(**inputs, unnorm_key=key,
+do_sample=True, temperature=0.75, top_p=0.9)``; the action decoder (``ActionDecoderHead``: two attention poolings,
+a linear layer to ``7 x window`` and tanh, in float32) on the latent tokens' and the image's hidden states. The
+decoder's ensembling window, history and un-normalization are the client's (stateless server).
+
+UniVLA's code comes from the user's checkout (``UNIVLA_CODE``), loaded by file: ``prismatic/__init__.py`` imports
+UniVLA's whole training stack, which the model does not need. Sampling is seeded per request (torch's global
+generator, right before the row's call, in the one model thread): a row's tokens depend on its episode and step,
+never on the call order.
+
+Imports torch and transformers only inside :func:`load_backend`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from conflictbench_serving.checkpoints import reduce_seed
+
+from .checkpoints import DECODER, HF_CODE, POLICY_TYPE, CheckpointError, check_checkpoint, check_code, fingerprint
+from .processing import LATENT_TOKENS, prompt
+
+PACKAGE = "univla_code"  # the name UniVLA's Hugging Face modules are loaded under (their relative imports need one)
+
+
+@dataclass(frozen=True)
+class Row:
+    image: np.ndarray
+    instruction: str
+    history: str
+    unnorm_key: str
+    seed: int | None
+
+
+def _load_module(name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def load_code(code: Path) -> dict[str, Any]:
+    """UniVLA's classes from its checkout, without its package's imports."""
+    import types
+
+    package = types.ModuleType(PACKAGE)
+    package.__path__ = [str(code / HF_CODE)]
+    sys.modules[PACKAGE] = package
+    modules = {
+        name: _load_module(f"{PACKAGE}.{name}", code / HF_CODE / f"{name}.py")
+        for name in ("configuration_prismatic", "modeling_prismatic", "processing_prismatic")
+    }
+    utils = _load_module("univla_transformer_utils", code / "prismatic/models/policy/transformer_utils.py")
+    return {
+        "OpenVLAConfig": modules["configuration_prismatic"].OpenVLAConfig,
+        "OpenVLAForActionPrediction": modules["modeling_prismatic"].OpenVLAForActionPrediction,
+        "PrismaticImageProcessor": modules["processing_prismatic"].PrismaticImageProcessor,
+        "PrismaticProcessor": modules["processing_prismatic"].PrismaticProcessor,
+        "MAPBlock": utils.MAPBlock,
+    }
+
+
+def decoder_head(map_block: type, window: int):
+    """UniVLA's ``ActionDecoderHead`` (its evaluation script defines it): the latent tokens pooled with the pooled
+    image as the initial embedding, then ``Linear(512, 7 * window)`` and tanh."""
+    import torch
+
+    class ActionDecoderHead(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.latent_action_pool = map_block(n_latents=1, vis_dim=4096, embed_dim=512, n_heads=8)
+            self.visual_pool = map_block(n_latents=1, vis_dim=4096, embed_dim=512, n_heads=8)
+            self.proj = torch.nn.Sequential(torch.nn.Linear(512, 7 * window), torch.nn.Tanh())
+
+        def forward(self, latent_action_tokens, visual_embed):
+            pooled_image = self.visual_pool(visual_embed)
+            return self.proj(self.latent_action_pool(latent_action_tokens[:, -4:], init_embed=pooled_image))
+
+    return ActionDecoderHead()
+
+
+class UnivlaBackend:
+    """One loaded checkpoint: :meth:`infer_batch` answers each distinct row with its own seeded call."""
+
+    def __init__(self, checkpoint: Path, processor: Any, vla: Any, decoder: Any, window: int, device: str) -> None:
+        import torch
+
+        self.torch, self.processor, self.vla, self.decoder = torch, processor, vla, decoder
+        self.device, self.window = torch.device(device), window
+        statistics = getattr(vla, "norm_stats", {}) or {}
+        self.metadata: dict = {
+            "policy_type": POLICY_TYPE,
+            "checkpoint": str(checkpoint),
+            "checkpoint_fingerprint": fingerprint(checkpoint),
+            "window": window,
+            "action_statistics": {
+                key: {name: entry["action"][name] for name in ("q01", "q99", "mask") if name in entry["action"]}
+                for key, entry in statistics.items()
+                if "action" in entry
+            },
+        }
+
+    def infer(self, row: Row) -> dict[str, np.ndarray]:
+        from PIL import Image
+
+        torch = self.torch
+        image = Image.fromarray(np.asarray(row.image, dtype=np.uint8)).convert("RGB")
+        inputs = self.processor(prompt(row.instruction, row.history), image).to(self.device, dtype=torch.bfloat16)
+        torch.manual_seed(reduce_seed(row.seed))
+        with torch.inference_mode():
+            latent_action, visual_embed, generated_ids = self.vla.predict_latent_action(
+                **inputs, unnorm_key=row.unnorm_key, do_sample=True, temperature=0.75, top_p=0.9
+            )
+            chunk = self.decoder(latent_action.to(torch.float), visual_embed.to(torch.float))
+        tokens = np.asarray(generated_ids[0].tolist(), dtype=np.int64)
+        if tokens.shape != (LATENT_TOKENS,):
+            raise RuntimeError(f"the model generated {tokens.shape[0]} latent tokens, not {LATENT_TOKENS}")
+        return {"actions": np.array(chunk.reshape(-1, self.window, 7)[0].tolist()), "latent_tokens": tokens}
+
+    def infer_batch(self, rows: list[Row]) -> list[dict]:
+        answers: dict[int, dict] = {}
+        for row in rows:  # padding copies are the same object: answered once
+            if id(row) not in answers:
+                answers[id(row)] = self.infer(row)
+        return [answers[id(row)] for row in rows]
+
+
+def load_backend(checkpoint: str | Path, device: str = "cpu") -> UnivlaBackend:
+    """Load ``checkpoint`` as UniVLA's evaluation does; :class:`CheckpointError` for what cannot be served."""
+    import torch
+    from transformers import AutoConfig, AutoImageProcessor, AutoModelForVision2Seq, AutoProcessor
+
+    folder = check_checkpoint(checkpoint).resolve()
+    classes = load_code(check_code())
+    AutoConfig.register("openvla", classes["OpenVLAConfig"])  # as UniVLA's get_vla does
+    AutoImageProcessor.register(classes["OpenVLAConfig"], classes["PrismaticImageProcessor"])
+    AutoProcessor.register(classes["OpenVLAConfig"], classes["PrismaticProcessor"])
+    AutoModelForVision2Seq.register(classes["OpenVLAConfig"], classes["OpenVLAForActionPrediction"])
+    processor = AutoProcessor.from_pretrained(folder, trust_remote_code=True)
+    vla = AutoModelForVision2Seq.from_pretrained(
+        folder, torch_dtype=torch.bfloat16, low_cpu_mem_usage=True, trust_remote_code=True
+    ).to(device)
+    vla.eval()
+    statistics = folder / "dataset_statistics.json"
+    if statistics.is_file():
+        vla.norm_stats = json.loads(statistics.read_text())
+    try:
+        state = torch.load(folder / DECODER, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises several types for a file that is no state dict
+        problem = f"{folder / DECODER} is not an ActionDecoderHead's state dict ({type(error).__name__})"
+        raise CheckpointError(problem) from None
+    if not isinstance(state, dict) or "proj.0.weight" not in state:
+        raise CheckpointError(f"{folder / DECODER} is not an ActionDecoderHead's state dict (no proj.0.weight)")
+    rows = state["proj.0.weight"].shape[0]
+    if rows % 7:
+        raise CheckpointError(f"{folder / DECODER}: its projection gives {rows} values, not 7 per step")
+    decoder = decoder_head(classes["MAPBlock"], rows // 7)
+    decoder.load_state_dict(state)
+    return UnivlaBackend(folder, processor, vla, decoder.to(device).eval(), rows // 7, device)
