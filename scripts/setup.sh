@@ -123,9 +123,18 @@ for name in $MODELS; do
   has_server "$name" || { say "the $name plugin has no server of its own (no model environment to build)"; exit 2; }
   env_dir="$VENV/models/$name"
   stamp="$env_dir/.conflictbench-installed"
-  if [ -f "$stamp" ] && [ ! "$plugin/pyproject.toml" -nt "$stamp" ] && [ ! serving/pyproject.toml -nt "$stamp" ]; then
-    continue
-  fi
+  # What the environment is built from: serving/, the plugin, and any plugin of ours its server extra names.
+  sources=(serving/pyproject.toml "$plugin/pyproject.toml")
+  for other in plugins/*/; do
+    other_name=conflictbench-$(basename "$other" | tr _ -)
+    sed -n '/^server = \[/,/^\]/p' "$plugin/pyproject.toml" | grep -q "\"$other_name[<>=!~ \"]" &&
+      sources+=("$other/pyproject.toml")
+  done
+  fresh=1
+  for source in "${sources[@]}"; do
+    [ -f "$stamp" ] && [ ! "$source" -nt "$stamp" ] || fresh=0
+  done
+  ((fresh)) && continue
   say "building the $name model environment in $env_dir with $MODEL_PYTHON (first time: a few minutes)"
   [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
   "$env_dir/bin/python" -m pip install -q --upgrade pip
@@ -142,7 +151,9 @@ print("--no-deps", *extra.get("server-test", []))  # counterparts for the tests,
 EOF
 )
   read -ra locals <<<"${requirements[0]}"
-  [ "${#locals[@]}" -le 1 ] || "$env_dir/bin/python" -m pip install -q "${locals[0]}" $(printf -- '-e %s ' "${locals[@]:1}")
+  editable=()
+  for local_plugin in "${locals[@]:1}"; do editable+=(-e "$local_plugin"); done
+  ((${#editable[@]} == 0)) || "$env_dir/bin/python" -m pip install -q --no-deps "${editable[@]}"
   ((${#requirements[@]} < 3)) || "$env_dir/bin/python" -m pip install -q "${requirements[@]:1:${#requirements[@]}-2}"
   read -ra counterparts <<<"${requirements[-1]}"
   [ "${#counterparts[@]}" -le 1 ] || "$env_dir/bin/python" -m pip install -q "${counterparts[@]}"

@@ -16,8 +16,9 @@ request, reply to actions). The core owns the rest, the same for every model:
 
 Transports signal a broken or refused connection with :class:`OSError` (``ConnectionError``,
 ``TimeoutError``, socket errors) and a server's error reply with :class:`InfrastructureError`.
-:class:`HttpJsonTransport` (HTTP POST with a JSON body, stdlib only) is the one built in; the
-OpenVLA family's REST ``POST /act`` servers speak exactly it.
+:class:`HttpJsonTransport` (HTTP POST with a JSON body, stdlib only) is the one built in; a
+dialect overrides its ``dumps``/``loads`` (the OpenVLA family's ``POST /act`` needs json-numpy arrays:
+conflictbench-openvla's ``JsonNumpyTransport``).
 
 Example, a complete plugin module (``conflictbench model=mymodel model.server=http://gpu:8000/act``)::
 

@@ -4,10 +4,13 @@
 (``AutoProcessor`` / ``AutoModelForVision2Seq`` with ``trust_remote_code``), the model in bfloat16; for a local
 folder, ``dataset_statistics.json`` as the model's ``norm_stats``; the image as a PIL RGB image (no other step:
 the client has done the JPEG round trip, resize and crop); OpenVLA's prompt (the "v01" template for checkpoints
-named so); the checkpoint's own ``predict_action(**inputs, unnorm_key=key, do_sample=False)``, which generates
-the action tokens greedily, de-tokenizes and un-normalizes them (``processing.detokenize`` and ``unnormalize``
-restate it; the tests check that both agree). Greedy decoding needs no seed. ``predict_action`` takes one
-row, so each distinct row is its own call (the copies padding a call to its fixed shape are not run again).
+whose path says "v01", as deploy.py checks); the checkpoint's own ``predict_action(**inputs, unnorm_key=key,
+do_sample=False)``, which generates the action tokens greedily, de-tokenizes and un-normalizes them
+(``processing.detokenize`` and ``unnormalize`` restate it; the tests check that both agree). Greedy decoding
+needs no seed. ``predict_action`` takes one row, so each distinct row is its own call (the copies padding a call
+to its fixed shape are not run again). One difference: ``deploy.py`` asks for flash-attention 2 on its GPU; this
+loads transformers' default attention (flash-attention is no dependency here and has no CPU kernel), so bfloat16
+results can differ from ``deploy.py``'s in the last bits.
 
 Imports torch and transformers only inside :func:`load_backend`.
 """
@@ -46,13 +49,13 @@ def v01_prompt(instruction: str) -> str:
 class OpenVlaBackend:
     """One loaded checkpoint: :meth:`infer_batch` answers each distinct row with its own ``predict_action``."""
 
-    def __init__(self, checkpoint: Path, processor: Any, model: Any, device: str) -> None:
+    def __init__(self, checkpoint: Path, processor: Any, model: Any, device: str, v01: bool = False) -> None:
         import torch
         import transformers
 
         self.torch, self.processor, self.model = torch, processor, model
         self.device, self.dtype = torch.device(device), torch.bfloat16
-        self.prompt = v01_prompt if "v01" in checkpoint.name else prompt
+        self.prompt = v01_prompt if v01 else prompt
         self.metadata: dict = {
             "policy_type": POLICY_TYPE,
             "checkpoint": str(checkpoint),
@@ -106,4 +109,4 @@ def load_backend(checkpoint: str | Path, device: str = "cpu") -> OpenVlaBackend:
     statistics = folder / "dataset_statistics.json"
     if statistics.is_file():
         model.norm_stats = json.loads(statistics.read_text())
-    return OpenVlaBackend(folder, processor, model, device)
+    return OpenVlaBackend(folder, processor, model, device, v01="v01" in str(checkpoint))  # deploy.py: the path given

@@ -52,8 +52,8 @@ class OpenVlaConfig(HostedConfig):
     server: str = ""
     """``http://HOST:PORT`` of a running ``deploy.py`` or ours (``/act`` is added where the URL has no path)."""
     unnorm_key: str = "suite"
-    """The statistics the server un-normalizes with: ``suite`` (the episode's LIBERO suite, ``libero_goal``),
-    ``suite_no_noops`` (``libero_goal_no_noops``, self-trained checkpoints), or a key as it is."""
+    """The statistics the server un-normalizes with: ``suite`` (the episode's LIBERO suite, ``libero_goal``; with
+    our server, ``libero_goal_no_noops`` where the checkpoint has only that), ``suite_no_noops``, or a key as it is."""
     center_crop: bool = True
     """Crop the centre 0.9 of the image's area, as OpenVLA's LIBERO evaluation does (``--center_crop True``)."""
 
@@ -81,7 +81,7 @@ class _DeployClient(HostedPolicy):
     url_scheme = "http"
     default_max_steps = MAX_STEPS
 
-    policy_types = {"openvla": POLICY_TYPE}
+    policy_types = {"openvla": POLICY_TYPE, "openvla-oft": "openvla-oft"}  # our server hosts OpenVLA only
 
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
@@ -102,7 +102,9 @@ class OpenVlaPolicy(_DeployClient):
         if observation.agentview_image is None:
             raise UserError(f"{self.name} needs the agentview camera image")
         image = policy_image(observation.agentview_image, crop=self.cfg.center_crop)
-        return openvla_request(image, observation.instruction, unnorm_key(self.cfg.unnorm_key, observation.suite))
+        known = self.metadata.get("unnorm_keys")  # our server says which it has; deploy.py does not
+        key = unnorm_key(self.cfg.unnorm_key, observation.suite, known)
+        return openvla_request(image, observation.instruction, key)
 
     def decode(self, reply: Any, observation: Observation) -> np.ndarray:
         return env_gripper(read_action(reply))

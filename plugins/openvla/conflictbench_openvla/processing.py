@@ -6,8 +6,8 @@ and the models' ``modeling_prismatic.py`` (``docs/upstream/openvla_oft_univla.md
 
 - **gripper**: the model's g in [0, 1] (1 = open) becomes ``2 g - 1``, then its sign, then is negated (LIBERO's
   -1 = open); ``np.sign(0) = 0``, so g = 0.5 exactly leaves the gripper command at 0;
-- **unnorm_key**: the LIBERO suite's name (``libero_goal``), or its ``_no_noops`` variant for checkpoints
-  trained on the no-op-filtered datasets;
+- **unnorm_key**: the LIBERO suite's name (``libero_goal``), or its ``_no_noops`` variant where the checkpoint
+  has only that one (trained on the no-op-filtered datasets);
 - **de-tokenization** (OpenVLA, in the model): 256 bins in [-1, 1] have 255 centres; the action token ``id``
   is bin ``vocab_size - id - 1`` clipped to [0, 254];
 - **q01/q99 un-normalization**: ``0.5 (a + 1)(q99 - q01) + q01`` on the dimensions the statistics' ``mask``
@@ -18,6 +18,8 @@ and the models' ``modeling_prismatic.py`` (``docs/upstream/openvla_oft_univla.md
 """
 
 from __future__ import annotations
+
+from collections.abc import Collection
 
 import numpy as np
 
@@ -33,15 +35,19 @@ def prompt(instruction: str) -> str:
     return f"In: What action should the robot take to {instruction.lower()}?\nOut:"
 
 
-def unnorm_key(setting: str, suite: str) -> str:
+def unnorm_key(setting: str, suite: str, known: Collection[str] | None = None) -> str:
     """The statistics key for an episode of ``suite``: ``suite`` / ``suite_no_noops`` follow the suite; any
-    other setting is the key itself."""
+    other setting is the key itself. Where the checkpoint's keys are ``known``, ``suite`` falls back to the
+    ``_no_noops`` key when only that one exists, as upstream's evaluations do."""
     template = SUITE_KEYS.get(setting)
     if template is None:
         return setting
     if not suite:
         raise ValueError(f"unnorm_key={setting} needs the episode's LIBERO suite, and the observation has none")
-    return template.format(suite=suite)
+    key = template.format(suite=suite)
+    if known is not None and key not in known and f"{key}_no_noops" in known and setting == "suite":
+        return f"{key}_no_noops"
+    return key
 
 
 def env_gripper(actions: np.ndarray) -> np.ndarray:

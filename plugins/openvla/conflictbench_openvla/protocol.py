@@ -67,7 +67,10 @@ class JsonNumpyTransport(HttpJsonTransport):
         return json_numpy.dumps(request)
 
     def loads(self, text: bytes) -> Any:
-        reply = json_numpy.loads(text)
+        try:
+            reply = json_numpy.loads(text)
+        except (KeyError, TypeError) as exc:  # a "__numpy__" object without dtype or shape, an unknown dtype
+            raise ValueError(f"a json-numpy array that cannot be read ({type(exc).__name__}: {exc})") from None
         if isinstance(reply, str) and reply == ERROR_REPLY:
             raise InfrastructureError(
                 f'{self.url} answered "error": the server caught an exception on this request (its log has the '

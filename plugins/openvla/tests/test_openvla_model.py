@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from openvla_model_env import MODEL_PYTHON, TESTS, model_env, needs_model_env, run_in_model_env
 
-from conflictbench import InfrastructureError, ServerProcess, free_port
+from conflictbench import InfrastructureError, ServerProcess, UserError, free_port
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import camera_observation, episode_counts, run_cli
 from conflictbench_openvla.checkpoints import fingerprint
-from conflictbench_openvla.client import OpenVlaConfig, load
+from conflictbench_openvla.client import OftConfig, OpenVlaConfig, load
 from conflictbench_openvla.processing import detokenize, env_gripper, unnormalize
 
 
@@ -68,6 +68,20 @@ def test_a_key_the_checkpoint_lacks_fails_that_request_naming_the_keys_it_has(ti
         assert "no statistics 'libero_goal_no_noops' (it has: libero_10, libero_goal" in str(failed)
     finally:
         policy.close()
+
+
+@needs_model_env
+def test_our_openvla_server_is_refused_for_openvla_oft(tiny_checkpoint, tmp_path):
+    port = free_port()
+    argv = [str(MODEL_PYTHON), "-m", "conflictbench_openvla", "serve", "--policy", "openvla", "--checkpoint",
+            str(tiny_checkpoint), "--port", str(port), "--max-batch", "1"]  # fmt: skip
+    server = ServerProcess(argv, name="openvla", health_url=f"http://127.0.0.1:{port}/healthz",
+                           env=model_env(tiny_checkpoint), startup_timeout_s=300, log_dir=tmp_path).start()  # fmt: skip
+    try:
+        with pytest.raises(UserError, match="hosts a openvla policy, not openvla-oft"):
+            load("openvla-oft", OftConfig(server=f"http://127.0.0.1:{port}", checkpoint="x", connect_retries=0))
+    finally:
+        server.stop()
 
 
 @needs_model_env

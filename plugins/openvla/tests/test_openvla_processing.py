@@ -43,6 +43,20 @@ def test_unnorm_key_follows_the_episodes_suite_or_is_given(setting, suite, key):
     assert processing.unnorm_key(setting, suite) == key
 
 
+@pytest.mark.parametrize(
+    "known, key",
+    [
+        ({"libero_goal_no_noops", "libero_10_no_noops"}, "libero_goal_no_noops"),  # only the no-op-filtered one
+        ({"libero_goal", "libero_goal_no_noops"}, "libero_goal"),  # the suite's own first, as upstream
+        ({"bridge_orig"}, "libero_goal"),  # neither: the suite's (the server then says what it has)
+        (None, "libero_goal"),  # deploy.py does not say: as given
+    ],
+)
+def test_the_suite_key_falls_back_to_no_noops_where_the_checkpoint_has_only_that(known, key):
+    assert processing.unnorm_key("suite", "libero_goal", known) == key
+    assert processing.unnorm_key("suite_no_noops", "libero_goal", known) == "libero_goal_no_noops"
+
+
 def test_a_suite_key_without_a_suite_is_refused():
     with pytest.raises(ValueError, match="needs the episode's LIBERO suite"):
         processing.unnorm_key("suite", "")

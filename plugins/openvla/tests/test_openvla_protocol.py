@@ -52,6 +52,14 @@ def test_deploys_error_string_is_an_infrastructure_error():
         JsonNumpyTransport("http://h:8000").loads(b'"error"')
 
 
+@pytest.mark.parametrize(
+    "body", [b'{"__numpy__": "AAAA", "shape": [7]}', b'{"__numpy__": "AAAA", "dtype": "<x9", "shape": [1]}']
+)
+def test_a_json_numpy_array_that_cannot_be_read_is_an_unreadable_reply(body):
+    with pytest.raises(ValueError, match="a json-numpy array that cannot be read"):  # the transport: infrastructure
+        JsonNumpyTransport("http://h:8000").loads(body)
+
+
 @pytest.mark.parametrize("reply", [[1.0, 2.0], "oops", {"a": 1}])
 def test_a_reply_that_is_no_action_is_refused(reply):
     with pytest.raises(ValueError):

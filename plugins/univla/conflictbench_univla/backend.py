@@ -125,9 +125,7 @@ class UnivlaBackend:
                 **inputs, unnorm_key=row.unnorm_key, do_sample=True, temperature=0.75, top_p=0.9
             )
             chunk = self.decoder(latent_action.to(torch.float), visual_embed.to(torch.float))
-        tokens = np.asarray(generated_ids[0].tolist(), dtype=np.int64)
-        if tokens.shape != (LATENT_TOKENS,):
-            raise RuntimeError(f"the model generated {tokens.shape[0]} latent tokens, not {LATENT_TOKENS}")
+        tokens = np.asarray(generated_ids[0].tolist(), dtype=np.int64).reshape(-1)[-LATENT_TOKENS:]
         return {"actions": np.array(chunk.reshape(-1, self.window, 7)[0].tolist()), "latent_tokens": tokens}
 
     def infer_batch(self, rows: list[Row]) -> list[dict]:
@@ -145,6 +143,7 @@ def load_backend(checkpoint: str | Path, device: str = "cpu") -> UnivlaBackend:
 
     folder = check_checkpoint(checkpoint).resolve()
     classes = load_code(check_code())
+    torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = True, False  # as UniVLA's set_seed_everywhere
     AutoConfig.register("openvla", classes["OpenVLAConfig"])  # as UniVLA's get_vla does
     AutoImageProcessor.register(classes["OpenVLAConfig"], classes["PrismaticImageProcessor"])
     AutoProcessor.register(classes["OpenVLAConfig"], classes["PrismaticProcessor"])
@@ -168,5 +167,9 @@ def load_backend(checkpoint: str | Path, device: str = "cpu") -> UnivlaBackend:
     if rows % 7:
         raise CheckpointError(f"{folder / DECODER}: its projection gives {rows} values, not 7 per step")
     decoder = decoder_head(classes["MAPBlock"], rows // 7)
-    decoder.load_state_dict(state)
+    try:
+        decoder.load_state_dict(state)
+    except RuntimeError as error:  # keys or shapes of another module (a "net." or "module." prefix, ...)
+        first = str(error).strip().splitlines()[0]
+        raise CheckpointError(f"{folder / DECODER} does not fit UniVLA's ActionDecoderHead: {first}") from None
     return UnivlaBackend(folder, processor, vla, decoder.to(device).eval(), rows // 7, device)

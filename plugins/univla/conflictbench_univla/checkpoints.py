@@ -65,11 +65,13 @@ def check_code(code: str | Path | None = None) -> Path:
 
 
 def fingerprint(folder: str | Path) -> str:
-    """A digest of what decides the actions: config, weights, processor, statistics and the decoder's weights."""
+    """A digest of what decides the actions: config, weights, processor, statistics, the decoder's weights, any
+    code in the folder, and the model files of UniVLA's checkout (``UNIVLA_CODE``)."""
     folder = Path(folder)
+    code = check_code()
     files = [
         path
         for path in sorted(folder.iterdir())
-        if path.is_file() and path.suffix in (".json", ".safetensors", ".bin", ".pt", ".model")
+        if path.is_file() and path.suffix in (".json", ".py", ".safetensors", ".bin", ".pt", ".model")
     ]
-    return digest(files)
+    return digest([*files, *(code / name for name in CODE_FILES)])

@@ -18,7 +18,15 @@ from typing import Any
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, InfrastructureError, Observation, UserError, sampling_seed
+from conflictbench import (
+    HostedConfig,
+    HostedPolicy,
+    InfrastructureError,
+    Observation,
+    PerEpisode,
+    UserError,
+    sampling_seed,
+)
 from conflictbench_openvla.images import policy_image
 from conflictbench_openvla.processing import env_gripper, unnorm_key, unnormalize
 from conflictbench_openvla.protocol import JsonNumpyTransport
@@ -38,7 +46,8 @@ class UnivlaConfig(HostedConfig):
     server: str = ""
     """``http://HOST:PORT`` of a running ``conflictbench-univla serve``."""
     unnorm_key: str = "suite"
-    """The statistics to un-normalize with: ``suite`` (the episode's LIBERO suite), ``suite_no_noops``, or a key."""
+    """The statistics to un-normalize with: ``suite`` (the episode's LIBERO suite, or its ``_no_noops`` key where
+    the checkpoint has only that, as upstream's evaluation falls back), ``suite_no_noops``, or a key as it is."""
     center_crop: bool = True
     """Crop the centre 0.9 of the image's area, as UniVLA's LIBERO evaluation does."""
 
@@ -75,7 +84,7 @@ class UnivlaPolicy(HostedPolicy):
         return fingerprint(folder)
 
     def __init__(self, *args, **kwargs):
-        self._episodes: dict[int, _Episode] = {}
+        self._episodes = PerEpisode(lambda: _Episode("", TemporalEnsemble(self.window)))
         self._lock = threading.Lock()
         self.window = 0
         self.statistics: dict[str, dict] = {}
@@ -94,7 +103,7 @@ class UnivlaPolicy(HostedPolicy):
 
     def _read_metadata(self) -> None:
         window, statistics = self.metadata.get("window"), self.metadata.get("action_statistics")
-        if not window or not isinstance(statistics, dict):
+        if not window or not isinstance(statistics, dict) or not statistics:
             raise UserError(
                 f"the server at {self.cfg.server} does not say its ensembling window and action statistics: "
                 "UniVLA plays against conflictbench-univla serve (upstream has no server)"
@@ -102,16 +111,16 @@ class UnivlaPolicy(HostedPolicy):
         self.window, self.statistics = int(window), statistics
 
     def _episode(self, observation: Observation) -> _Episode:
-        with self._lock:
-            episode = self._episodes.get(observation.stream)
-            if episode is None or observation.step == 0:  # a new episode on this stream: history and window anew
-                episode = self._episodes[observation.stream] = _Episode("", TemporalEnsemble(self.window))
-            return episode
+        with self._lock:  # a new episode on a stream starts with no history and an empty window
+            return self._episodes(observation)
+
+    def _key(self, observation: Observation) -> str:
+        return unnorm_key(self.cfg.unnorm_key, observation.suite, self.statistics)
 
     def encode(self, observation: Observation) -> dict[str, Any]:
         if observation.agentview_image is None:
             raise UserError(f"{self.name} needs the agentview camera image")
-        key = unnorm_key(self.cfg.unnorm_key, observation.suite)
+        key = self._key(observation)
         if key not in self.statistics:
             raise InfrastructureError(
                 f"the server has no statistics {key!r} (it has: {', '.join(sorted(self.statistics))})"
@@ -125,7 +134,7 @@ class UnivlaPolicy(HostedPolicy):
         episode = self._episode(observation)
         episode.history = history_text(tokens)
         ensembled = episode.ensemble.add(chunk)
-        stats = self.statistics[unnorm_key(self.cfg.unnorm_key, observation.suite)]
+        stats = self.statistics[self._key(observation)]
         return env_gripper(unnormalize(ensembled, stats))
 
 

@@ -7,8 +7,9 @@ history and ensembling window:
 - request ``{"image": uint8 224 x 224 x 3 (processed as OpenVLA's client does), "instruction": text, "history":
   the previous query's latent tokens as text ("" at an episode's first query), "unnorm_key": key,
   "conflictbench/noise_seed": int}``;
-- reply ``{"actions": float64 (window, 7), the action decoder's normalized chunk, "latent_tokens": int64 (4,),
-  the generated latent token ids}``;
+- reply ``{"actions": float64 (window, 7), the action decoder's normalized chunk, "latent_tokens": int64 (<= 4,),
+  the generated latent token ids (upstream keeps the last four ids above 32000: fewer where the model sampled
+  other tokens, and the next prompt's history is then shorter, as upstream's)}``;
 - ``GET /metadata``: ``policy_type`` "univla", ``checkpoint_fingerprint``, ``max_batch``, ``window`` and
   ``action_statistics`` (per key: ``q01``, ``q99``, ``mask``), with which the client un-normalizes.
 """
@@ -42,6 +43,8 @@ def read_reply(reply: Any, window: int) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError("expected a reply with 'actions' and 'latent_tokens'")
     chunk = np.array(reply["actions"], dtype=np.float64)
     tokens = np.array(reply["latent_tokens"], dtype=np.int64)
-    if chunk.shape != (window, 7) or tokens.shape != (LATENT_TOKENS,):
-        raise ValueError(f"expected actions ({window}, 7) and 4 latent tokens, got {chunk.shape} and {tokens.shape}")
+    if chunk.shape != (window, 7) or tokens.ndim != 1 or len(tokens) > LATENT_TOKENS:
+        raise ValueError(
+            f"expected actions ({window}, 7) and up to 4 latent tokens, got {chunk.shape} and {tokens.shape}"
+        )
     return chunk, tokens

@@ -83,6 +83,28 @@ def test_a_new_episode_on_a_stream_starts_without_history_or_window(standin):
         policy.close()
 
 
+def test_fewer_latent_tokens_make_a_shorter_history_as_upstreams(standin):
+    policy = univla(standin)
+    try:
+        first, second = episode(steps=2, text="wave briefly")
+        policy.act(first)
+        assert policy.encode(second)["history"].count("<ACT_") == 3
+    finally:
+        policy.close()
+
+
+def test_a_checkpoint_with_only_no_noops_statistics_is_unnormalized_with_those(tmp_path):
+    server, url = start_standin(tmp_path, "--no-noops")
+    policy = univla(url)
+    try:
+        obs = camera_observation(0, suite="libero_10")
+        assert policy.encode(obs)["unnorm_key"] == "libero_10_no_noops"
+        np.testing.assert_allclose(policy.act(obs), upstream_loop([obs])[0], atol=1e-12)
+    finally:
+        policy.close()
+        server.stop()
+
+
 def test_a_server_error_or_a_missing_key_fails_that_request_only(standin):
     policy = univla(standin)
     try:

@@ -91,6 +91,7 @@ def test_without_univla_code_the_run_says_so_before_starting_anything(tiny_check
         ("no_decoder", "lacks action_decoder.pt, the action decoder's weights"),
         ("no_code", "set UNIVLA_CODE to a checkout"),
         ("bad_decoder", "is not an ActionDecoderHead's state dict"),
+        ("incomplete_decoder", "does not fit UniVLA's ActionDecoderHead"),
     ],
 )
 def test_serve_refuses_what_it_cannot_serve_in_one_line(tiny_checkpoint, tmp_path, change, message):
@@ -99,6 +100,9 @@ def test_serve_refuses_what_it_cannot_serve_in_one_line(tiny_checkpoint, tmp_pat
         shutil.copytree(tiny_checkpoint, folder)
     if change == "no_decoder":
         (folder / "action_decoder.pt").unlink()
+    if change == "incomplete_decoder":  # another module's weights: a key of UniVLA's head missing
+        drop = "import sys, torch; p = sys.argv[1]; s = torch.load(p); del s['visual_pool.latents']; torch.save(s, p)"
+        run_in_model_env(["-c", drop, str(folder / "action_decoder.pt")])
     if change == "bad_decoder":
         (folder / "action_decoder.pt").write_bytes((folder / "dataset_statistics.json").read_bytes())
     env = model_env()

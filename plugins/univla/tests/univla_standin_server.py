@@ -26,7 +26,9 @@ def main() -> None:
     parser.add_argument("--fail-on")
     parser.add_argument("--die-on")
     parser.add_argument("--no-metadata", action="store_true")
+    parser.add_argument("--no-noops", action="store_true", help="statistics keys named libero_*_no_noops")
     args = parser.parse_args()
+    statistics = {f"{key}_no_noops": value for key, value in STATISTICS.items()} if args.no_noops else STATISTICS
     app = FastAPI()
 
     @app.post("/act")
@@ -39,9 +41,12 @@ def main() -> None:
             return JSONResponse({"error": "RuntimeError: the model failed on purpose"}, status_code=500)
         image = payload["image"]
         assert isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.shape == (224, 224, 3)
-        assert payload["unnorm_key"] in STATISTICS
+        assert payload["unnorm_key"] in statistics
         prompt, seed = prompt_of(instruction, payload["history"]), int(payload[NOISE_SEED])
-        reply = {"actions": chunk_for(image, prompt, seed), "latent_tokens": latent_tokens(prompt, seed)}
+        tokens = latent_tokens(prompt, seed)
+        if "briefly" in instruction:  # fewer latent tokens came out (upstream keeps those it got)
+            tokens = tokens[:3]
+        reply = {"actions": chunk_for(image, prompt, seed), "latent_tokens": tokens}
         return Response(json_numpy.dumps(reply), media_type="application/json")
 
     if not args.no_metadata:
@@ -49,7 +54,7 @@ def main() -> None:
         @app.get("/metadata")
         async def metadata():
             return {"policy_type": "univla", "checkpoint_fingerprint": "sha256:standin", "max_batch": 1,
-                    "window": WINDOW, "action_statistics": STATISTICS}  # fmt: skip
+                    "window": WINDOW, "action_statistics": statistics}  # fmt: skip
 
     uvicorn.run(app, host="127.0.0.1", port=args.port, log_level="warning")
 
