@@ -172,3 +172,23 @@ def camera_observation(
         agentview_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
         wrist_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
     )  # fmt: skip
+
+
+def start_script_server(script: Path, *args: str, scheme: str, log_dir: Path, name: str | None = None):
+    """``python script PORT *args`` (a test's stand-in of an upstream server) on a free port, started once it
+    accepts connections; ``(server, "scheme://127.0.0.1:PORT")``. Stop it with ``server.stop()``."""
+    import socket
+
+    from .core import ServerProcess, free_port
+
+    port = free_port()
+
+    def accepting() -> bool:
+        with socket.socket() as sock:
+            sock.settimeout(1.0)
+            return sock.connect_ex(("127.0.0.1", port)) == 0
+
+    url = f"{scheme}://127.0.0.1:{port}"
+    server = ServerProcess([sys.executable, str(script), str(port), *args], name=name or Path(script).stem,
+                           health_url=url, ready=accepting, startup_timeout_s=60, log_dir=log_dir)  # fmt: skip
+    return server.start(), url

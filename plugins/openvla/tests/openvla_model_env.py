@@ -49,3 +49,15 @@ def tiny_checkpoint(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("tiny-openvla") / "checkpoint"
     run_in_model_env([str(TESTS / "tiny_openvla.py"), str(folder)], folder)
     return folder
+
+
+def start_server(checkpoint: Path, log_dir: Path, max_batch: int = 1):
+    """``conflictbench-openvla serve`` for ``checkpoint`` on a free port, answering; ``(server, port)``."""
+    from conflictbench import ServerProcess, free_port
+
+    port = free_port()
+    argv = [str(MODEL_PYTHON), "-m", "conflictbench_openvla", "serve", "--policy", "openvla", "--checkpoint",
+            str(checkpoint), "--port", str(port), "--max-batch", str(max_batch)]  # fmt: skip
+    server = ServerProcess(argv, name="openvla", health_url=f"http://127.0.0.1:{port}/healthz",
+                           env=model_env(checkpoint), startup_timeout_s=300, log_dir=log_dir)  # fmt: skip
+    return server.start(), port

@@ -12,9 +12,9 @@ from pathlib import Path
 import json_numpy
 import numpy as np
 import pytest
-from openvla_model_env import MODEL_PYTHON, TESTS, model_env, needs_model_env, run_in_model_env
+from openvla_model_env import TESTS, model_env, needs_model_env, run_in_model_env, start_server
 
-from conflictbench import InfrastructureError, ServerProcess, UserError, free_port
+from conflictbench import InfrastructureError, UserError
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import camera_observation, episode_counts, run_cli
 from conflictbench_openvla.checkpoints import fingerprint
@@ -72,11 +72,7 @@ def test_a_key_the_checkpoint_lacks_fails_that_request_naming_the_keys_it_has(ti
 
 @needs_model_env
 def test_our_openvla_server_is_refused_for_openvla_oft(tiny_checkpoint, tmp_path):
-    port = free_port()
-    argv = [str(MODEL_PYTHON), "-m", "conflictbench_openvla", "serve", "--policy", "openvla", "--checkpoint",
-            str(tiny_checkpoint), "--port", str(port), "--max-batch", "1"]  # fmt: skip
-    server = ServerProcess(argv, name="openvla", health_url=f"http://127.0.0.1:{port}/healthz",
-                           env=model_env(tiny_checkpoint), startup_timeout_s=300, log_dir=tmp_path).start()  # fmt: skip
+    server, port = start_server(tiny_checkpoint, tmp_path)
     try:
         with pytest.raises(UserError, match="hosts a openvla policy, not openvla-oft"):
             load("openvla-oft", OftConfig(server=f"http://127.0.0.1:{port}", checkpoint="x", connect_retries=0))
@@ -86,11 +82,7 @@ def test_our_openvla_server_is_refused_for_openvla_oft(tiny_checkpoint, tmp_path
 
 @needs_model_env
 def test_a_double_encoded_request_is_answered_double_encoded_as_deploy_py_does(tiny_checkpoint, tmp_path):
-    port = free_port()
-    argv = [str(MODEL_PYTHON), "-m", "conflictbench_openvla", "serve", "--policy", "openvla", "--checkpoint",
-            str(tiny_checkpoint), "--port", str(port), "--max-batch", "1"]  # fmt: skip
-    server = ServerProcess(argv, name="openvla", health_url=f"http://127.0.0.1:{port}/healthz",
-                           env=model_env(tiny_checkpoint), startup_timeout_s=300, log_dir=tmp_path).start()  # fmt: skip
+    server, port = start_server(tiny_checkpoint, tmp_path)
     try:
         image = camera_observation(1).agentview_image[:224, :224]
         payload = {"image": image, "instruction": "put it down", "unnorm_key": "libero_goal"}
