@@ -36,6 +36,7 @@ from fastapi import FastAPI  # noqa: E402
 from fastapi.responses import JSONResponse  # noqa: E402
 
 from conflictbench_openvla.images import center_crop, resize_for_policy  # noqa: E402
+from conflictbench_openvla.processing import normalize_proprio  # noqa: E402
 
 
 class StandIn:
@@ -80,8 +81,7 @@ class StandIn:
                 image = resize_for_policy(image)
             prepared.append(center_crop(image))
         stats = STATS[self.unnorm_key]
-        low, high = np.asarray(PROPRIO["q01"]), np.asarray(PROPRIO["q99"])
-        proprio = np.clip(2 * (np.asarray(payload["state"]) - low) / (high - low + 1e-8) - 1, -1, 1)
+        proprio = normalize_proprio(payload["state"], PROPRIO)  # OFT's step, as the plugin pins it
         normalized = self.model(prepared, payload["instruction"], self.unnorm_key, proprio)
         actions = unnormalized(normalized, stats["action"], 1e-8)
         return [actions[i] for i in range(len(actions))]
