@@ -32,13 +32,20 @@ class Parser(argparse.ArgumentParser):
         self.exit(USER_ERROR, f"{self.prog}: {message}\n")
 
 
-def build_parser(program: str, description: str, policies: list[str], protocol: str, port: int = 8000) -> Parser:
+def build_parser(
+    program: str,
+    description: str,
+    policies: list[str],
+    protocol: str,
+    port: int = 8000,
+    checkpoint_help: str = "a LeRobot pretrained-model folder",
+) -> Parser:
     """``PROGRAM serve ...`` with the shared options (``port``: the upstream server's usual one)."""
     parser = Parser(prog=program, description=description)
     commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     serve = commands.add_parser("serve", help=f"serve a local checkpoint over {protocol}")
     serve.add_argument("--policy", required=True, choices=sorted(policies), help="what the checkpoint holds")
-    serve.add_argument("--checkpoint", required=True, type=Path, help="a LeRobot pretrained-model folder")
+    serve.add_argument("--checkpoint", required=True, type=Path, help=checkpoint_help)
     serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default: %(default)s)")
     serve.add_argument("--port", type=int, default=port, help="0: any free port (default: %(default)s)")
     serve.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto (default: %(default)s)")

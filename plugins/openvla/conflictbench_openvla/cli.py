@@ -39,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = command.build_parser(
         PROGRAM, "OpenVLA for conflictbench, model-environment side.", ["openvla", "openvla-oft"],
         "deploy.py's REST protocol (json-numpy)", 8000,
+        checkpoint_help="an OpenVLA checkpoint folder in Hugging Face format (with its own model code)",
     )  # fmt: skip
     return command.main(PROGRAM, parser, serve_command, argv)
 

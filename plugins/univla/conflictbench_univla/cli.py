@@ -42,8 +42,9 @@ def serve_command(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = command.build_parser(
-        PROGRAM, "UniVLA for conflictbench, model-environment side.", ["univla"], "our REST protocol (json-numpy)", 8000
-    )
+        PROGRAM, "UniVLA for conflictbench, model-environment side.", ["univla"], "our REST protocol (json-numpy)",
+        8000, checkpoint_help="a UniVLA checkpoint folder: the VLA in Hugging Face format and action_decoder.pt",
+    )  # fmt: skip
     return command.main(PROGRAM, parser, serve_command, argv)
 
 
