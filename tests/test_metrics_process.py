@@ -171,10 +171,16 @@ def test_tar_takes_the_nearest_target_at_each_state():
     assert pair_metrics(ref, con)["tar"] == pytest.approx(0.5, rel=1e-12)  # same set, other order
 
 
-def test_tar_when_the_reference_did_not_approach():
-    ref = _approach_record([0.5, 0.6, 0.7], case=None)  # A+ = 0 -> divide by eps
-    assert pair_metrics(ref, _approach_record([0.5, 0.5]))["tar"] == 0.0  # 0 / eps
-    assert pair_metrics(ref, _approach_record([0.5, 0.49]))["tar"] == 1.0  # 0.01 / eps clipped
+def test_tar_is_undefined_where_the_reference_approached_by_less_than_a_centimetre():
+    """DESIGN.md's guard: with A+ near 0 the ratio is noise (a motionless reference gave 100 %, or 0 %)."""
+    for reference in ([0.5, 0.6, 0.7], [0.5, 0.5], [0.5, 0.491]):  # A+ = 0, 0, 0.009 m
+        ref = _approach_record(reference, case=None)
+        for conflict in ([0.5, 0.5], [0.5, 0.3]):
+            assert pair_metrics(ref, _approach_record(conflict))["tar"] is None
+            assert plain.tar(ref, _approach_record(conflict)) is None
+    ref = _approach_record([0.5, 0.48], case=None)  # A+ = 0.02: defined
+    assert pair_metrics(ref, _approach_record([0.5, 0.49]))["tar"] == pytest.approx(0.5, rel=1e-9)
+    assert pair_metrics(ref, _approach_record([0.5, 0.5]))["tar"] == 0.0
 
 
 def test_tar_undefined_for_other_targets_no_target_or_non_finite():
@@ -238,7 +244,7 @@ def test_zero_step_rollouts():
     ref, con = record(eef=line([0.5]), case=None), record(eef=line([0.5]))
     m = pair_metrics(ref, con)
     assert m["ts"] == 1.0 and m["early20_ts"] == 1.0  # one cell, cost 0
-    assert m["tar"] == 0.0  # A- = 0, A+ = 0: 0 / eps
+    assert m["tar"] is None  # A+ = 0: the reference did not approach (the guard)
     assert m["ams"] is None  # no actions
 
 

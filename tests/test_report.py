@@ -195,6 +195,23 @@ def test_no_pairs_at_all_still_reports(tmp_path, plugins):
     assert (tmp_path / "table1_overall.md").exists() and (tmp_path / "fig_dsr_heatmap.png").exists()
 
 
+def test_pairs_whose_reference_did_not_approach_leave_tar_undefined_and_are_counted(plugins):
+    records = [episode("gamma", None, 0.5, 0.2, False), episode("gamma", "c1", 0.3, 0.1, False, "grounding", "L1")]
+    stream = io.StringIO()
+    result = report_records(records, plugins, stream=stream)  # the reference stood at 0.5: A+ = 0
+    assert result["pairs"]["tar"].isna().all() and result["pairs"]["ts"].notna().all()
+    assert "TAR is undefined for 1 of 1 pairs: their reference approached its targets by less than 1 cm" in (
+        stream.getvalue()
+    )
+    assert "TAR is undefined" not in _report_text(two_models(), plugins)
+
+
+def _report_text(records, plugins) -> str:
+    stream = io.StringIO()
+    report_records(records, plugins, stream=stream)
+    return stream.getvalue()
+
+
 def test_policy_errors_count_as_failures_and_simulator_failures_are_left_out(plugins):
     from conflictbench.core import SIMULATOR_ERROR_PREFIX
 

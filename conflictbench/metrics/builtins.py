@@ -19,7 +19,8 @@ BUILTINS = {
         "TAR",
         False,
         "Target Approach Ratio: how far the conflict rollout still closed in on the original targets, "
-        "relative to the reference (A-/A+, clipped to [0,1]); lower = stopped pursuing the invalid goal",
+        "relative to the reference (A-/A+, clipped to [0,1]; undefined where the reference approached by less "
+        "than 1 cm); lower = stopped pursuing the invalid goal",
     ),
     "early20_ts": (
         "Early20 TS",

@@ -17,6 +17,8 @@ from conflictbench.core import EpisodeRecord
 EPS = 1e-8
 SIGMA = 0.10  # metres
 EARLY_STEPS = 20
+#: TAR needs a reference that really approached its targets: below this (metres), A-/A+ is noise.
+MIN_APPROACH = 0.01
 
 
 def _clip(value: float) -> float:
@@ -93,7 +95,7 @@ def tar(reference: EpisodeRecord, conflict: EpisodeRecord) -> float | None:
     if set(reference.target_names) != set(conflict.target_names):
         return None
     a_ref, a_con = approach(reference), approach(conflict)
-    if a_ref is None or a_con is None:
+    if a_ref is None or a_con is None or a_ref < MIN_APPROACH:
         return None
     return _clip(a_con / max(a_ref, EPS))
 

@@ -28,7 +28,7 @@ from conflictbench.core.plugins import unknown_choice
 
 from . import dtw as dtw_kernels
 from . import kernels, plain
-from .plain import EARLY_STEPS, EPS, SIGMA
+from .plain import EARLY_STEPS, EPS, MIN_APPROACH, SIGMA
 
 BUILTIN_METRICS = ("tar", "early20_ts", "ts", "ams")  # the paper's column order
 #: Identifies each pair in :func:`evaluate_pairs`'s frame (taken from the conflict episode).
@@ -141,7 +141,9 @@ def _builtin_batch(references: Sequence[EpisodeRecord], conflicts: Sequence[Epis
     a_ref, a_con = approach[ref_idx], approach[con_idx]
     with np.errstate(invalid="ignore", divide="ignore"):
         tar = np.clip(a_con / np.maximum(a_ref, EPS), 0.0, 1.0)
-    tar[~same_targets | ~np.isfinite(a_ref) | ~np.isfinite(a_con)] = math.nan
+    with np.errstate(invalid="ignore"):
+        approached = a_ref >= MIN_APPROACH  # a reference that hardly moved toward its targets: no ratio
+    tar[~same_targets | ~np.isfinite(a_ref) | ~np.isfinite(a_con) | ~approached] = math.nan
     return {"tar": tar, "ts": ts, "early20_ts": early, "ams": ams}
 
 

@@ -187,6 +187,12 @@ def report_frame(
             )
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
+    if "tar" in names and len(frame) and (undefined := int(frame["tar"].isna().sum())):
+        print(
+            f"TAR is undefined for {undefined} of {len(frame)} pairs: their reference approached its targets by less "
+            "than 1 cm (a ratio to that is noise), or the two rollouts have no targets in common",
+            file=stream,
+        )
 
     result = {
         "pairs": frame,
