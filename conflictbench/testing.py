@@ -21,7 +21,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Protocol
 
@@ -192,3 +192,17 @@ def start_script_server(script: Path, *args: str, scheme: str, log_dir: Path, na
     server = ServerProcess([sys.executable, str(script), str(port), *args], name=name or Path(script).stem,
                            health_url=url, ready=accepting, startup_timeout_s=60, log_dir=log_dir)  # fmt: skip
     return server.start(), url
+
+
+def shipped_cases_file(path: Path, picks: Iterable[tuple[str, int, str, str]]) -> Path:
+    """A small suite file for a test run: for each ``(libero suite, task id, family, level)`` the first such
+    case of the shipped suite (valid by construction: a run refuses a file whose cases break the rules)."""
+    from .tasks.suite.file import case_line, load_suite
+
+    cases = load_suite().cases
+    lines = []
+    for suite, task_id, family, level in picks:
+        found = next(c for c in cases if (c.suite, c.task_id, c.family, c.level) == (suite, task_id, family, level))
+        lines.append(case_line(found) + "\n")
+    path.write_text("".join(lines))
+    return path

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 import conflictbench
@@ -56,6 +58,24 @@ def test_report_on_a_directory_without_episodes_is_a_user_error(cli, tmp_path):
     (tmp_path / "empty").mkdir()
     out = cli("report", str(tmp_path / "empty"))
     assert out.returncode == 2 and "holds no stored episodes" in out.stderr
+
+
+def test_a_suite_file_that_breaks_the_rules_or_holds_nothing_is_not_played(cli, tmp_path):
+    from conflictbench.tasks.suite.file import shipped_suite_path
+
+    rows = [json.loads(line) for line in shipped_suite_path().read_text().splitlines()[1:4]]
+    rows[1]["instruction"] = rows[1]["base_instruction"]  # `suite validate` rejects it
+    bad, empty = tmp_path / "bad.jsonl", tmp_path / "empty.jsonl"
+    bad.write_text("\n".join(json.dumps(row) for row in rows) + "\n")
+    empty.write_text("")
+    for path, message in (
+        (bad, f"1 of 3 cases break the suite's rules (e.g. {rows[1]['case_id']}: the instruction equals the base"),
+        (empty, "empty.jsonl holds no cases"),
+    ):
+        out = cli(f"suite.file={path}", f"run.out={tmp_path / 'results'}")
+        errors = [line for line in out.stderr.splitlines() if line.startswith("conflictbench: error:")]
+        assert out.returncode == 2 and len(errors) == 1 and message in errors[0], out.stderr[-2000:]
+        assert "Traceback" not in out.stderr and not (tmp_path / "results" / "episodes").exists()
 
 
 def test_a_tampered_suite_file_names_the_line_and_field(cli, tmp_path):

@@ -22,14 +22,14 @@ from conflictbench.store import EpisodeStore
 
 pytestmark = pytest.mark.sim
 
-# A suite of our own, so these runs do not depend on the shipped one: two base tasks of libero_goal.
+# A small suite file of shipped cases, so these runs plan few episodes: two base tasks of libero_goal at L1.
 CASES = [
-    ("t-inst-1", 8, "instruction", "L1", "put the bowl on the plate without moving the bowl"),
-    ("t-grnd-1", 1, "grounding", "L1", "put the bowl on the toaster"),
-    ("t-spat-1", 8, "spatial", "L1", "put the bowl that sits on top of the cabinet on the plate"),
-    ("t-phys-1", 1, "physical", "L1", "pick up the stove and put it on the plate"),
-    ("t-spat-3", 3, "spatial", "L3", "open the top drawer and put the bowl from the bottom drawer into it"),
-    ("t-phys-3", 3, "physical", "L3", "open the top drawer and put the wine rack inside"),
+    ("libero_goal", 8, "instruction", "L1"),
+    ("libero_goal", 1, "grounding", "L1"),
+    ("libero_goal", 8, "spatial", "L1"),
+    ("libero_goal", 1, "physical", "L1"),
+    ("libero_goal", 3, "spatial", "L3"),
+    ("libero_goal", 3, "physical", "L3"),
 ]
 # 4 L1 cases on 2 tasks x 2 initial states + 2 tasks x 2 states of references = 12 episodes
 SMALL_RUN_EPISODES = 12
@@ -37,21 +37,9 @@ SMALL_RUN_EPISODES = 12
 
 @pytest.fixture
 def suite_file(tmp_path) -> Path:
-    from conflictbench.core import ConflictCase
-    from conflictbench.tasks.libero.base_tasks import base_task
-    from conflictbench.tasks.suite.file import case_line
+    from conflictbench.testing import shipped_cases_file
 
-    path = tmp_path / "cases.jsonl"
-    path.write_text(
-        "".join(
-            case_line(
-                ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language, text, family, level)
-            )
-            + "\n"
-            for cid, task, family, level, text in CASES
-        )
-    )
-    return path
+    return shipped_cases_file(tmp_path / "cases.jsonl", CASES)
 
 
 def small_run(suite_file: Path) -> tuple[str, ...]:

@@ -33,10 +33,10 @@ pytestmark = pytest.mark.sim
 SERVED_PLUGIN = Path(__file__).parent / "plugins" / "conflictbench-served"
 # Two base tasks of libero_goal, two L1 cases each: 4 conflict + 2 reference episodes with one initial state.
 CASES = [
-    ("s-inst-1", 8, "instruction", "L1", "put the bowl on the plate without moving the bowl"),
-    ("s-grnd-1", 1, "grounding", "L1", "put the bowl on the toaster"),
-    ("s-spat-1", 8, "spatial", "L1", "put the bowl that sits on top of the cabinet on the plate"),
-    ("s-phys-1", 1, "physical", "L1", "pick up the stove and put it on the plate"),
+    ("libero_goal", 8, "instruction", "L1"),
+    ("libero_goal", 1, "grounding", "L1"),
+    ("libero_goal", 8, "spatial", "L1"),
+    ("libero_goal", 1, "physical", "L1"),
 ]
 EPISODES, STEPS = 6, 10
 
@@ -63,19 +63,9 @@ def served_plugin_site(tmp_path_factory) -> Path:
 
 
 def _cases_file(tmp_path: Path) -> Path:
-    from conflictbench.tasks.suite.file import case_line
+    from conflictbench.testing import shipped_cases_file
 
-    path = tmp_path / "cases.jsonl"
-    path.write_text(
-        "".join(
-            case_line(
-                ConflictCase(cid, "libero_goal", task, base_task("libero_goal", task).language, text, family, level)
-            )
-            + "\n"
-            for cid, task, family, level, text in CASES
-        )
-    )
-    return path
+    return shipped_cases_file(tmp_path / "cases.jsonl", CASES)
 
 
 def _counts(stderr: str) -> dict[str, int]:

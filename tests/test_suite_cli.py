@@ -62,6 +62,13 @@ def test_validate_reports_each_failing_case_and_exits_1(tmp_path, capsys):
     assert rows[0]["case_id"] not in out and "1 invalid" in err
 
 
+def test_an_empty_suite_file_is_refused(tmp_path, capsys):
+    empty = tmp_path / "empty.jsonl"
+    empty.write_text("")
+    code, _, err = run(capsys, "validate", str(empty))
+    assert code == 2 and "holds no cases" in err
+
+
 @pytest.mark.parametrize(
     "mutate,message",
     [

@@ -155,6 +155,8 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         select_metrics(plugins, options.metrics)  # fail now on an unknown name, not after the rollouts
 
     suite = load_suite(cfg.suite.get("file"))
+    if cfg.suite.get("file"):
+        check_suite_file(suite, plugins)  # the shipped suite was checked when it was built (its checksum holds)
     tasks = {t.key: t.language for t in all_base_tasks(tuple(options.libero_suites))}
     plan = build_plan(
         suite.cases,
@@ -224,3 +226,18 @@ def command(argv: list[str], plugins: Plugins) -> int:
     finally:
         sys.argv = saved
     return 0
+
+
+def check_suite_file(suite, plugins: Plugins) -> None:
+    """A user's suite file is played only if every case keeps the suite's rules (``suite validate``'s check)."""
+    from conflictbench.tasks.validation.rules import new_context, validate_cases
+
+    failures = validate_cases(suite.cases, new_context(None, plugins.conflict_operators().values()),
+                              composition=bool(suite.version))  # fmt: skip
+    if failures:
+        bad = len({case_id for case_id, _ in failures})
+        case_id, reason = failures[0]
+        raise UserError(
+            f"{suite.path}: {bad} of {len(suite.cases)} cases break the suite's rules (e.g. {case_id}: {reason}); "
+            f"`conflictbench suite validate {suite.path}` lists them all"
+        )

@@ -149,6 +149,8 @@ def parse_suite(
             raise SuiteFormatError(
                 f"{source} line 1, field 'sha256': checksum mismatch; the cases were changed after the suite was built"
             )
+    if not cases:
+        raise SuiteFormatError(f"{source} holds no cases")
     name = str(header.get("name", "")) if header else Path(source).stem
     version = str(header.get("version", "")) if header else ""
     return Suite(name=name, version=version, cases=tuple(cases), path=source)
