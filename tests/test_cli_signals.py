@@ -1,11 +1,13 @@
-"""A run ended by SIGTERM (a scheduler's time limit) stops as Ctrl-C does: one line, exit 130, work kept."""
+"""A run ended by SIGTERM (a scheduler's time limit) or Ctrl-C: one line, exit 130, work kept, no tracebacks."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -31,3 +33,38 @@ def test_sigterm_ends_a_run_cleanly_and_the_same_command_resumes(tmp_path):
     again = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
     assert "already stored" in again.stderr and f"{stored} already stored" in again.stderr
+
+
+def _workers_of(parent: int) -> list[int]:
+    """Simulator workers (multiprocessing spawn children) of ``parent``, from /proc."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            command, fields = (entry / "cmdline").read_bytes(), (entry / "stat").read_text().split()
+        except (OSError, ValueError):
+            continue
+        if b"multiprocessing.spawn" in command and int(fields[3]) == parent:
+            found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the workers through /proc")
+def test_ctrl_c_while_workers_start_prints_only_the_interrupted_line(tmp_path):
+    """A terminal's Ctrl-C reaches the whole process group; workers still importing the simulator used to print a
+    KeyboardInterrupt traceback each. They are born ignoring SIGINT: the main process stops them."""
+    args = [sys.executable, "-m", "conflictbench.cli", "model=random", "run.progress=false",
+            f"run.out={tmp_path / 'results'}"]  # fmt: skip
+    as_in_a_terminal = dict(start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    run = subprocess.Popen(args, cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                           **as_in_a_terminal)  # fmt: skip
+    deadline = time.monotonic() + 120
+    while not _workers_of(run.pid) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.3)  # inside the workers' imports
+    os.killpg(run.pid, signal.SIGINT)
+    stderr = run.communicate(timeout=120)[1]
+    assert run.returncode == 130, stderr[-3000:]
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr[-3000:]
+    assert stderr.rstrip().splitlines()[-1].startswith("conflictbench: interrupted; every finished episode is stored")
+    time.sleep(1)
+    assert _workers_of(run.pid) == []  # none left behind

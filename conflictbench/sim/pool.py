@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
+import signal
+import threading
 from collections import OrderedDict, deque
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -69,6 +72,20 @@ class EpisodeQueue:
         return item
 
 
+@contextlib.contextmanager
+def sigint_ignored():
+    """SIGINT ignored while child processes start, so they inherit it ignored (a Ctrl-C in a terminal reaches
+    the whole process group: workers still importing would each print a KeyboardInterrupt traceback)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 class WorkerPool:
     """Starts, watches and stops the simulator processes (started with 'spawn': never fork GL/CUDA state)."""
 
@@ -83,7 +100,8 @@ class WorkerPool:
         proc = self._ctx.Process(
             target=worker_main, args=(child, self.settings), daemon=True, name=f"conflictbench-worker-{slot.index}"
         )
-        proc.start()
+        with sigint_ignored():  # the worker is born ignoring Ctrl-C: the main process stops it (no tracebacks)
+            proc.start()
         child.close()
         slot.process, slot.conn, slot.item, slot.task_key = proc, parent, None, None
 
