@@ -40,7 +40,9 @@ def test_help_lists_the_verbs(cli):
         (["run.metrics=[no_such_metric]"], "unknown metric 'no_such_metric'; valid choices:"),
         (["run.workers=0"], "run.workers must be an integer >= 1"),
         (["run.init_states=77"], "50 fixed initial states"),
-        (["model=random", "model.sed=3"], "model.sed"),
+        (["model=random", "model.sed=3"], "model.sed: random has no setting 'sed' (its settings: seed, scale)"),
+        (["-m", "model=random,scripted", "model.scale=2"], "model.scale: scripted has no setting 'scale'"),
+        (["model.sed=3"], "model.sed: scripted has no setting 'sed'"),  # the default model
         (["suite.file=/no/such/suite.jsonl"], "suite file not found: /no/such/suite.jsonl"),
         (["report", "/no/such/dir"], "no such directory: /no/such/dir"),
         (["report"], "the following arguments are required: DIR"),
@@ -52,6 +54,32 @@ def test_bad_input_is_one_clear_line_and_exit_code_2(cli, args, message):
     assert out.returncode == 2, (out.returncode, out.stdout, out.stderr)
     assert message in out.stderr + out.stdout
     assert "Traceback" not in out.stderr
+    if args[0] not in ("report", "list"):  # a run's rejection: exactly one line, nothing of Hydra's
+        lines = [line for line in out.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].startswith("conflictbench: error:"), out.stderr
+
+
+def test_a_rejected_run_leaves_no_folder_behind_and_keeps_an_existing_store(cli, tmp_path):
+    kept = tmp_path / "kept"
+    (kept / "episodes").mkdir(parents=True)
+    for out_dir, sweep in ((tmp_path / "fresh", []), (tmp_path / "swept", ["-m"]), (kept, [])):
+        out = cli(*sweep, "suite.file=/no/such/suite.jsonl", f"run.out={out_dir}")
+        assert out.returncode == 2 and "suite file not found" in out.stderr, out.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+    assert [p.name for p in kept.iterdir()] == ["episodes"]
+
+
+def test_hydra_switches_may_follow_the_overrides(cli):
+    out = cli("model=noop", "--version")  # Hydra wants its flags first; ours may stand anywhere
+    assert out.returncode == 0 and "Hydra" in out.stdout + out.stderr, out.stderr[-2000:]
+
+
+def test_config_help_shows_the_groups_and_hydra_help_hydras_flags(cli):
+    config = cli("--config-help")
+    assert config.returncode == 0 and "== Configuration groups ==" in config.stdout
+    assert "model: " in config.stdout and "scripted" in config.stdout
+    hydra = cli("--hydra-help")
+    assert hydra.returncode == 0 and "== Flags ==" in hydra.stdout and "--multirun" in hydra.stdout
 
 
 def test_report_on_a_directory_without_episodes_is_a_user_error(cli, tmp_path):

@@ -30,6 +30,7 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench list                  what can be chosen, and which package provides it
        conflictbench report DIR            tables from the episode store in DIR
        conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
+       conflictbench --config-help         the configuration, its groups and their options
        conflictbench --hydra-help          Hydra's own options
 """
 

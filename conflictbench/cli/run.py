@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -104,6 +106,29 @@ def group_choices(group: str, plugins: Plugins) -> list[str]:
     return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
+def check_model_fields(argv: Sequence[str], plugins: Plugins, default_model: str = "scripted") -> None:
+    """Reject ``model.<field>=...`` for a field the chosen policies lack (one line naming theirs), before Hydra
+    answers with its multi-line "To append to your config use +model...". ``+model.x=`` is left to Hydra."""
+    models = [default_model]
+    for arg in argv:
+        key, _, value = arg.partition("=")
+        if key == "model" and value and not any(ch in value for ch in "()[]{}*$"):
+            models = [item.strip() for item in value.split(",")]
+    for arg in argv:
+        key = arg.partition("=")[0]
+        if arg.startswith(("-", "+", "~")) or not key.startswith("model.") or "=" not in arg:
+            continue
+        field = key.split(".")[1]
+        for model in models:
+            spec = plugins.policies().get(model)
+            if spec is None:
+                continue  # an unknown model: check_group_overrides says so
+            names = [f.name for f in dataclasses.fields(spec.config)] if dataclasses.is_dataclass(spec.config) else []
+            if field not in names:
+                settings = ", ".join(names) if names else "none"
+                raise UserError(f"{key}: {model} has no setting {field!r} (its settings: {settings})")
+
+
 def check_group_overrides(argv: Sequence[str], plugins: Plugins) -> None:
     """Reject ``group=unknown`` before Hydra composes anything (one line, exit code 2)."""
     for arg in argv:
@@ -204,6 +229,7 @@ def command(argv: list[str], plugins: Plugins) -> int:
 
     register_model_configs(plugins)
     check_group_overrides(argv, plugins)
+    check_model_fields(argv, plugins)
     state = {"started": False}
 
     @hydra.main(version_base=None, config_path=CONFIG_PACKAGE, config_name="config")
@@ -213,10 +239,12 @@ def command(argv: list[str], plugins: Plugins) -> int:
             return run_job(cfg, plugins, HydraConfig.get().runtime.choices["model"])
         except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
+            if isinstance(exc, UserError):  # a rejected command leaves nothing behind, not even Hydra's folder
+                remove_hydra_output(Path(HydraConfig.get().runtime.output_dir), Path(cfg.run.out))
             raise SystemExit(exc.exit_code) from None
 
     saved = sys.argv
-    sys.argv = ["conflictbench", *[("--help" if a == "--hydra-help" else a) for a in argv]]
+    sys.argv = ["conflictbench", *hydra_argv(argv)]
     try:
         task()
     except SystemExit as exc:
@@ -241,3 +269,34 @@ def check_suite_file(suite, plugins: Plugins) -> None:
             f"{suite.path}: {bad} of {len(suite.cases)} cases break the suite's rules (e.g. {case_id}: {reason}); "
             f"`conflictbench suite validate {suite.path}` lists them all"
         )
+
+
+#: Hydra's flags that take no value: they may stand anywhere on our command line (Hydra wants them first).
+HYDRA_SWITCHES = ("-m", "--multirun", "--run", "--resolve", "--version")
+
+
+def hydra_argv(argv: Sequence[str]) -> list[str]:
+    """Our command line as Hydra's: switches first, ``--config-help`` as Hydra's ``--help`` (the composed
+    configuration and its groups); ``--hydra-help`` stays Hydra's own."""
+    switches = [a for a in argv if a in HYDRA_SWITCHES]
+    rest = [("--help" if a == "--config-help" else a) for a in argv if a not in HYDRA_SWITCHES]
+    return [*switches, *rest]
+
+
+def remove_hydra_output(folder: Path, out: Path) -> None:
+    """Remove the folder Hydra made for a job (its ``.hydra`` record and log) and the parents it leaves empty,
+    up to ``out`` (``run.out``; itself only where empty)."""
+    import shutil
+
+    if (folder / ".hydra").is_dir():
+        shutil.rmtree(folder, ignore_errors=True)
+    sweep = folder.parent  # a rejected sweep job ends the sweep: its record goes where no job kept a folder
+    if sweep.is_dir() and [p.name for p in sweep.iterdir()] == ["multirun.yaml"]:
+        (sweep / "multirun.yaml").unlink()
+    out = out.resolve()
+    for parent in [sweep.resolve(), *sweep.resolve().parents]:
+        if parent != out and out not in parent.parents:
+            break
+        with contextlib.suppress(OSError):
+            parent.rmdir()  # only where empty: another job's folder, a store, stays
+
