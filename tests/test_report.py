@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -225,6 +227,16 @@ def test_policy_errors_count_as_failures_and_simulator_failures_are_left_out(plu
     text = out.getvalue()
     assert "1 episode(s) ended with a policy error and count as failed" in text
     assert "1 episode(s) ended with a simulator failure and are left out" in text
+
+
+def test_report_into_a_closed_pipe_still_writes_its_files(tmp_path):
+    """`report DIR | head` (here `| true`, which has exited before anything is printed): the tables are written
+    first, and the closed pipe ends the command quietly."""
+    stored(tmp_path, two_models())
+    command = f"set -o pipefail; {sys.executable} -m conflictbench.cli report {tmp_path / 'run'} | true"
+    done = subprocess.run(command, shell=True, executable="/bin/bash", capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert (tmp_path / "run" / "report" / "table1_overall.csv").is_file()
 
 
 def test_report_verb_reads_a_store_directory(tmp_path, plugins, capsys):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -26,5 +28,8 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     if len(store) == 0:
         raise UserError(f"{root} holds no stored episodes (expected {root}/episodes/<policy>/*.parquet)")
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
-    report_store(store, plugins, out_dir=Path(args.out) if args.out else root / "report", metrics=metrics)
+    tables = io.StringIO()  # the files are written before anything is printed: `report DIR | head` keeps them
+    report_store(store, plugins, out_dir=Path(args.out) if args.out else root / "report", metrics=metrics,
+                 stream=tables)  # fmt: skip
+    sys.stdout.write(tables.getvalue())
     return 0

@@ -299,4 +299,3 @@ def remove_hydra_output(folder: Path, out: Path) -> None:
             break
         with contextlib.suppress(OSError):
             parent.rmdir()  # only where empty: another job's folder, a store, stays
-
