@@ -155,6 +155,7 @@ def register_model_configs(plugins: Plugins) -> None:
 
 def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     """Play the composed run and print its report. Returns the process exit code."""
+    from conflictbench.cli.sweep import record_job, sweep_job
     from conflictbench.report import report_store
     from conflictbench.sim.plan import build_plan
     from conflictbench.sim.runner import Runner
@@ -215,10 +216,13 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         f"{result.played_elsewhere} played by another job, {result.errors} with errors",
         file=sys.stderr,
     )
+    job = sweep_job()
+    report_dir = store.root / "report"
+    if job is not None:  # a sweep's jobs keep their own tables apart; the sweep's end reports them together
+        record_job(job[0], store.root, model, list(result.episode_ids))
+        report_dir = report_dir / "jobs" / f"{job[1]}-{model}"
     if options.report:
-        report_store(
-            store, plugins, episode_ids=result.episode_ids, out_dir=store.root / "report", metrics=options.metrics
-        )
+        report_store(store, plugins, episode_ids=result.episode_ids, out_dir=report_dir, metrics=options.metrics)
     return 0
 
 

@@ -1,0 +1,61 @@
+"""A sweep's report: each job's tables in a folder of its own, and one report over every job at the end.
+
+Each job of ``conflictbench -m ...`` records what it played (``conflictbench-job.json`` in its Hydra folder)
+and writes its tables under ``<run.out>/report/jobs/<job>-<model>/``; when the sweep ends, Hydra calls
+:class:`CombinedReport`, which reports the episodes of all jobs together into ``<run.out>/report/`` (grouped by
+store, where jobs swept ``run.out`` too).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+from hydra.experimental.callback import Callback
+
+JOB_RECORD = "conflictbench-job.json"
+
+
+def sweep_job() -> tuple[Path, int] | None:
+    """This job's Hydra folder and number, in a multirun; None in a single run."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    hydra = HydraConfig.get()
+    if hydra.mode != RunMode.MULTIRUN:
+        return None
+    return Path(hydra.runtime.output_dir), int(hydra.job.num)
+
+
+def record_job(folder: Path, store_root: Path, model: str, episode_ids: list[str]) -> None:
+    record = {"store": str(Path(store_root).resolve()), "model": model, "episode_ids": list(episode_ids)}
+    (folder / JOB_RECORD).write_text(json.dumps(record))
+
+
+class CombinedReport(Callback):
+    """Hydra callback (``hydra.callbacks`` in the config): the report over every job of the sweep."""
+
+    def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
+        if not config.run.get("report", True):
+            return
+        jobs = [json.loads(path.read_text()) for path in sorted(Path(config.hydra.sweep.dir).glob(f"*/{JOB_RECORD}"))]
+        by_store: dict[str, list[dict]] = defaultdict(list)
+        for job in jobs:
+            by_store[job["store"]].append(job)
+        if not by_store:
+            return
+        import conflictbench
+        from conflictbench.report import report_store
+        from conflictbench.store import EpisodeStore
+
+        plugins = conflictbench.plugins()
+        metrics = list(config.run.metrics) if config.run.get("metrics") is not None else None
+        for root, store_jobs in by_store.items():
+            ids = list(dict.fromkeys(i for job in store_jobs for i in job["episode_ids"]))
+            models = ", ".join(dict.fromkeys(job["model"] for job in store_jobs))
+            print(f"\n== the sweep's {len(store_jobs)} jobs together ({models}) ==", file=sys.stdout)
+            store = EpisodeStore(root)
+            report_store(store, plugins, episode_ids=ids, out_dir=store.root / "report", metrics=metrics)
