@@ -23,3 +23,16 @@ def test_a_sweep_reports_its_jobs_apart_and_then_together(tmp_path):
     assert "random" in random and "noop" not in random
     assert "== the sweep's 2 jobs together (noop, random) ==" in out.stdout
     assert out.stdout.rstrip().endswith(f"tables and figures written to {report}/")
+
+
+def test_variants_of_one_policy_are_stored_with_their_settings_and_reported_by_them(tmp_path):
+    import json
+
+    from conflictbench.store import EpisodeStore
+
+    out = run_cli(tmp_path, "-m", "model=random", "model.seed=1,2", "run.report=true")
+    assert out.returncode == 0, out.stderr[-3000:]
+    settings = {r.policy_settings for r in EpisodeStore(tmp_path / "results").records()}
+    assert {json.loads(s)["seed"] for s in settings} == {1, 2} and all("scale" in json.loads(s) for s in settings)
+    combined = (tmp_path / "results" / "report" / "table1_overall.md").read_text()
+    assert "random seed=1" in combined and "random seed=2" in combined

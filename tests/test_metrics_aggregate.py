@@ -21,7 +21,17 @@ from conflictbench.metrics import (
 
 
 def episode(
-    case=None, success=False, init=0, prompt="p0", policy="pi0", family=None, level=None, x=0.0, task=0, config="h1"
+    case=None,
+    success=False,
+    init=0,
+    prompt="p0",
+    policy="pi0",
+    family=None,
+    level=None,
+    x=0.0,
+    task=0,
+    config="h1",
+    settings="",
 ) -> EpisodeRecord:
     eef = np.array([[0.0, 0, 0], [x, 0, 0]])
     return EpisodeRecord(
@@ -40,6 +50,7 @@ def episode(
         target_names=("bowl",),
         actions=np.array([[x, 0, 0, 0, 0, 0, 0]]),
         config_hash=config,
+        policy_settings=settings,
         episode_id=f"{policy}-{prompt}-{case}-{init}-{task}",
     )
 
@@ -134,6 +145,24 @@ def test_one_policy_with_two_settings_is_two_models():
     table = aggregate(frame_of(records), ("model",), [])
     assert list(table["model"]) == ["pi0[aaaaaa]", "pi0[bbbbbb]"]
     assert list(table["PCSR_k"]) == [1, 0]
+
+
+@pytest.mark.parametrize(
+    "settings, labels",
+    [
+        (('{"scale": 1.0, "seed": 1}', '{"scale": 1.0, "seed": 2}'), ["pi0 seed=1", "pi0 seed=2"]),
+        (('{"a": "x", "seed": 1}', '{"a": "y", "seed": 2}'), ["pi0 a=x seed=1", "pi0 a=y seed=2"]),
+        (('{"seed": 1}', '{"seed": 1}'), ["pi0[aaaaaa]", "pi0[bbbbbb]"]),  # the same settings: other code
+        (("", ""), ["pi0[aaaaaa]", "pi0[bbbbbb]"]),  # a store written before settings were kept
+        (('{"seed": 1}', '{"seed": 1, "extra": true}'), ["pi0 extra=null", "pi0 extra=true"]),
+    ],
+)
+def test_variants_of_one_policy_are_labelled_by_the_settings_that_differ(settings, labels):
+    records = []
+    for config, text in zip(("aaaaaaaa", "bbbbbbbb"), settings, strict=True):
+        records += [episode(success=True, config=config, settings=text), episode("c1", config=config, settings=text)]
+    table = aggregate(frame_of(records), ("model",), [])
+    assert list(table["model"]) == labels
 
 
 def test_paired_prompt_differences_match_p0_and_p1_of_the_same_case_and_state():

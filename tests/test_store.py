@@ -76,6 +76,15 @@ def test_files_are_plain_parquet_readable_without_conflictbench(tmp_path):
     np.testing.assert_array_equal(eef, record("a", seed=1).eef_pos)
 
 
+def test_a_store_written_before_the_settings_column_reads_it_as_empty(tmp_path):
+    store = EpisodeStore(tmp_path)
+    store.write(record("a", seed=1))
+    path = store.path_for("noop", "a")
+    pq.write_table(pq.read_table(path).drop_columns(["policy_settings"]), path)  # as an older conflictbench wrote it
+    [read] = EpisodeStore(tmp_path).records()
+    assert read.policy_settings == "" and read.episode_id == "a"
+
+
 def test_select_episodes_by_id(tmp_path):
     store = EpisodeStore(tmp_path)
     for i in range(4):

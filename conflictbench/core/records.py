@@ -240,6 +240,9 @@ class EpisodeRecord:
     mujoco_version: str = ""
     numpy_version: str = ""
     config_hash: str = ""
+    policy_settings: str = ""
+    """The policy's settings as JSON (those in its identity: not a server's address or timeouts), so that
+    variants of one policy can be told apart by what differs ("" in stores written before the column)."""
     wall_time_s: float = 0.0
     """Seconds from handing the episode to a worker to its result (simulation, policy and waiting)."""
     sim_time_s: float | None = None

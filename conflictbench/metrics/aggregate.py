@@ -9,8 +9,10 @@ over the pairs where it is defined (``m``, ``m_n``) and over the qualified failu
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -32,21 +34,42 @@ _ORDER = {"family": FAMILIES, "level": LEVELS, "prompt": PROMPT_CONDITIONS, "sui
 
 
 def with_model(frame: pd.DataFrame) -> pd.DataFrame:
-    """Add ``model``: the policy name, plus its settings hash when one policy ran with several."""
+    """Add ``model``: the policy name; where one policy ran in several variants, plus the settings in which
+    they differ (``random seed=1``), or its settings hash where those do not tell them apart (other code,
+    another simulator, or a store written before settings were kept)."""
     if "model" in frame.columns:
         return frame
     out = frame.copy()
     if frame.empty:
         out["model"] = pd.Series([], dtype=object)
         return out
-    hashes = frame.groupby("policy")["config_hash"].nunique(dropna=False)
-    several = frame["policy"].map(hashes) > 1
-    out["model"] = np.where(
-        several,
-        frame["policy"].astype(str) + "[" + frame["config_hash"].astype(str).str[:6] + "]",
-        frame["policy"].astype(str),
-    )
+    settings = frame["policy_settings"] if "policy_settings" in frame.columns else pd.Series("", index=frame.index)
+    labels: dict[tuple[str, str], str] = {}
+    for policy, group in frame.assign(policy_settings=settings).groupby("policy", sort=False):
+        variants = group.drop_duplicates("config_hash")[["config_hash", "policy_settings"]].itertuples(index=False)
+        labels.update(_variant_labels(str(policy), list(variants)))
+    keys = zip(frame["policy"].astype(str), frame["config_hash"].astype(str), strict=True)
+    out["model"] = [labels[key] for key in keys]
     return out
+
+
+def _variant_labels(policy: str, variants: list) -> dict[tuple[str, str], str]:
+    """(policy, config_hash) -> its label among ``variants`` (config_hash, settings JSON) of one policy."""
+    if len(variants) == 1:
+        return {(policy, str(variants[0].config_hash)): policy}
+    parsed = [json.loads(v.policy_settings) if v.policy_settings else None for v in variants]
+    if all(p is not None for p in parsed):
+        names = sorted({name for p in parsed for name in p})
+        differing = [n for n in names if len({json.dumps(p.get(n), sort_keys=True) for p in parsed}) > 1]
+        texts = [" ".join(f"{n}={_short(p.get(n))}" for n in differing) for p in parsed]
+        if differing and len(set(texts)) == len(texts):
+            return {(policy, str(v.config_hash)): f"{policy} {text}" for v, text in zip(variants, texts, strict=True)}
+    return {(policy, str(v.config_hash)): f"{policy}[{str(v.config_hash)[:6]}]" for v in variants}
+
+
+def _short(value: Any) -> str:
+    text = value if isinstance(value, str) else json.dumps(value, sort_keys=True)
+    return text if len(text) <= 24 else text[:21] + "..."
 
 
 def qualified_failure_mask(frame: pd.DataFrame) -> pd.Series:

@@ -35,6 +35,7 @@ BUILTIN_METRICS = ("tar", "early20_ts", "ts", "ams")  # the paper's column order
 KEY_COLUMNS = (
     "policy",
     "config_hash",
+    "policy_settings",
     "suite",
     "task_id",
     "init_state",

@@ -67,14 +67,25 @@ def episode_id(*, policy: str, config_hash: str, spec: EpisodeSpec, prompt_text:
     return hashlib.sha256(json.dumps(key).encode()).hexdigest()[:24]
 
 
+def identity_settings(config: Any) -> dict[str, Any]:
+    """A policy's settings that are part of its identity (a served policy's address and timeouts are not)."""
+    settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else dict(config or {})
+    for name in getattr(config, "identity_exempt", ()):
+        settings.pop(name, None)
+    return settings
+
+
+def settings_json(config: Any) -> str:
+    """:func:`identity_settings` as the store keeps them (``policy_settings``)."""
+    return json.dumps(identity_settings(config), sort_keys=True, default=repr)
+
+
 def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str, ...] = ()) -> str:
     """Identifies everything besides the episode itself that can change a rollout: the policy, its
     settings and declared traits, the code behind it (``code``: ``distribution==version`` of the
     policy's plugin and of every plugin implementing a global per-episode hook, see
     ``Plugins.provenance``) and the simulator stack (a store never mixes MuJoCo versions)."""
-    settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
-    for name in getattr(config, "identity_exempt", ()):  # a served policy's address and timeouts (ServingConfig)
-        settings.pop(name, None)
+    settings = identity_settings(config)  # a served policy's address and timeouts are not (ServingConfig)
     blob = json.dumps(
         {
             "policy": policy,

@@ -32,7 +32,7 @@ from conflictbench.tasks.libero.base_tasks import base_task
 from .deciding import PolicyCalls, reply_for, reset_error
 from .libero_env import EnvSettings
 from .messages import Abort, Done, EpisodeJob, EpisodeOutcome, Play, Query
-from .plan import EpisodeSpec, config_hash, episode_id
+from .plan import EpisodeSpec, config_hash, episode_id, settings_json
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
 
 
@@ -343,6 +343,7 @@ class Runner:
             plugin_version=self.spec.plugin_version,
             code_versions=self.code_versions,
             config_hash=self.config_hash,
+            policy_settings=settings_json(self.config),
             created_at=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             wall_time_s=wall_time_s,
             **self._pool.versions,

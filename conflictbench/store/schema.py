@@ -59,6 +59,7 @@ SCHEMA = pa.schema(
         ("mujoco_version", pa.string()),
         ("numpy_version", pa.string()),
         ("config_hash", pa.string()),
+        ("policy_settings", pa.string()),
         ("wall_time_s", pa.float64()),
         ("sim_time_s", pa.float64()),
         ("created_at", pa.string()),
@@ -144,6 +145,7 @@ def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
     for i, row in enumerate(scalars):
         row["target_names"] = tuple(row["target_names"] or ())
         row["code_versions"] = tuple(row["code_versions"] or ())  # null in stores written before the column
+        row["policy_settings"] = row["policy_settings"] or ""  # the same
         for name in ARRAY_COLUMNS:
             row[name] = arrays[name][i]
         records.append(EpisodeRecord(**row))
