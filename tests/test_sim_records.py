@@ -54,10 +54,10 @@ def test_episodes_stored_before_the_sim_time_column_still_read(tmp_path):
     assert read.episode_id == "old" and read.wall_time_s == 2.0 and read.sim_time_s is None and read.code_versions == ()
 
 
-def test_progress_off_uses_tqdm_disabled(plugins, tmp_path):
+def test_progress_off_shows_nothing(plugins, tmp_path):
     spec = plugins.policy("noop")
     runner = Runner(plugins, spec, spec.make_config(), store=EpisodeStore(tmp_path), progress=False)
-    assert runner._bar.disable is True
+    assert runner._bar.enabled is False
 
 
 THINK_S = 0.05

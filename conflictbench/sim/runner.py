@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ from .libero_env import EnvSettings
 from .messages import Abort, Done, EpisodeJob, EpisodeOutcome, Play, Query
 from .plan import EpisodeSpec, config_hash, episode_id, settings_json
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
+from .progress import plan_line
 
 
 @dataclass
@@ -129,6 +131,16 @@ class Runner:
             items.append(Item(spec, job))
         return items
 
+    def _seconds_each(self, items: list[Item], stored: set[str]) -> float | None:
+        """Mean wall time of this plan's episodes already stored (None where there are none)."""
+        done = [i.job.episode_id for i in items if i.job.episode_id in stored]
+        if not done:
+            return None
+        times = [
+            t for t in self.store.read_table(columns=["wall_time_s"], episode_ids=done)["wall_time_s"].to_pylist() if t
+        ]
+        return sum(times) / len(times) if times else None
+
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
         policy = self._load_policy()
@@ -152,6 +164,9 @@ class Runner:
         stored = self.store.stored_ids()
         todo = [i for i in items if i.job.episode_id not in stored]
         result.already_stored = len(items) - len(todo)
+        if self.progress:
+            print(plan_line(len(todo), result.already_stored, self._seconds_each(items, stored), self.workers),
+                  file=sys.stderr)  # fmt: skip
         if not todo:
             return result
 
@@ -376,6 +391,6 @@ def _own_version() -> str:
 
 
 def _progress(total: int, name: str, enabled: bool):
-    from tqdm.auto import tqdm
+    from .progress import RunProgress
 
-    return tqdm(total=total, unit="episode", desc=name, dynamic_ncols=True, disable=not enabled)
+    return RunProgress(total, name, enabled=enabled)
