@@ -208,6 +208,17 @@ def test_pairs_whose_reference_did_not_approach_leave_tar_undefined_and_are_coun
     assert "TAR is undefined" not in _report_text(two_models(), plugins)
 
 
+def test_the_tables_come_with_a_legend_of_every_column(plugins):
+    text = _report_text(two_models(), plugins)
+    legend = text.split("Legend\n", 1)[1].split("\n\n", 1)[0].splitlines()
+    names = [line.split()[0] for line in legend]
+    assert names[:4] == ["PCSR", "RGSR", "dSR", "FR"] and {"TAR", "TS", "AMS", "Early20"} <= set(names)
+    tar = next(line for line in legend if line.split()[0] == "TAR")
+    assert tar.split(None, 1)[1] == (
+        "how far the conflict rollout still closed in on the original targets, relative to the reference"
+    )
+
+
 def _report_text(records, plugins) -> str:
     stream = io.StringIO()
     report_records(records, plugins, stream=stream)

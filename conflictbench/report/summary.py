@@ -14,6 +14,7 @@ the paper's three tables, paired P0 - P1 differences, and with ``out_dir`` the f
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -166,6 +167,7 @@ def report_frame(
 
     for spec in specs:
         print("\n" + render_text(aggregates[spec.grouping], spec), file=stream)
+    print("\n" + legend(metrics), file=stream)
     if len(differences):
         print("\n" + render_differences(differences, metrics), file=stream)
     print(
@@ -267,3 +269,26 @@ def write_files(
     path.write_text("\n".join(report))
     written.append(path)
     return written
+
+
+#: The outcome measures in a few words (the paper's definitions; README "Measures" has them whole).
+OUTCOME_LEGEND = (
+    ("PCSR", "the reference episodes that succeeded (original instruction)"),
+    ("RGSR", "the conflict episodes that still completed the original goal"),
+    ("dSR", "PCSR - RGSR"),
+    ("FR", "qualified failures among the pairs whose reference succeeded"),
+)
+
+
+def legend(metrics) -> str:
+    """What each column means, one short line each: the outcome measures, then every registered metric (its
+    label and the gist of its description: after a leading "Name:", before a "(details)" or "; lower = ...")."""
+    rows = list(OUTCOME_LEGEND)
+    for metric in metrics:
+        text = metric.description or ""
+        head, colon, rest = text.partition(": ")
+        gist = rest if colon and "(" not in head else text
+        gist = re.split(r"; (?:lower|higher) =| \(", gist, maxsplit=1)[0]
+        rows.append((metric.label or metric.name, gist.strip()))
+    width = max(len(name) for name, _ in rows)
+    return "Legend\n" + "\n".join(f"  {name.ljust(width)}  {text}" for name, text in rows)
