@@ -138,12 +138,31 @@ def test_figures_are_written_as_png(tmp_path, plugins):
     records += [r for r in (episode("alpha", "c1", 0.2, 0.1, False, "grounding", "L1", init=1),)]
     p1 = [EpisodeRecord(**{**r.__dict__, "prompt": "p1", "episode_id": r.episode_id + "-p1"}) for r in records]
     report_records(records + p1, plugins, out_dir=tmp_path, stream=io.StringIO())
-    for name in ("fig_qf_distributions.png", "fig_prompt_differences.png", "fig_dsr_heatmap.png"):
+    for name in ("fig_qf_distributions.png", "fig_prompt_differences.png", "fig_dsr_heatmap.png", "fig_outcomes.png"):
         data = (tmp_path / name).read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000
     differences = pd.read_csv(tmp_path / "prompt_differences.csv")
     assert list(differences["couples"]) == [3, 2]  # alpha: c1 x 2 states + c2; beta: c1, c2
     assert list(differences["RGSR_diff"]) == [0.0, 0.0]  # the same outcomes under both prompts
+
+
+def test_the_outcome_figure_draws_each_rate_with_its_counts_and_says_na_where_nothing_was_played(plugins):
+    from conflictbench.metrics import aggregate, with_model
+    from conflictbench.report.figures import outcome_figure
+
+    frame = with_model(report_records(two_models(), plugins, stream=io.StringIO())["pairs"])
+    figure = outcome_figure(aggregate(frame, ("model", "prompt", "family", "level"), []))
+    panels = {ax.get_title(): ax for ax in figure.axes}
+    assert list(panels) == ["instruction P0", "grounding P0", "spatial P0", "physical P0"]
+    texts = {title: [t.get_text() for t in ax.texts] for title, ax in panels.items()}
+    assert texts["instruction P0"] == ["n/a (n=0)"] and texts["physical P0"] == ["n/a (n=0)"]
+    # grounding L1: alpha and beta each PCSR 1/1 (100 %) and RGSR 0/1; no pair at L2-L4
+    assert sorted(t for t in texts["grounding P0"] if t[:1].isdigit()) == ["0/1", "0/1", "1/1", "1/1"]
+    assert texts["grounding P0"].count("n/a") == 12  # 2 models x 2 rates x 3 levels
+    heights = sorted(round(bar.get_height()) for bar in panels["grounding P0"].patches)
+    assert heights == [0, 0, 100, 100]
+    empty = outcome_figure(aggregate(frame.iloc[:0], ("model", "prompt", "family", "level"), []))
+    assert all(ax.texts[0].get_text() == "n/a (n=0)" for ax in empty.axes)
 
 
 class StepRatio:

@@ -1,4 +1,4 @@
-"""PNG figures: process measures over qualified failures, paired P0 - P1 differences, dSR heatmap.
+"""PNG figures: process measures over qualified failures, paired P0 - P1 differences, dSR heatmap, outcome bars.
 
 Figures are drawn on ``matplotlib.figure.Figure`` objects with the Agg canvas, never through
 pyplot, so reporting does not change the backend or state of the caller's matplotlib. An empty
@@ -196,3 +196,58 @@ def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
     if image is not None:
         fig.colorbar(image, ax=axes, shrink=0.8, label="dSR = PCSR − RGSR (%)")
     return _save(fig, path)
+
+
+def outcome_bars(family_level: pd.DataFrame, path: Path) -> Path:
+    return _save(outcome_figure(family_level), path)
+
+
+def outcome_figure(family_level: pd.DataFrame) -> Figure:
+    """PCSR and RGSR (%) per level, one panel per conflict family and prompt condition, models side by side
+    (solid: PCSR, hatched: RGSR), each bar with its k/n; a level no pair reached says "n/a"."""
+    prompts = [p for p in PROMPT_CONDITIONS if len(family_level) and p in set(family_level["prompt"])] or ["p0"]
+    models = sorted(set(family_level["model"])) if len(family_level) else []
+    present = set(family_level["family"].dropna()) if len(family_level) else set()
+    families = [*FAMILIES, *sorted(str(f) for f in present - set(FAMILIES))]
+    fig = Figure(figsize=(3.3 * len(families), 2.6 * len(prompts)), layout="constrained")
+    axes = fig.subplots(len(prompts), len(families), squeeze=False, sharey=True)
+    colours = [f"C{i % 10}" for i in range(len(models))]
+    width = 0.8 / max(1, 2 * len(models))
+    for r, prompt in enumerate(prompts):
+        for c, family in enumerate(families):
+            ax = axes[r, c]
+            ax.set_title(f"{family} {prompt.upper()}", fontsize=9)
+            ax.set_xticks(range(len(LEVELS)), LEVELS, fontsize=8)
+            ax.set_xlim(-0.5, len(LEVELS) - 0.5)
+            ax.set_ylim(0, 118)
+            cell = (
+                family_level[(family_level["prompt"] == prompt) & (family_level["family"] == family)] if models else []
+            )
+            if not len(cell):
+                ax.text(0.5, 0.5, "n/a (n=0)", ha="center", va="center", transform=ax.transAxes, color="0.35")
+                continue
+            for m, model in enumerate(models):
+                rows = {row.level: row for row in cell[cell["model"] == model].itertuples(index=False)}
+                for o, (measure, hatch) in enumerate((("PCSR", None), ("RGSR", "///"))):
+                    for j, level in enumerate(LEVELS):
+                        x = j - 0.4 + width * (2 * m + o + 0.5)
+                        row = rows.get(level)
+                        if row is None or not row.pairs:
+                            ax.text(x, 2, "n/a", ha="center", va="bottom", fontsize=5, rotation=90, color="0.4")
+                            continue
+                        value = 100 * getattr(row, measure)
+                        ax.bar(x, value, width, color=colours[m], hatch=hatch, edgecolor="white", linewidth=0.3)
+                        label = f"{getattr(row, f'{measure}_k')}/{row.pairs}"
+                        ax.text(x, value + 1.5, label, ha="center", va="bottom", fontsize=5, rotation=90)
+    for r in range(len(prompts)):
+        axes[r, 0].set_ylabel("%", fontsize=8)
+    handles = [_patch(colours[m], model) for m, model in enumerate(models)]
+    handles += [_patch("0.6", "PCSR (solid)"), _hatched("RGSR (hatched)")]
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(6, len(handles)), fontsize=8, frameon=False)
+    return fig
+
+
+def _hatched(label: str):
+    from matplotlib.patches import Patch
+
+    return Patch(facecolor="0.6", hatch="///", edgecolor="white", label=label)

@@ -9,7 +9,7 @@ the paper's three tables, paired P0 - P1 differences, and with ``out_dir`` the f
   and ``.csv`` (percentages with their counts), and ``report.md`` with all tables together;
 - ``pairs.csv`` (one row per pair), ``aggregates_<grouping>.csv`` (fractions and counts),
   ``prompt_couples.csv`` and ``prompt_differences.csv`` when P0 and P1 episodes match;
-- ``fig_qf_distributions.png``, ``fig_prompt_differences.png``, ``fig_dsr_heatmap.png``.
+- ``fig_qf_distributions.png``, ``fig_prompt_differences.png``, ``fig_dsr_heatmap.png``, ``fig_outcomes.png``.
 """
 
 from __future__ import annotations
@@ -264,6 +264,7 @@ def write_files(
             written.append(figs.qualified_failure_distributions(frame, out / "fig_qf_distributions.png", shown))
         written.append(figs.prompt_difference_figure(differences, out / "fig_prompt_differences.png", shown))
         written.append(figs.dsr_heatmap(aggregates["family_level"], out / "fig_dsr_heatmap.png"))
+        written.append(figs.outcome_bars(aggregates["family_level"], out / "fig_outcomes.png"))
         report += ["## Figures", ""] + [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"] + [""]
     path = out / "report.md"
     path.write_text("\n".join(report))
