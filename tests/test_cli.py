@@ -59,14 +59,35 @@ def test_bad_input_is_one_clear_line_and_exit_code_2(cli, args, message):
         assert len(lines) == 1 and lines[0].startswith("conflictbench: error:"), out.stderr
 
 
-def test_a_rejected_run_leaves_no_folder_behind_and_keeps_an_existing_store(cli, tmp_path):
+def test_a_rejected_run_leaves_no_file_behind_and_keeps_an_existing_store(cli, tmp_path):
     kept = tmp_path / "kept"
     (kept / "episodes").mkdir(parents=True)
+    (kept / "episodes" / "x.parquet").write_bytes(b"stored")
     for out_dir, sweep in ((tmp_path / "fresh", []), (tmp_path / "swept", ["-m"]), (kept, [])):
         out = cli(*sweep, "suite.file=/no/such/suite.jsonl", f"run.out={out_dir}")
         assert out.returncode == 2 and "suite file not found" in out.stderr, out.stderr[-2000:]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
-    assert [p.name for p in kept.iterdir()] == ["episodes"]
+    assert [p for p in (tmp_path / "fresh").rglob("*")] == [] and [p for p in (tmp_path / "swept").rglob("*")] == []
+    assert sorted(str(p.relative_to(kept)) for p in kept.rglob("*")) == ["episodes", "episodes/x.parquet"]
+
+
+@pytest.mark.parametrize("run_dir", ["${run.out}", ".", "elsewhere"])
+def test_tidying_after_a_rejection_never_touches_a_folder_hydra_was_pointed_at(cli, tmp_path, run_dir):
+    """Only our own layout (<run.out>/hydra/<time>) is tidied: a hydra.run.dir of the user's keeps every file."""
+    out_dir = tmp_path / "results"
+    (out_dir / "episodes").mkdir(parents=True)
+    (out_dir / "notes.txt").write_text("mine")
+    (tmp_path / "mycode.py").write_text("mine")
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "elsewhere" / "old.log").write_text("mine")
+    out = cli("model=noop", f"hydra.run.dir={run_dir}", "run.metrics=[bogus]", f"run.out={out_dir}")
+    assert out.returncode == 2 and "unknown metric 'bogus'" in out.stderr, out.stderr[-2000:]
+    for path in (
+        out_dir / "episodes",
+        out_dir / "notes.txt",
+        tmp_path / "mycode.py",
+        tmp_path / "elsewhere" / "old.log",
+    ):
+        assert path.exists(), path
 
 
 def test_hydra_switches_may_follow_the_overrides(cli):
@@ -115,3 +136,45 @@ def test_a_tampered_suite_file_names_the_line_and_field(cli, tmp_path):
     bad.write_text("\n".join(lines) + "\n")
     out = cli(f"suite.file={bad}")
     assert out.returncode == 2 and "line 4, field 'level'" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_symlinked_store_folder_is_never_tidied_away(cli, tmp_path):
+    target = tmp_path / "scratch"
+    target.mkdir()
+    (tmp_path / "results").symlink_to(target)
+    out = cli("model=noop", "run.metrics=[bogus]", "run.out=results")
+    assert out.returncode == 2 and "unknown metric" in out.stderr
+    assert (tmp_path / "results").is_symlink() and target.is_dir()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["-m", "model=choice(random)", "model.seed=3"],  # a sweep function: Hydra checks
+        ["--config-name", "other", "model.seed=3"],  # another config's default model
+        ["model=random", "+model.extra=1"],  # an append: Hydra's business
+        ["model=random", "model.seed=3"],
+    ],
+)
+def test_model_field_check_leaves_what_it_cannot_know_to_hydra(argv):
+    from conflictbench.cli.run import check_model_fields
+
+    check_model_fields(argv, conflictbench.plugins())  # no UserError
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["model=noop", "--cfg", "job", "prompt=p1"], ["--cfg", "job", "model=noop", "prompt=p1"]),
+        (["model=noop", "-r", "prompt=p1"], ["-r", "model=noop", "prompt=p1"]),
+        (["run.out=x", "-m", "model=a,b"], ["-m", "run.out=x", "model=a,b"]),
+        (["model=noop", "--info", "prompt=p1"], ["--info", "model=noop", "prompt=p1"]),
+        (["model=noop", "--info", "defaults"], ["--info", "defaults", "model=noop"]),
+        (["--config-help"], ["--help"]),
+        (["--hydra-help"], ["--hydra-help"]),
+    ],
+)
+def test_hydras_flags_go_first_with_their_values(argv, expected):
+    from conflictbench.cli.run import hydra_argv
+
+    assert hydra_argv(argv) == expected

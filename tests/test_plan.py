@@ -111,3 +111,31 @@ def test_episode_ids_are_stable_and_change_with_anything_that_changes_the_rollou
         dict(spec=EpisodeSpec("libero_goal", 0, 0, "p0", "open the drawer", case("a"))),
     ]
     assert len({episode_id(**{**base, **v}) for v in variants} | {eid}) == len(variants) + 1
+
+
+def test_a_policy_without_settings_hashes_as_it_always_has():
+    """noop has no config: hashed as ``"config": null`` since the first store, so its episode ids never move."""
+    import hashlib
+    import json
+    from dataclasses import dataclass
+
+    from conflictbench.core import PolicyTraits
+    from conflictbench.sim.plan import config_hash, identity_settings, settings_json, simulator_versions
+
+    class Still:
+        needs_images = False
+
+    traits = PolicyTraits(Still())
+    blob = {"policy": "noop", "config": None, "traits": traits.as_dict(), "code": [], "simulator": simulator_versions()}
+    expected = hashlib.sha256(json.dumps(blob, sort_keys=True, default=repr).encode()).hexdigest()[:12]
+    assert identity_settings(None) is None and config_hash("noop", None, traits) == expected
+    assert settings_json(None) == "null"
+
+    @dataclass
+    class Served:
+        identity_exempt = ("server",)
+        server: str = "ws://a"
+        seed: int = 3
+
+    assert identity_settings(Served()) == {"seed": 3}  # the address is not the policy's identity
+    assert config_hash("p", Served(), traits) == config_hash("p", Served(server="ws://b"), traits)

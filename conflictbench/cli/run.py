@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
+import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -106,13 +108,24 @@ def group_choices(group: str, plugins: Plugins) -> list[str]:
     return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
-def check_model_fields(argv: Sequence[str], plugins: Plugins, default_model: str = "scripted") -> None:
+def default_model() -> str:
+    """The ``model`` of ``conf/config.yaml``'s defaults."""
+    defaults = OmegaConf.load(str(resources.files("conflictbench.conf") / "config.yaml")).defaults
+    return next(str(entry["model"]) for entry in defaults if isinstance(entry, DictConfig) and "model" in entry)
+
+
+def check_model_fields(argv: Sequence[str], plugins: Plugins) -> None:
     """Reject ``model.<field>=...`` for a field the chosen policies lack (one line naming theirs), before Hydra
-    answers with its multi-line "To append to your config use +model...". ``+model.x=`` is left to Hydra."""
-    models = [default_model]
+    answers with its multi-line "To append to your config use +model...". Where the model is not a plain choice
+    on this line (a sweep function, another config, a sweeper's params), Hydra checks; ``+model.x=`` too."""
+    models = [default_model()]
     for arg in argv:
         key, _, value = arg.partition("=")
-        if key == "model" and value and not any(ch in value for ch in "()[]{}*$"):
+        if arg.startswith(("-c", "--config", "hydra.sweeper")) or key.startswith("model@"):
+            return
+        if key == "model":
+            if not value or any(ch in value for ch in "()[]{}*$"):
+                return
             models = [item.strip() for item in value.split(",")]
     for arg in argv:
         key = arg.partition("=")[0]
@@ -244,7 +257,8 @@ def command(argv: list[str], plugins: Plugins) -> int:
         except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             if isinstance(exc, UserError):  # a rejected command leaves nothing behind, not even Hydra's folder
-                remove_hydra_output(Path(HydraConfig.get().runtime.output_dir), Path(cfg.run.out))
+                hydra_config = HydraConfig.get()
+                remove_hydra_output(Path(hydra_config.runtime.output_dir), Path(cfg.run.out), hydra_config.job.name)
             raise SystemExit(exc.exit_code) from None
 
     saved = sys.argv
@@ -275,31 +289,64 @@ def check_suite_file(suite, plugins: Plugins) -> None:
         )
 
 
-#: Hydra's flags that take no value: they may stand anywhere on our command line (Hydra wants them first).
-HYDRA_SWITCHES = ("-m", "--multirun", "--run", "--resolve", "--version")
+#: Hydra's flags without a value, and those with one: they may stand anywhere on our command line (Hydra's
+#: parser wants them before the overrides).
+HYDRA_SWITCHES = ("-m", "--multirun", "-r", "--run", "--resolve", "--version", "--help", "-h", "--hydra-help")
+HYDRA_VALUE_FLAGS = ("-c", "--cfg", "-p", "--package", "-cn", "--config-name", "-cp", "--config-path",
+                     "-cd", "--config-dir", "--experimental-rerun", "-i", "--info")  # fmt: skip
+INFO_TOPICS = ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")
 
 
 def hydra_argv(argv: Sequence[str]) -> list[str]:
-    """Our command line as Hydra's: switches first, ``--config-help`` as Hydra's ``--help`` (the composed
-    configuration and its groups); ``--hydra-help`` stays Hydra's own."""
-    switches = [a for a in argv if a in HYDRA_SWITCHES]
-    rest = [("--help" if a == "--config-help" else a) for a in argv if a not in HYDRA_SWITCHES]
-    return [*switches, *rest]
+    """Our command line as Hydra's: its flags first (each with its value), ``--config-help`` as Hydra's
+    ``--help`` (the composed configuration and its groups); ``--hydra-help`` stays Hydra's own."""
+    argv = [("--help" if a == "--config-help" else a) for a in argv]
+    flags, rest, i = [], [], 0
+    while i < len(argv):
+        arg = argv[i]
+        takes_value = arg in HYDRA_VALUE_FLAGS and i + 1 < len(argv)
+        if takes_value and arg in ("-i", "--info") and argv[i + 1] not in INFO_TOPICS:
+            takes_value = False  # --info's topic is optional
+        if takes_value:
+            flags += argv[i : i + 2]
+            i += 2
+            continue
+        (flags if arg in HYDRA_SWITCHES or arg in HYDRA_VALUE_FLAGS or arg.startswith("--") else rest).append(arg)
+        i += 1
+    return [*flags, *rest]
 
 
-def remove_hydra_output(folder: Path, out: Path) -> None:
-    """Remove the folder Hydra made for a job (its ``.hydra`` record and log) and the parents it leaves empty,
-    up to ``out`` (``run.out``; itself only where empty)."""
-    import shutil
+#: The folders our config has Hydra make under ``<run.out>/hydra/``: a run's, a sweep's and a sweep job's.
+RUN_FOLDER = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}")
+SWEEP_FOLDER = re.compile(r"multirun_\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}")
 
-    if (folder / ".hydra").is_dir():
-        shutil.rmtree(folder, ignore_errors=True)
-    sweep = folder.parent  # a rejected sweep job ends the sweep: its record goes where no job kept a folder
-    if sweep.is_dir() and [p.name for p in sweep.iterdir()] == ["multirun.yaml"]:
-        (sweep / "multirun.yaml").unlink()
-    out = out.resolve()
-    for parent in [sweep.resolve(), *sweep.resolve().parents]:
-        if parent != out and out not in parent.parents:
-            break
+
+def remove_hydra_output(folder: Path, out: Path, job_name: str = "conflictbench") -> None:
+    """Take back what Hydra wrote for a rejected job: its record files and log, and the folders that leaves
+    empty, below ``<run.out>/hydra``. Only in our own layout (a ``hydra.run.dir`` or ``hydra.sweep.dir`` set
+    elsewhere is left alone), only the files Hydra writes, only empty folders: nothing of the user's goes."""
+    try:
+        folder, out = Path(os.path.abspath(folder)), Path(os.path.abspath(out))
+        hydra_root = out / "hydra"
+        sweep = folder.parent if SWEEP_FOLDER.fullmatch(folder.parent.name) and folder.name.isdigit() else None
+        if sweep is not None:
+            run_folder_ok = sweep.parent == hydra_root
+        else:
+            run_folder_ok = folder.parent == hydra_root and RUN_FOLDER.fullmatch(folder.name) is not None
+        if not run_folder_ok or hydra_root.is_symlink() or out.is_symlink():
+            return
+        for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+            (folder / ".hydra" / name).unlink(missing_ok=True)
+        (folder / f"{job_name}.log").unlink(missing_ok=True)
+        for empty in (folder / ".hydra", folder):
+            with contextlib.suppress(OSError):
+                empty.rmdir()  # only where empty
+        if sweep is not None:  # a rejected sweep job ends the sweep: its record goes where no job kept a folder
+            if [p.name for p in sweep.iterdir()] == ["multirun.yaml"]:
+                (sweep / "multirun.yaml").unlink()
+            with contextlib.suppress(OSError):
+                sweep.rmdir()
         with contextlib.suppress(OSError):
-            parent.rmdir()  # only where empty: another job's folder, a store, stays
+            hydra_root.rmdir()  # run.out itself stays
+    except OSError:
+        pass  # tidying up after a rejection must never hide its one line

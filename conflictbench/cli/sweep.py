@@ -2,8 +2,9 @@
 
 Each job of ``conflictbench -m ...`` records what it played (``conflictbench-job.json`` in its Hydra folder)
 and writes its tables under ``<run.out>/report/jobs/<job>-<model>/``; when the sweep ends, Hydra calls
-:class:`CombinedReport`, which reports the episodes of all jobs together into ``<run.out>/report/`` (grouped by
-store, where jobs swept ``run.out`` too).
+:class:`CombinedReport`, which reports the episodes of all jobs together into ``<run.out>/report/``. It finds
+the jobs' records below the sweep's folder (``hydra.sweep.dir``, on storage the jobs share): a sweep over
+``run.out`` itself puts its jobs' folders elsewhere and gets only the per-job reports.
 """
 
 from __future__ import annotations
@@ -41,7 +42,9 @@ class CombinedReport(Callback):
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
         if not config.run.get("report", True):
             return
-        jobs = [json.loads(path.read_text()) for path in sorted(Path(config.hydra.sweep.dir).glob(f"*/{JOB_RECORD}"))]
+        jobs = [json.loads(path.read_text()) for path in sorted(Path(config.hydra.sweep.dir).rglob(JOB_RECORD))]
+        if len(jobs) < 2:
+            return  # one job's own report is the sweep's
         by_store: dict[str, list[dict]] = defaultdict(list)
         for job in jobs:
             by_store[job["store"]].append(job)

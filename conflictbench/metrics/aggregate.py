@@ -44,8 +44,10 @@ def with_model(frame: pd.DataFrame) -> pd.DataFrame:
         out["model"] = pd.Series([], dtype=object)
         return out
     settings = frame["policy_settings"] if "policy_settings" in frame.columns else pd.Series("", index=frame.index)
+    settings = settings.map(lambda s: s if isinstance(s, str) else "")  # NaN (a frame read back from CSV): none
     labels: dict[tuple[str, str], str] = {}
     for policy, group in frame.assign(policy_settings=settings).groupby("policy", sort=False):
+        group = group.sort_values("policy_settings", ascending=False, kind="stable")  # settings before "" rows
         variants = group.drop_duplicates("config_hash")[["config_hash", "policy_settings"]].itertuples(index=False)
         labels.update(_variant_labels(str(policy), list(variants)))
     keys = zip(frame["policy"].astype(str), frame["config_hash"].astype(str), strict=True)

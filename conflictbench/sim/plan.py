@@ -67,9 +67,12 @@ def episode_id(*, policy: str, config_hash: str, spec: EpisodeSpec, prompt_text:
     return hashlib.sha256(json.dumps(key).encode()).hexdigest()[:24]
 
 
-def identity_settings(config: Any) -> dict[str, Any]:
-    """A policy's settings that are part of its identity (a served policy's address and timeouts are not)."""
-    settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else dict(config or {})
+def identity_settings(config: Any) -> dict[str, Any] | None:
+    """A policy's settings that are part of its identity (a served policy's address and timeouts are not);
+    None for a policy without settings (as hashed since the first store: episode ids must not move)."""
+    if config is None:
+        return None
+    settings = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else dict(config)
     for name in getattr(config, "identity_exempt", ()):
         settings.pop(name, None)
     return settings

@@ -6,6 +6,7 @@ import contextlib
 import multiprocessing as mp
 import signal
 import threading
+import time
 from collections import OrderedDict, deque
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from .plan import EpisodeSpec
 from .worker import worker_main
 
 START_TIMEOUT_S = 300
+STOP_TIMEOUT_S = 10.0  # for all workers together to leave after Stop, before they are killed
 TaskKey = tuple[str, int]
 
 
@@ -82,8 +84,8 @@ def sigint_ignored():
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    finally:  # a handler not installed from Python reads as None: the default then
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
 
 
 class WorkerPool:
@@ -138,8 +140,9 @@ class WorkerPool:
                     slot.conn.send(Stop())
             except (BrokenPipeError, OSError):
                 pass
+        deadline = time.monotonic() + STOP_TIMEOUT_S  # one wait for all: a Ctrl-C never takes N times as long
         for slot in self.slots:
             if slot.process is not None:
-                slot.process.join(timeout=10)
+                slot.process.join(timeout=max(0.0, deadline - time.monotonic()))
                 if slot.process.is_alive():
                     slot.process.kill()
