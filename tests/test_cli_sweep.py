@@ -1,4 +1,4 @@
-"""A sweep's report: every job keeps its own tables, and the sweep ends with one report over all of them."""
+"""A sweep's report (every job its own tables, then one over all of them), and the plan's time estimate."""
 
 from __future__ import annotations
 
@@ -36,3 +36,13 @@ def test_variants_of_one_policy_are_stored_with_their_settings_and_reported_by_t
     assert {json.loads(s)["seed"] for s in settings} == {1, 2} and all("scale" in json.loads(s) for s in settings)
     combined = (tmp_path / "results" / "report" / "table1_overall.md").read_text()
     assert "random seed=1" in combined and "random seed=2" in combined
+
+
+def test_the_plan_estimates_the_time_from_this_policys_earlier_episodes_or_says_it_cannot_yet(tmp_path):
+    first = run_cli(tmp_path, "model=noop", "run.progress=true")
+    assert first.returncode == 0, first.stderr[-3000:]
+    assert "2 episode(s) to play, 0 already stored; the time left shows once the first episodes finish" in first.stderr
+    again = run_cli(tmp_path, "model=noop", "run.progress=true", "run.libero_suites=[libero_goal]")
+    assert again.returncode == 0, again.stderr[-3000:]
+    line = next(line for line in again.stderr.splitlines() if "to play" in line)
+    assert "0 already stored; about" in line and "per episode of its earlier episodes in this store" in line

@@ -216,7 +216,7 @@ def test_no_pairs_at_all_still_reports(tmp_path, plugins):
     assert (tmp_path / "table1_overall.md").exists() and (tmp_path / "fig_dsr_heatmap.png").exists()
 
 
-def test_pairs_whose_reference_did_not_approach_leave_tar_undefined_and_are_counted(plugins):
+def test_pairs_whose_reference_did_not_approach_leave_tar_undefined_and_are_counted(plugins, tmp_path):
     records = [episode("gamma", None, 0.5, 0.2, False), episode("gamma", "c1", 0.3, 0.1, False, "grounding", "L1")]
     stream = io.StringIO()
     result = report_records(records, plugins, stream=stream)  # the reference stood at 0.5: A+ = 0
@@ -224,6 +224,9 @@ def test_pairs_whose_reference_did_not_approach_leave_tar_undefined_and_are_coun
     assert "TAR is undefined for 1 of 1 pairs: their reference approached its targets by less than 1 cm" in (
         stream.getvalue()
     )
+    report_records(records, plugins, stream=io.StringIO(), out_dir=tmp_path, figures=False)
+    written = (tmp_path / "report.md").read_text()
+    assert "TAR is undefined for 1 of 1 pairs" in written and "### Legend" in written and "  RGSR  " in written
     assert "TAR is undefined" not in _report_text(two_models(), plugins)
 
 

@@ -189,12 +189,8 @@ def report_frame(
             )
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
-    if "tar" in names and len(frame) and (undefined := int(frame["tar"].isna().sum())):
-        print(
-            f"TAR is undefined for {undefined} of {len(frame)} pairs: their reference approached its targets by less "
-            "than 1 cm (a ratio to that is noise), or the two rollouts have no targets in common",
-            file=stream,
-        )
+    if (line := tar_undefined_line(frame, names)) is not None:
+        print(line, file=stream)
 
     result = {
         "pairs": frame,
@@ -235,6 +231,9 @@ def write_files(
         csv_frame(table, spec).to_csv(path, index=False, na_rep="n/a")
         written.append(path)
         report.append(markdown)
+    report += ["### Legend", "", "```", legend(metrics), "```", ""]
+    if (line := tar_undefined_line(frame, [m.name for m in metrics])) is not None:
+        report += [line, ""]
     if len(differences):
         report += [
             "### Paired P0 - P1 differences (percentage points, ±95%)",
@@ -293,3 +292,13 @@ def legend(metrics) -> str:
         rows.append((metric.label or metric.name, gist.strip()))
     width = max(len(name) for name, _ in rows)
     return "Legend\n" + "\n".join(f"  {name.ljust(width)}  {text}" for name, text in rows)
+
+
+def tar_undefined_line(frame: pd.DataFrame, names: Sequence[str]) -> str | None:
+    """How many pairs TAR leaves undefined, where any are (None otherwise)."""
+    if "tar" not in names or not len(frame) or not (undefined := int(frame["tar"].isna().sum())):
+        return None
+    return (
+        f"TAR is undefined for {undefined} of {len(frame)} pairs: their reference approached its targets by less "
+        "than 1 cm (a ratio to that is noise), or the two rollouts have no targets in common"
+    )

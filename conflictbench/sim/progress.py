@@ -95,16 +95,17 @@ class RunProgress:
             print(self.line(), file=self.stream, flush=True)
 
 
-def plan_line(to_play: int, stored: int, seconds_each: float | None, workers: int) -> str:
+def plan_line(to_play: int, stored: int, seconds_each: float | None, workers: int, basis: str = "so far") -> str:
     """What a run is about to do, and how long it may take: from the wall time of this run's episodes already
-    stored (a resumed run), else said to be unknown until the first ones finish."""
+    stored (a resumed run) or of the policy's earlier ones (``basis`` says which), else said to be unknown until
+    the first ones finish."""
     text = f"conflictbench: {to_play} episode(s) to play, {stored} already stored"
     if not to_play:
         return text
     if seconds_each is None:
         return text + "; the time left shows once the first episodes finish"
     total = to_play * seconds_each / max(1, min(workers, to_play))
-    return text + f"; about {duration(total)} with {workers} worker(s), at the {seconds_each:.1f} s per episode so far"
+    return text + f"; about {duration(total)} with {workers} worker(s), at the {seconds_each:.1f} s per episode {basis}"
 
 
 def duration(seconds: float) -> str:

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 from typing import Any
 
+import pyarrow.compute as pc
+
 from conflictbench.core import (
     SIMULATOR_ERROR_PREFIX,
     EpisodeRecord,
@@ -36,6 +38,9 @@ from .messages import Abort, Done, EpisodeJob, EpisodeOutcome, Play, Query
 from .plan import EpisodeSpec, config_hash, episode_id, settings_json
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
 from .progress import plan_line
+
+#: Episodes read at most for a fresh run's time estimate (the policy's latest in the store).
+ESTIMATE_SAMPLE = 200
 
 
 @dataclass
@@ -131,15 +136,24 @@ class Runner:
             items.append(Item(spec, job))
         return items
 
-    def _seconds_each(self, items: list[Item], stored: set[str]) -> float | None:
-        """Mean wall time of this plan's episodes already stored (None where there are none)."""
+    def _seconds_each(self, items: list[Item], stored: set[str]) -> tuple[float | None, str]:
+        """Mean wall time of this plan's episodes already stored; else of this policy's (same settings and
+        code) elsewhere in the store, the last ``ESTIMATE_SAMPLE`` of them; None where there are none. With
+        the basis, in words."""
         done = [i.job.episode_id for i in items if i.job.episode_id in stored]
-        if not done:
-            return None
-        times = [
-            t for t in self.store.read_table(columns=["wall_time_s"], episode_ids=done)["wall_time_s"].to_pylist() if t
-        ]
-        return sum(times) / len(times) if times else None
+        basis = "so far"
+        if done:
+            table = self.store.read_table(columns=["wall_time_s"], episode_ids=done)
+        else:
+            basis = "of its earlier episodes in this store"
+            folder = self.store.episodes_dir / self.spec.name
+            files = sorted(folder.glob("*.parquet"), key=lambda p: p.stat().st_mtime)[-ESTIMATE_SAMPLE:]
+            if not files:
+                return None, basis
+            table = self.store.read_table(columns=["config_hash", "wall_time_s"], episode_ids=[f.stem for f in files])
+            table = table.filter(pc.equal(table["config_hash"], self.config_hash))
+        times = [t for t in table["wall_time_s"].to_pylist() if t]
+        return (sum(times) / len(times) if times else None), basis
 
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
@@ -165,8 +179,8 @@ class Runner:
         todo = [i for i in items if i.job.episode_id not in stored]
         result.already_stored = len(items) - len(todo)
         if self.progress:
-            print(plan_line(len(todo), result.already_stored, self._seconds_each(items, stored), self.workers),
-                  file=sys.stderr)  # fmt: skip
+            seconds, basis = self._seconds_each(items, stored)
+            print(plan_line(len(todo), result.already_stored, seconds, self.workers, basis), file=sys.stderr)
         if not todo:
             return result
 
