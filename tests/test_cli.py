@@ -109,6 +109,7 @@ def test_report_on_a_directory_without_episodes_is_a_user_error(cli, tmp_path):
     assert out.returncode == 2 and "holds no stored episodes" in out.stderr
 
 
+@pytest.mark.sim  # the rules read LIBERO's base tasks
 def test_a_suite_file_that_breaks_the_rules_or_holds_nothing_is_not_played(cli, tmp_path):
     from conflictbench.tasks.suite.file import shipped_suite_path
 
