@@ -9,7 +9,8 @@ and ``decode``) and a few declarations:
   (``python -m MODULE serve --policy P --checkpoint DIR --host H --port N --device D --max-batch B``);
 - ``transport`` (the protocol's :class:`~.transport.Transport`) and ``url_scheme`` (``ws``, ``tcp``, ...);
 - ``inspect_checkpoint(name, folder)``: a fast check, without the model stack, that the folder holds this
-  policy's checkpoint (raise :class:`UserError`), and ``fingerprint(folder)``: a digest of its content.
+  policy's checkpoint (raise :class:`UserError`, or one of ``checkpoint_errors``, which :meth:`HostedPolicy.load`
+  reports as one), and ``fingerprint(folder)``: a digest of its content.
 
 What it owns, the same for every model:
 
@@ -100,6 +101,9 @@ class HostedPolicy(ServedPolicy):
     """Our policy names and the ``policy_type`` a server of each says it hosts (none: not checked)."""
     default_max_steps: ClassVar[Mapping[str, int]] = DEFAULT_MAX_STEPS
     """The model's own budget per LIBERO suite (``model.max_steps=0``)."""
+    checkpoint_errors: ClassVar[tuple[type[Exception], ...]] = ()
+    """What the plugin's checkpoint checks raise for a folder that cannot be served (its message one line):
+    a user mistake, reported as :class:`UserError`."""
 
     def __init__(self, name: str, cfg: HostedConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.name, self.cfg, self.checkpoint, self.python = name, cfg, checkpoint, python
@@ -119,7 +123,7 @@ class HostedPolicy(ServedPolicy):
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
         """``folder``, checked (without the model stack) to hold a checkpoint of policy ``name``; raise
-        :class:`UserError` saying what is wrong otherwise."""
+        :class:`UserError` (or one of ``checkpoint_errors``) saying what is wrong otherwise."""
         raise NotImplementedError
 
     @classmethod
@@ -159,7 +163,10 @@ class HostedPolicy(ServedPolicy):
                 f"model={name} needs model.checkpoint=DIR (a local checkpoint folder) "
                 f"or model.server={cls.url_scheme}://HOST:PORT (a running server)"
             )
-        checkpoint = cls.inspect_checkpoint(name, Path(cfg.checkpoint).expanduser()).resolve()
+        try:
+            checkpoint = cls.inspect_checkpoint(name, Path(cfg.checkpoint).expanduser()).resolve()
+        except cls.checkpoint_errors as exc:
+            raise UserError(str(exc)) from None
         python = cls.model_python(cfg)  # a missing model environment is reported now, before the plan is played
         return cls(name, cfg, checkpoint, python)
 

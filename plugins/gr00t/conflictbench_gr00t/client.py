@@ -57,6 +57,7 @@ class Gr00tPolicy(HostedPolicy):
     transport = Gr00tTransport
     url_scheme = "tcp"
     policy_types = {"gr00t": POLICY_TYPE}
+    checkpoint_errors = (CheckpointError,)
     default_max_steps = {suite: MAX_EPISODE_STEPS for suite in LIBERO_SUITES}
 
     def __init__(self, name: str, cfg: Gr00tConfig, checkpoint: Path | None = None, python: Path | None = None):
@@ -71,10 +72,7 @@ class Gr00tPolicy(HostedPolicy):
 
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        try:
-            return check_checkpoint(folder)
-        except CheckpointError as exc:
-            raise UserError(str(exc)) from None
+        return check_checkpoint(folder)
 
     @classmethod
     def fingerprint(cls, folder: Path) -> str:

@@ -82,13 +82,11 @@ class _DeployClient(HostedPolicy):
     default_max_steps = MAX_STEPS
 
     policy_types = {"openvla": POLICY_TYPE, "openvla-oft": "openvla-oft"}  # our server hosts OpenVLA only
+    checkpoint_errors = (CheckpointError,)
 
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        try:
-            return check_checkpoint(folder, name)
-        except CheckpointError as exc:
-            raise UserError(str(exc)) from None
+        return check_checkpoint(folder, name)
 
     @classmethod
     def fingerprint(cls, folder: Path) -> str:

@@ -51,6 +51,7 @@ class PiPolicy(HostedPolicy):
     transport = OpenpiTransport
     url_scheme = "ws"
     policy_types = POLICY_TYPES
+    checkpoint_errors = (CheckpointError,)
 
     def __init__(self, name: str, cfg: PiConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.replan_steps = cfg.replan_steps
@@ -64,10 +65,7 @@ class PiPolicy(HostedPolicy):
 
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        try:
-            return check_checkpoint(folder, name)
-        except CheckpointError as exc:
-            raise UserError(str(exc)) from None
+        return check_checkpoint(folder, name)
 
     @classmethod
     def fingerprint(cls, folder: Path) -> str:

@@ -69,15 +69,13 @@ class UnivlaPolicy(HostedPolicy):
     transport = JsonNumpyTransport
     url_scheme = "http"
     policy_types = {"univla": POLICY_TYPE}
+    checkpoint_errors = (CheckpointError,)
     default_max_steps = UNIVLA_MAX_STEPS
 
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        try:
-            check_code()  # the started server reads UniVLA's code from the same UNIVLA_CODE
-            return check_checkpoint(folder)
-        except CheckpointError as exc:
-            raise UserError(str(exc)) from None
+        check_code()  # the started server reads UniVLA's code from the same UNIVLA_CODE
+        return check_checkpoint(folder)
 
     @classmethod
     def fingerprint(cls, folder: Path) -> str:

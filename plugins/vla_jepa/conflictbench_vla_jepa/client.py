@@ -71,6 +71,7 @@ class VlaJepaPolicy(HostedPolicy):
     transport = OpenpiTransport
     url_scheme = "ws"
     policy_types = {"vla-jepa": POLICY_TYPE}
+    checkpoint_errors = (CheckpointError,)
     default_max_steps = MAX_STEPS
 
     def __init__(self, name: str, cfg: VlaJepaConfig, checkpoint: Path | None = None, python: Path | None = None):
@@ -97,10 +98,7 @@ class VlaJepaPolicy(HostedPolicy):
 
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        try:
-            return check_checkpoint(folder)
-        except CheckpointError as exc:
-            raise UserError(str(exc)) from None
+        return check_checkpoint(folder)
 
     @classmethod
     def fingerprint(cls, folder: Path) -> str:
