@@ -94,7 +94,8 @@ done
 #    cannot share). Each gets the shared server half (serving/), its plugin without dependencies (no
 #    conflictbench, no simulator), exactly the plugin's `server` extra (a plugin of ours named there from its
 #    folder, without dependencies), and its `server-test` extra
-#    without dependencies (upstream servers the tests compare with). About 5 GB and 90 s each on the first build (torch).
+#    without dependencies (upstream servers the tests compare with). About 5 GB and 90 s each on the first build
+#    (torch); files identical across environments are then hard-linked, so all of them take about 9 GB.
 has_server() {  # a plugin whose pyproject has a `server` extra has a model environment to build
   grep -q '^server = \[' "plugins/$1/pyproject.toml" 2>/dev/null
 }
@@ -158,6 +159,8 @@ EOF
   read -ra counterparts <<<"${requirements[-1]}"
   [ "${#counterparts[@]}" -le 1 ] || "$env_dir/bin/python" -m pip install -q "${counterparts[@]}"
   "$env_dir/bin/python" -m pip install -q --no-deps -e "$plugin"
+  "$VENV/bin/python" scripts/link_identical.py "$VENV/models"  # the same torch in each: keep its files once
   touch "$stamp"
 done
+[ ! -d "$VENV/models" ] || "$VENV/bin/python" scripts/link_identical.py "$VENV/models"  # environments built before
 say "ready: $VENV/bin/conflictbench"
