@@ -23,18 +23,19 @@ done
 
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
-APT_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri)
+APT_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri chromium)
 
 say() { printf '[setup] %s\n' "$*" >&2; }
 
-# 1. Mesa's EGL for headless rendering (only camera-based policies render; the rest run without GL).
+# 1. Mesa's EGL for headless rendering (camera-based policies and the viewer's videos; the rest run without GL),
+#    and Chromium, in which the tests open the viewer's pages.
 missing=()
 for pkg in "${APT_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
 done
 if ((${#missing[@]})); then
   if ! command -v apt-get >/dev/null; then
-    say "please install the EGL/Mesa libraries for your system (Debian names: ${missing[*]})"
+    say "please install the EGL/Mesa libraries and Chromium for your system (Debian names: ${missing[*]})"
   else
     SUDO=""
     [ "$(id -u)" -ne 0 ] && SUDO="sudo"

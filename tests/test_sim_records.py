@@ -74,6 +74,7 @@ class SlowExpert:
     needs_images = False
     needs_privileged = True
     max_steps = {suite: 12 for suite in LIBERO_SUITES}
+    warmup_steps = 4
     seen: list = []
 
     def __init__(self, cfg):
@@ -104,6 +105,7 @@ def test_privileged_geometry_is_typed_and_the_simulation_time_is_stored(tmp_path
     )
     assert result.played == 1 and result.errors == 0
     (record,) = store.records()
+    assert record.warmup_steps == 4  # what a replay of the episode must play again
     # the worker's own measure leaves out the time spent waiting for the policy
     assert 0 < record.sim_time_s < record.wall_time_s - 12 * THINK_S
 

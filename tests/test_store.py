@@ -85,6 +85,15 @@ def test_a_store_written_before_the_settings_column_reads_it_as_empty(tmp_path):
     assert read.policy_settings == "" and read.episode_id == "a"
 
 
+def test_a_store_written_before_the_warmup_column_reads_it_as_unknown(tmp_path):
+    store = EpisodeStore(tmp_path)
+    store.write(record("a", seed=1, warmup_steps=10))
+    assert EpisodeStore(tmp_path).records()[0].warmup_steps == 10
+    path = store.path_for("noop", "a")
+    pq.write_table(pq.read_table(path).drop_columns(["warmup_steps"]), path)
+    assert EpisodeStore(tmp_path).records()[0].warmup_steps is None
+
+
 def test_select_episodes_by_id(tmp_path):
     store = EpisodeStore(tmp_path)
     for i in range(4):

@@ -228,6 +228,9 @@ class EpisodeRecord:
     base_instruction: str = ""
     prompt_text: str = ""
     max_steps: int = 0
+    warmup_steps: int | None = None
+    """No-op steps played after setting the initial state, before the first recorded state (what a replay
+    must play again; ``None`` in stores written before the column)."""
     # provenance
     conflictbench_version: str = ""
     plugin: str = ""

@@ -54,11 +54,12 @@ def configure_process(settings: EnvSettings) -> None:
     logging.getLogger("robosuite").setLevel(logging.ERROR)
 
 
-def make_env(bddl_path: str, settings: EnvSettings):
+def make_env(bddl_path: str, settings: EnvSettings, cameras: tuple[str, ...] = CAMERAS):
     """A LIBERO env with the native settings (OSC_POSE, 20 Hz, Panda, two 256-px cameras when needed).
 
     Camera observations stay robosuite's own (so images are sampled at exactly the sub-step a
     native client's are); :class:`CameraGate` makes them render only when a policy will look.
+    ``cameras`` names the ones rendered (a replay for a video needs one); the physics is the same.
     """
     try:
         from libero.libero.envs.env_wrapper import ControlEnv
@@ -69,7 +70,7 @@ def make_env(bddl_path: str, settings: EnvSettings):
         has_renderer=False,
         has_offscreen_renderer=settings.needs_images,
         use_camera_obs=settings.needs_images,
-        camera_names=list(CAMERAS),
+        camera_names=list(cameras),
         camera_heights=settings.image_size,
         camera_widths=settings.image_size,
         ignore_done=True,  # we stop episodes ourselves; LIBERO's horizon would raise past 1000 steps

@@ -366,6 +366,7 @@ class Runner:
             base_instruction=spec.base_instruction,
             prompt_text=job.instruction,
             max_steps=job.max_steps,
+            warmup_steps=job.warmup_steps,
             target_names=job.targets,
             conflictbench_version=_own_version(),
             plugin=self.spec.plugin,

@@ -49,6 +49,7 @@ SCHEMA = pa.schema(
         ("base_instruction", pa.string()),
         ("prompt_text", pa.string()),
         ("max_steps", pa.int32()),
+        ("warmup_steps", pa.int32()),
         # provenance
         ("conflictbench_version", pa.string()),
         ("plugin", pa.string()),

@@ -1,0 +1,121 @@
+"""The pairs a viewer shows: chosen from a store, with their measures, the case behind each, and plot data."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import tee
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from conflictbench.core import EpisodeRecord, Pair, UserError
+from conflictbench.core.plugins import Plugins
+from conflictbench.metrics import evaluate_pairs
+from conflictbench.metrics.aggregate import sort_groups, with_model
+from conflictbench.report.from_store import light_records, loaded_pairs
+from conflictbench.report.summary import pair_up, select_metrics
+from conflictbench.store import EpisodeStore
+
+OUTCOMES = {  # (reference succeeded, conflict completed the original goal) -> words
+    (True, True): "completed anyway",
+    (True, False): "qualified failure",
+    (False, True): "only the conflict completed",
+    (False, False): "both failed",
+}
+FILTERS = ("model", "family", "level", "prompt", "outcome")
+
+
+@dataclass
+class Selection:
+    """Which pairs to show: each field a set of accepted values (empty: any)."""
+
+    model: set[str] = field(default_factory=set)
+    family: set[str] = field(default_factory=set)
+    level: set[str] = field(default_factory=set)
+    prompt: set[str] = field(default_factory=set)
+    outcome: set[str] = field(default_factory=set)
+    pair: set[str] = field(default_factory=set)
+    """Conflict episode ids (a page's name)."""
+
+    def check(self, rows: pd.DataFrame) -> None:
+        """A value that names nothing in the store is the user's mistake: say what there is."""
+        for name in FILTERS:
+            unknown = getattr(self, name) - set(rows[name].astype(str))
+            if unknown:
+                have = ", ".join(sorted(set(rows[name].astype(str)))) or "none"
+                raise UserError(f"no pairs with {name} {', '.join(sorted(unknown))} in this store (there are: {have})")
+
+    def mask(self, rows: pd.DataFrame) -> pd.Series:
+        keep = pd.Series(True, index=rows.index)
+        for name in FILTERS:
+            if getattr(self, name):
+                keep &= rows[name].astype(str).isin(getattr(self, name))
+        if self.pair:
+            keep &= rows["conflict_episode"].isin(self.pair)
+        return keep
+
+
+def pair_rows(store: EpisodeStore) -> tuple[list[Pair], pd.DataFrame]:
+    """Every scorable pair of the store (keys only, no arrays) and one row of keys per pair, in store order."""
+    pairs, _ = pair_up(light_records(store))
+    rows = pd.DataFrame(
+        {
+            "policy": [p.conflict.policy for p in pairs],
+            "config_hash": [p.conflict.config_hash for p in pairs],
+            "policy_settings": [p.conflict.policy_settings for p in pairs],
+            "family": [p.conflict.family for p in pairs],
+            "level": [p.conflict.level for p in pairs],
+            "prompt": [p.conflict.prompt for p in pairs],
+            "case_id": [p.conflict.case_id for p in pairs],
+            "outcome": [OUTCOMES[(bool(p.reference.success), bool(p.conflict.success))] for p in pairs],
+            "conflict_episode": [p.conflict.episode_id for p in pairs],
+        }
+    )
+    return pairs, with_model(rows)
+
+
+def choose(store: EpisodeStore, selection: Selection) -> tuple[list[Pair], pd.DataFrame]:
+    pairs, rows = pair_rows(store)
+    if not pairs:
+        raise UserError(f"{store.root} holds no pairs to show (a conflict episode and its reference)")
+    selection.check(rows)
+    if selection.pair - set(rows["conflict_episode"]):
+        raise UserError(f"no pair named {', '.join(sorted(selection.pair - set(rows['conflict_episode'])))} here")
+    keep = selection.mask(rows)
+    if not keep.any():
+        raise UserError("no pair matches all of the filters given")
+    rows = rows.assign(position=range(len(rows)))[keep.to_numpy()]
+    rows = sort_groups(rows, ["model", "family", "level", "prompt", "case_id"])  # the paper's order
+    return [pairs[i] for i in rows.pop("position")], rows
+
+
+def measures(store: EpisodeStore, pairs: Sequence[Pair], plugins: Plugins) -> tuple[pd.DataFrame, list]:
+    """Every registered metric of each pair (NaN: undefined), in the order of ``pairs``."""
+    specs = select_metrics(plugins, None)
+    first, second = tee(loaded_pairs(store, pairs))
+    frame = evaluate_pairs((r for r, _ in first), (c for _, c in second), plugins=plugins,
+                           metrics=[m.name for m in specs])  # fmt: skip
+    return frame, specs
+
+
+def target_distance(record: EpisodeRecord) -> np.ndarray:
+    """d_t of TAR: the end effector's distance to the nearest target at each recorded state."""
+    if record.target_pos.size == 0:
+        return np.full(len(record.eef_pos), np.nan)
+    return np.min(np.linalg.norm(record.target_pos - record.eef_pos[:, None, :], axis=2), axis=1)
+
+
+def _rounded(array: np.ndarray, digits: int) -> list:
+    return np.round(np.nan_to_num(np.asarray(array, dtype=float), nan=-1.0), digits).tolist()
+
+
+def episode_data(record: EpisodeRecord) -> dict[str, Any]:
+    """What the page plots of one episode (0.1 mm and 1e-3 action units: far below what a plot shows)."""
+    return {
+        "eef": _rounded(record.eef_pos, 4),
+        "distance": _rounded(target_distance(record), 4),
+        "actions": _rounded(record.actions, 3),
+        "targets": _rounded(record.target_pos[0], 4) if len(record.target_pos) else [],
+    }

@@ -1,0 +1,191 @@
+"""The viewer's HTML: an index of pairs with filters, and one page per pair. Static files that open from disk."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from html import escape
+from typing import Any
+
+from conflictbench.core import ConflictCase, EpisodeRecord
+
+from .pairs import FILTERS, OUTCOMES, episode_data
+
+EQUAL_PATH_M = 1e-6  # a replay within a micrometre of the stored path shows what happened
+
+
+def _page(title: str, body: str, root: str) -> str:
+    return (
+        '<!doctype html>\n<html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">'
+        f"<title>{escape(title)}</title>"
+        f'<link rel="stylesheet" href="{root}assets/viewer.css"></head>\n<body>\n{body}\n'
+        f'<script src="{root}assets/viewer.js"></script>\n</body></html>\n'
+    )
+
+
+def script_json(data: Any) -> str:
+    """JSON to sit inside a <script> element: "</" would end the element early."""
+    return json.dumps(data).replace("</", "<\\/")
+
+
+def slug(text: str) -> str:
+    return "-".join(text.lower().split())
+
+
+def format_value(value: Any, metric) -> str:
+    """A measure as the report shows it: percent for fractions, its unit otherwise, "undefined" for NaN."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return '<span class="undefined">undefined</span>'
+    if metric.percent:
+        return f"{100 * value:.1f} %"
+    return f"{value:.3g}" + (f" {escape(metric.unit)}" if metric.unit else "")
+
+
+def _outcome(text: str) -> str:
+    return f'<span class="outcome {slug(text)}">{escape(text)}</span>'
+
+
+def _episode_words(record: EpisodeRecord) -> str:
+    done = "completed the original goal" if record.success else "did not complete the original goal"
+    error = f" (ended by: {escape(record.error)})" if record.error else ""
+    return f"{done} in {record.steps} steps{error}"
+
+
+def replay_words(meta: Mapping[str, Any] | None) -> tuple[str, bool]:
+    """What the page says of a video's replay, and whether that is a warning."""
+    if not meta:
+        return "", False
+    if meta.get("error"):
+        return f"The replay failed: {meta['error']}", True
+    deviation = meta.get("deviation_m")
+    if deviation is None or not math.isfinite(deviation):
+        return "The replay played another number of steps than the stored episode: this video may mislead.", True
+    if deviation > EQUAL_PATH_M:
+        return (f"The replay's end-effector path differs from the stored one by up to {1000 * deviation:.2f} mm: "
+                "this video may not show what happened.", True)  # fmt: skip
+    return (
+        "Replayed from the stored actions (same seed and initial state); its end-effector path equals the stored "
+        f"one (largest difference {1e6 * deviation:.2g} µm).",
+        False,
+    )
+
+
+def _video(kind: str, record: EpisodeRecord, meta: Mapping[str, Any] | None, hint: str) -> str:
+    caption = f'<figcaption><span class="{kind}-mark">{kind.capitalize()}</span>: {_episode_words(record)}</figcaption>'
+    if meta and not meta.get("error"):
+        src = f"../videos/{escape(record.episode_id)}.mp4"
+        return f'<figure>{caption}<video src="{src}" controls muted playsinline preload="auto"></video></figure>'
+    return f'<figure>{caption}<p class="no-video">No video rendered for this episode. {hint}</p></figure>'
+
+
+def pair_page(
+    row: Mapping[str, Any],
+    reference: EpisodeRecord,
+    conflict: EpisodeRecord,
+    case: ConflictCase | None,
+    metrics: Sequence,
+    videos: Mapping[str, Mapping[str, Any]],
+    neighbours: tuple[str | None, str | None],
+    hint: str,
+) -> str:
+    """One pair: texts, the two rollouts as videos, paths, distances, actions and measures."""
+    previous, following = neighbours
+    nav = ['<a href="../index.html">All pairs</a>']
+    nav += [f'<a href="{escape(previous)}.html">&larr; previous</a>'] if previous else []
+    nav += [f'<a href="{escape(following)}.html">next &rarr;</a>'] if following else []
+    premise = escape(case.premise) if case and case.premise else '<span class="undefined">not given</span>'
+    witness = (
+        "<details><summary>machine-checkable form</summary>"
+        f"<pre>{escape(json.dumps(dict(case.witness), indent=2, default=str))}</pre></details>"
+        if case
+        else '<span class="undefined">the case is not in the suite file read</span>'
+    )
+    texts = [
+        ("Original instruction", escape(reference.instruction)),
+        ("Conflict instruction", f"<strong>{escape(conflict.instruction)}</strong>"),
+        ("Why its premise fails", premise),
+        ("Witness", witness),
+        ("Text the policy received", f"<pre>{escape(conflict.prompt_text or conflict.instruction)}</pre>"),
+        (
+            "Base task",
+            escape(
+                f"{conflict.suite} task {conflict.task_id}, initial state {conflict.init_state}, seed {conflict.seed}"
+            ),
+        ),  # fmt: skip
+        ("Case", escape(conflict.case_id or "")),
+        ("Episodes", escape(f"reference {reference.episode_id}, conflict {conflict.episode_id}")),
+    ]
+    words = [replay_words(videos.get(r.episode_id)) for r in (reference, conflict)]
+    replay = "".join(
+        f'<p class="replay{" warning" if warning else ""}">{escape(kind)}: {escape(text)}</p>'
+        for kind, (text, warning) in zip(("Reference", "Conflict"), words, strict=True)
+        if text
+    )
+    both = (
+        '<p><button id="play-both" type="button">Play both from the start</button></p>'
+        if all(videos.get(r.episode_id) and not videos[r.episode_id].get("error") for r in (reference, conflict))
+        else ""
+    )
+    measures = "".join(
+        f"<tr><td>{escape(m.label or m.name)}</td><td class='num'>{format_value(row.get(m.name), m)}</td>"
+        f"<td>{escape(m.description)}</td></tr>"
+        for m in metrics
+    )
+    data = {
+        "reference": episode_data(reference),
+        "conflict": episode_data(conflict),
+        "target_names": list(reference.target_names),
+    }
+    title = f"{row['model']} · {row['family']} {row['level']} · {row['prompt']}"
+    body = f"""<nav>{" ".join(nav)}</nav>
+<h1>{escape(title)} {_outcome(row["outcome"])}</h1>
+<dl class="texts">{"".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in texts)}</dl>
+<h2>Rollouts</h2>
+<div class="videos">{_video("reference", reference, videos.get(reference.episode_id), hint)}
+{_video("conflict", conflict, videos.get(conflict.episode_id), hint)}</div>
+{both}{replay}
+<h2>Paths</h2>
+<div class="plots"><div id="plot-top"></div><div id="plot-side"></div><div id="plot-distance"></div></div>
+<h2>Actions sent to the environment</h2>
+<div class="plots" id="plot-actions"></div>
+<h2>Measures of this pair</h2>
+<table><thead><tr><th>measure</th><th>value</th><th>what it measures</th></tr></thead><tbody>{measures}</tbody></table>
+<script type="application/json" id="pair-data">{script_json(data)}</script>"""
+    return _page(title, body, "../")
+
+
+def index_page(rows: Sequence[Mapping[str, Any]], metrics: Sequence, source: str, videos: set[str]) -> str:
+    """Every pair in one table, filtered in the page by model, family, level, prompt and outcome."""
+    options = {name: sorted({str(r[name]) for r in rows}) for name in FILTERS}
+    options["outcome"] = [o for o in OUTCOMES.values() if o in options["outcome"]]  # in the order of OUTCOMES
+    filters = "".join(
+        f'<label>{name}<select name="{name}"><option value="">all</option>'
+        + "".join(f'<option value="{escape(v, quote=True)}">{escape(v)}</option>' for v in values)
+        + "</select></label>"
+        for name, values in options.items()
+    )
+    head = "".join(f"<th>{escape(h)}</th>" for h in ("model", "family", "level", "prompt", "conflict instruction",
+                                                       "outcome"))  # fmt: skip
+    head += "".join(f"<th>{escape(m.label or m.name)}</th>" for m in metrics) + "<th>video</th>"
+    body_rows = []
+    for r in rows:
+        attrs = " ".join(f'data-{name}="{escape(str(r[name]), quote=True)}"' for name in FILTERS)
+        page = f"pairs/{escape(r['conflict_episode'])}.html"
+        cells = [escape(str(r[k])) for k in ("model", "family", "level", "prompt")]
+        cells.append(f'<a href="{page}">{escape(r["instruction"])}</a>')
+        cells.append(_outcome(r["outcome"]))
+        tds = "".join(f"<td>{c}</td>" for c in cells)
+        tds += "".join(f"<td class='num'>{format_value(r.get(m.name), m)}</td>" for m in metrics)
+        tds += f"<td>{'yes' if r['conflict_episode'] in videos else ''}</td>"
+        body_rows.append(f"<tr {attrs}>{tds}</tr>")
+    body = f"""<h1>conflictbench: {len(rows)} pairs</h1>
+<p>From the episode store <code>{escape(source)}</code>. Each pair is a conflict rollout and the reference
+rollout by the same policy, base task, initial state, prompt condition and seed.</p>
+<form id="filters">{filters}</form>
+<p id="count">{len(rows)} pairs</p>
+<table id="pairs"><thead><tr>{head}</tr></thead><tbody>
+{chr(10).join(body_rows)}
+</tbody></table>"""
+    return _page("conflictbench pairs", body, "")

@@ -1,0 +1,158 @@
+"""The viewer on real LIBERO episodes: videos by replay retrace the stored paths, and the pages work in Chromium."""
+
+import math
+import os
+import shutil
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from testing_support import conflict_spec, reference_spec
+
+from conflictbench import BUILTIN_PLUGINS, hookimpl
+from conflictbench.core import LIBERO_SUITES
+from conflictbench.core.plugins import Plugins
+from conflictbench.sim.runner import Runner
+from conflictbench.store import EpisodeStore
+from conflictbench.tasks.suite.file import load_suite
+from conflictbench.view import Selection, build_site
+from conflictbench.view.build import FRAME_EVERY, video_meta
+
+STEPS = 16
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMIUM_ARGS = (  # headless as root, and no calls home (this machine's network is closed)
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+)
+
+
+@dataclass
+class MoverConfig:
+    pass
+
+
+class Mover:
+    """Sweeps the arm along a fixed curve (so a path has something to retrace); looks at images or not."""
+
+    needs_images = False
+    max_steps = {suite: STEPS for suite in LIBERO_SUITES}
+
+    def __init__(self, cfg):
+        pass
+
+    def reset(self, instruction):
+        pass
+
+    def act(self, obs):
+        if self.needs_images:
+            assert obs.agentview_image.shape == (256, 256, 3)
+        t = obs.step
+        return np.array([0.5 * math.sin(t / 3), 0.5 * math.cos(t / 4), 0.3, 0.0, 0.0, 0.1, -1.0])
+
+
+class CameraMover(Mover):
+    needs_images = True
+
+
+class Plugin:
+    @hookimpl
+    def conflictbench_register_policies(self, register):
+        register("mover", load=Mover, config=MoverConfig)
+        register("camera-mover", load=CameraMover, config=MoverConfig)
+
+
+def _played(root, policy: str) -> tuple[Plugins, EpisodeStore]:
+    plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
+    spec = plugins.policy(policy)
+    goal3 = [c for c in load_suite().cases if (c.suite, c.task_id) == ("libero_goal", 3)]
+    cases = [next(c for c in goal3 if c.family == family) for family in ("grounding", "physical")]
+    store = EpisodeStore(root)
+    plan = [reference_spec("libero_goal", 3), *(conflict_spec(c) for c in cases)]
+    result = Runner(plugins, spec, spec.make_config(), store=store, progress=False).run(plan)
+    assert result.played == 3 and result.errors == 0
+    return plugins, store
+
+
+@pytest.fixture(scope="module", params=["mover", "camera-mover"])
+def site(request, tmp_path_factory):
+    root = tmp_path_factory.mktemp(request.param)
+    plugins, store = _played(root / "results", request.param)
+    built = build_site(store.root, root / "site", plugins, Selection(), videos=None, progress=False)
+    return plugins, store, built
+
+
+@pytest.mark.sim
+def test_each_replay_retraces_the_stored_path_and_makes_a_playable_video(site):
+    import av
+
+    _, store, built = site
+    assert (built.pairs, built.rendered, built.failed) == (2, 3, 0)
+    for record in store.records():
+        meta = video_meta(built.out, record.episode_id)
+        assert meta["deviation_m"] == 0.0 and meta["steps"] == STEPS and not meta["warmup_assumed"]
+        with av.open(str(built.out / "videos" / f"{record.episode_id}.mp4")) as video:
+            frames = list(video.decode(video=0))
+        assert len(frames) == STEPS // FRAME_EVERY + 1
+        assert (frames[0].width, frames[0].height) == (256, 256)
+        assert frames[0].to_ndarray(format="rgb24").std() > 10  # a picture of the scene, not a blank frame
+    page = next((built.out / "pairs").iterdir()).read_text()
+    assert page.count("equals the stored one") == 2 and "warning" not in page
+
+
+@pytest.mark.sim
+def test_a_replay_that_leaves_the_stored_path_says_so_and_only_changed_episodes_render_again(site, tmp_path):
+    plugins, store, built = site
+    store = EpisodeStore(shutil.copytree(store.root, tmp_path / "results"))  # the other tests' store stays as played
+    conflict = next(r for r in store.records() if r.case_id)
+    conflict.actions = conflict.actions.copy()
+    conflict.actions[4, 0] = -conflict.actions[4, 0] + 0.5  # as if the stored actions were not the ones played
+    store.write(conflict)
+    site_copy = tmp_path / "site"
+    shutil.copytree(built.out, site_copy)
+    again = build_site(store.root, site_copy, plugins, Selection(), videos=None, progress=False)
+    assert again.rendered == 1  # the two others' videos still show their episodes
+    meta = video_meta(site_copy, conflict.episode_id)
+    assert meta["deviation_m"] > 1e-4
+    page = (site_copy / "pairs" / f"{conflict.episode_id}.html").read_text()
+    assert 'class="replay warning"' in page and "may not show what happened" in page
+
+
+@pytest.mark.sim
+def test_the_pages_load_plot_filter_and_play_in_chromium(site):
+    if not CHROMIUM:
+        if os.environ.get("CI"):
+            pytest.fail("CI needs Chromium for the viewer's browser test (scripts/setup.sh installs it)")
+        pytest.skip("no Chromium here (Debian: apt-get install chromium)")
+    from playwright.sync_api import sync_playwright
+
+    _, store, built = site
+    problems: list[str] = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=list(CHROMIUM_ARGS))
+        page = browser.new_page()
+        page.on("console", lambda m: problems.append(m.text) if m.type in ("error", "warning") else None)
+        page.on("pageerror", lambda e: problems.append(str(e)))
+        page.goto((built.out / "index.html").as_uri())
+        assert page.inner_text("#count") == "2 of 2 pairs shown"
+        page.select_option("select[name=family]", "physical")
+        assert page.inner_text("#count") == "1 of 2 pairs shown"
+        assert page.locator("#pairs tbody tr:visible").count() == 1
+
+        page.locator("#pairs tbody tr:visible a").click()
+        page.wait_for_selector("#plot-actions svg")
+        assert page.locator("svg.plot").count() == 3 + 7
+        assert page.locator("#plot-top path.series").count() == 2  # reference and conflict
+        played = page.evaluate(
+            """async () => {
+                const videos = [...document.querySelectorAll('video')];
+                document.getElementById('play-both').click();
+                await new Promise((done) => setTimeout(done, 600));
+                return videos.map((v) => [v.currentTime, v.videoWidth, v.error === null]);
+            }"""
+        )
+        browser.close()
+    assert len(played) == 2 and all(t > 0.1 and width == 256 and ok for t, width, ok in played), played
+    assert not problems, problems

@@ -1,0 +1,169 @@
+"""The viewer's pages from a store (no simulator: ``--videos 0``); replays and a real browser: test_view_replay.py."""
+
+import json
+import re
+from html.parser import HTMLParser
+
+import numpy as np
+import pytest
+
+from conflictbench.cli import main
+from conflictbench.core import EpisodeRecord, UserError
+from conflictbench.metrics import evaluate_pairs
+from conflictbench.store import EpisodeStore
+from conflictbench.tasks.suite.file import load_suite
+from conflictbench.view import Selection, build_site
+from conflictbench.view.build import episode_digest
+from conflictbench.view.pairs import OUTCOMES, target_distance
+from conflictbench.view.site import replay_words, script_json
+
+SHIPPED = load_suite().cases
+
+
+def episode(eid: str, *, case=None, success=True, h=6, seed=0, policy="noop", **kw) -> EpisodeRecord:
+    rng = np.random.default_rng(seed)
+    return EpisodeRecord(
+        policy=policy,
+        suite=case.suite if case else "libero_goal",
+        task_id=case.task_id if case else 3,
+        init_state=0,
+        prompt=kw.pop("prompt", "p0"),
+        instruction=case.instruction if case else "open the top drawer and put the bowl inside",
+        case_id=case.case_id if case else None,
+        family=case.family if case else None,
+        level=case.level if case else None,
+        episode_id=eid,
+        success=success,
+        steps=h,
+        eef_pos=rng.normal(scale=0.1, size=(h + 1, 3)),
+        target_pos=rng.normal(scale=0.1, size=(h + 1, 2, 3)),
+        target_names=("akita_black_bowl_1", "wooden_cabinet_1_top_region"),
+        actions=rng.normal(size=(h, 7)),
+        raw_actions=rng.normal(size=(h, 7)),
+        config_hash="c1",
+        **kw,
+    )
+
+
+class Tags(HTMLParser):
+    def __init__(self, text: str):
+        super().__init__()
+        self.tags: list[tuple[str, dict]] = []
+        self.feed(text)
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append((tag, dict(attrs)))
+
+
+@pytest.fixture
+def store(tmp_path):
+    goal3 = [c for c in SHIPPED if (c.suite, c.task_id) == ("libero_goal", 3)]
+    grounding = next(c for c in goal3 if c.family == "grounding")
+    physical = next(c for c in goal3 if c.family == "physical")
+    store = EpisodeStore(tmp_path / "results")
+    store.write(episode("ref", seed=1))
+    store.write(episode("c-ground", case=grounding, success=False, seed=2))
+    store.write(episode("c-phys", case=physical, success=True, seed=3))
+    store.write(episode("c-orphan", case=physical, prompt="p1", seed=4))  # no reference: not a pair
+    return store, {"c-ground": grounding, "c-phys": physical}
+
+
+def test_one_page_per_pair_with_its_texts_measures_and_plot_data(store, plugins, tmp_path):
+    store, cases = store
+    built = build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    assert (built.pairs, built.rendered) == (2, 0)
+    assert sorted(p.name for p in (tmp_path / "site" / "pairs").iterdir()) == ["c-ground.html", "c-phys.html"]
+
+    records = {r.episode_id: r for r in store.records()}
+    ref, con = records["ref"], records["c-ground"]
+    page = (tmp_path / "site" / "pairs" / "c-ground.html").read_text()
+    case = cases["c-ground"]
+    for text in (ref.instruction, con.instruction, case.premise, case.case_id, "qualified failure"):
+        assert text.replace("'", "&#x27;") in page
+    assert "No video rendered" in page and "<video" not in page  # --videos 0
+
+    data = json.loads(re.search(r'<script type="application/json" id="pair-data">(.*?)</script>', page, re.S)[1])
+    np.testing.assert_allclose(data["conflict"]["eef"], con.eef_pos, atol=5e-5)
+    np.testing.assert_allclose(data["reference"]["actions"], ref.actions, atol=5e-4)
+    np.testing.assert_allclose(data["conflict"]["distance"], target_distance(con), atol=5e-5)
+    assert data["target_names"] == list(ref.target_names)
+
+    frame = evaluate_pairs([ref], [con], plugins=plugins)
+    tar = frame["tar"].iloc[0]
+    shown = re.search(r"<td>TAR</td><td class='num'>(.*?)</td>", page)[1]
+    assert shown == ('<span class="undefined">undefined</span>' if np.isnan(tar) else f"{100 * tar:.1f} %")
+
+
+def test_d_t_is_the_distance_to_the_nearest_target_at_each_state():
+    record = episode("e", h=1)
+    record.eef_pos = np.array([[0.0, 0, 0], [1, 1, 0]])
+    record.target_pos = np.array([[[3.0, 4, 0], [0, 0, 2]], [[1, 1, 1], [9, 9, 9]]])
+    np.testing.assert_allclose(target_distance(record), [2.0, 1.0])
+
+
+def test_the_index_filters_by_model_family_level_prompt_and_outcome(store, plugins, tmp_path):
+    store, cases = store
+    build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    index = (tmp_path / "site" / "index.html").read_text()
+    rows = [attrs for tag, attrs in Tags(index).tags if tag == "tr" and "data-family" in attrs]
+    assert sorted((r["data-family"], r["data-outcome"]) for r in rows) == [
+        ("grounding", OUTCOMES[(True, False)]),
+        ("physical", OUTCOMES[(True, True)]),
+    ]
+    selects = {attrs["name"] for tag, attrs in Tags(index).tags if tag == "select"}
+    assert selects == {"model", "family", "level", "prompt", "outcome"}
+    assert all(r["data-model"] == "noop" and r["data-prompt"] == "p0" for r in rows)
+
+    only = build_site(store.root, tmp_path / "only", plugins, Selection(family={"physical"}), videos=0, progress=False)
+    assert only.pairs == 1 and [p.name for p in (tmp_path / "only" / "pairs").iterdir()] == ["c-phys.html"]
+
+
+def test_filters_naming_nothing_are_refused_with_what_there_is(store, plugins, tmp_path):
+    store, _ = store
+    with pytest.raises(UserError, match=r"no pairs with family spatial.*there are: grounding, physical"):
+        build_site(store.root, tmp_path / "site", plugins, Selection(family={"spatial"}), videos=0, progress=False)
+    with pytest.raises(UserError, match="no pair matches"):
+        selection = Selection(family={"grounding"}, outcome={OUTCOMES[(True, True)]})
+        build_site(store.root, tmp_path / "site", plugins, selection, videos=0, progress=False)
+    assert not (tmp_path / "site").exists()  # nothing written for a refused command
+
+
+def test_the_command_names_mistakes_in_one_line(store, tmp_path, capsys):
+    store, _ = store
+    assert main(["view", str(tmp_path / "missing")]) == 2
+    assert main(["view", str(store.root), "--videos", "some"]) == 2
+    assert main(["view", str(store.root), "--level", "L9", "--videos", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and all(line.startswith("conflictbench: error:") for line in err)
+    assert "L9" in err[2] and "Traceback" not in "".join(err)
+    assert main(["view", str(store.root), "--videos", "0", "--no-progress"]) == 0
+    assert "2 pair pages" in capsys.readouterr().out and (store.root / "view" / "index.html").is_file()
+
+
+def test_a_store_without_pairs_is_refused(tmp_path, plugins):
+    store = EpisodeStore(tmp_path / "r")
+    store.write(episode("ref"))
+    with pytest.raises(UserError, match="no pairs"):
+        build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+
+
+def test_the_page_says_whether_a_replay_retraced_the_stored_path():
+    same, warning = replay_words({"deviation_m": 0.0})
+    assert "equals the stored one" in same and not warning
+    text, warning = replay_words({"deviation_m": 0.003})
+    assert warning and "3.00 mm" in text
+    assert replay_words({"deviation_m": float("inf")})[1] and replay_words({"error": "EGLError"})[1]
+    assert replay_words(None) == ("", False)
+
+
+def test_json_in_a_page_cannot_end_its_script_element():
+    text = script_json({"instruction": "</script><b>x"})
+    assert "</" not in text and json.loads(text) == {"instruction": "</script><b>x"}
+
+
+def test_a_video_is_tied_to_the_episode_it_shows():
+    a, b = episode("e", seed=1), episode("e", seed=1)
+    assert episode_digest(a) == episode_digest(b)
+    b.actions = b.actions.copy()
+    b.actions[2, 0] += 1e-12  # the same episode id played again with other actions: its old video is stale
+    assert episode_digest(a) != episode_digest(b)
