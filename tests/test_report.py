@@ -221,13 +221,27 @@ def test_pairs_whose_reference_did_not_approach_leave_tar_undefined_and_are_coun
     stream = io.StringIO()
     result = report_records(records, plugins, stream=stream)  # the reference stood at 0.5: A+ = 0
     assert result["pairs"]["tar"].isna().all() and result["pairs"]["ts"].notna().all()
-    assert "TAR is undefined for 1 of 1 pairs: their reference approached its targets by less than 1 cm" in (
+    assert "TAR is undefined for 1 of 1 pairs: 1 whose reference approached its targets by less than 1 cm" in (
         stream.getvalue()
     )
     report_records(records, plugins, stream=io.StringIO(), out_dir=tmp_path, figures=False)
     written = (tmp_path / "report.md").read_text()
     assert "TAR is undefined for 1 of 1 pairs" in written and "### Legend" in written and "  RGSR  " in written
     assert "TAR is undefined" not in _report_text(two_models(), plugins)
+
+
+def test_the_two_causes_of_an_undefined_tar_are_counted_apart(plugins):
+    still = episode("gamma", "c1", 0.5, 0.1, False, "grounding", "L1")  # its reference stood still: A+ = 0
+    other = episode("gamma", "c2", 0.3, 0.1, False, "grounding", "L1", init=1)
+    other.target_names = ("ketchup_1",)  # the conflict rollout was scored against another object
+    records = [episode("gamma", None, 0.5, 0.2, False), still, episode("gamma", None, 0.1, 0.2, True, init=1), other]
+    stream = io.StringIO()
+    result = report_records(records, plugins, stream=stream)
+    assert result["pairs"]["tar"].isna().all() and list(result["pairs"]["same_targets"]) == [True, False]
+    assert (
+        "TAR is undefined for 2 of 2 pairs: 1 whose reference approached its targets by less than 1 cm (a ratio to "
+        "that is noise); 1 whose two rollouts have other targets"
+    ) in stream.getvalue()
 
 
 def test_the_tables_come_with_a_legend_of_every_column(plugins):

@@ -270,7 +270,8 @@ def evaluate_pairs(
     """One row per aligned (reference, conflict) pair: the pair's keys, both outcomes, every metric.
 
     Columns: :data:`KEY_COLUMNS` (from the conflict episode), ``reference_success``,
-    ``conflict_success``, ``reference_episode``, ``conflict_episode``, then every registered
+    ``conflict_success``, ``reference_episode``, ``conflict_episode``, ``same_targets`` (both rollouts
+    have the same target set: where not, TAR is undefined), then every registered
     metric (or only ``metrics``) in :func:`metric_specs`' order, as float64 with NaN where a
     measure is undefined. The inputs may be generators: they are consumed in
     chunks of ``chunk_size`` pairs, so only per-pair scalars are held.
@@ -283,6 +284,9 @@ def evaluate_pairs(
         columns["conflict_success"] = np.fromiter((bool(c.success) for c in cons), dtype=bool, count=len(cons))
         columns["reference_episode"] = [r.episode_id for r in refs]
         columns["conflict_episode"] = [c.episode_id for c in cons]
+        columns["same_targets"] = np.fromiter(
+            (set(r.target_names) == set(c.target_names) for r, c in zip(refs, cons)), dtype=bool, count=len(refs)
+        )
         for spec in specs:
             columns[spec.name] = _column(spec, refs, cons, failed)
         frames.append(pd.DataFrame(columns))
@@ -294,6 +298,7 @@ def evaluate_pairs(
                 "conflict_success": pd.Series([], dtype=bool),
                 "reference_episode": pd.Series([], dtype=object),
                 "conflict_episode": pd.Series([], dtype=object),
+                "same_targets": pd.Series([], dtype=bool),
             }
         )
         empty.update({s.name: pd.Series([], dtype=np.float64) for s in specs})

@@ -295,10 +295,14 @@ def legend(metrics) -> str:
 
 
 def tar_undefined_line(frame: pd.DataFrame, names: Sequence[str]) -> str | None:
-    """How many pairs TAR leaves undefined, where any are (None otherwise)."""
+    """How many pairs TAR leaves undefined, where any are, by cause (None otherwise)."""
     if "tar" not in names or not len(frame) or not (undefined := int(frame["tar"].isna().sum())):
         return None
-    return (
-        f"TAR is undefined for {undefined} of {len(frame)} pairs: their reference approached its targets by less "
-        "than 1 cm (a ratio to that is noise), or the two rollouts have no targets in common"
-    )
+    same = frame["same_targets"].astype(bool) if "same_targets" in frame.columns else pd.Series(True, frame.index)
+    other_targets = int((frame["tar"].isna() & ~same).sum())
+    causes = [
+        *([f"{undefined - other_targets} whose reference approached its targets by less than 1 cm (a ratio to that "
+           "is noise)"] if undefined - other_targets else []),
+        *([f"{other_targets} whose two rollouts have other targets"] if other_targets else []),
+    ]  # fmt: skip
+    return f"TAR is undefined for {undefined} of {len(frame)} pairs: " + "; ".join(causes)
