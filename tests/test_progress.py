@@ -42,6 +42,18 @@ def test_a_log_gets_plain_lines_and_the_last_state_on_close():
     assert log.getvalue().strip().startswith("noop: 2/2 episodes")
 
 
+def test_a_log_line_is_not_repeated_on_close_when_nothing_changed(monkeypatch):
+    now = [0.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
+    log = io.StringIO()
+    bar = RunProgress(2, "noop", enabled=True, stream=log)
+    now[0] = progress.LOG_EVERY_S + 1
+    bar.update(2)  # the periodic line already says 2/2
+    now[0] += 4
+    bar.close()
+    assert [line.split(" | ")[0] for line in log.getvalue().splitlines()] == ["noop: 2/2 episodes"]
+
+
 def test_a_terminal_gets_a_rich_line_refreshed_in_place():
     terminal = Terminal()
     bar = RunProgress(4, "pi0", enabled=True, stream=terminal)

@@ -317,8 +317,8 @@ def hydra_argv(argv: Sequence[str]) -> list[str]:
 
 
 #: The folders our config has Hydra make under ``<run.out>/hydra/``: a run's, a sweep's and a sweep job's.
-RUN_FOLDER = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}")
-SWEEP_FOLDER = re.compile(r"multirun_\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}")
+RUN_FOLDER = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}(-\d{6})?")  # (older versions: to the second)
+SWEEP_FOLDER = re.compile(r"multirun_" + RUN_FOLDER.pattern)
 
 
 def remove_hydra_output(folder: Path, out: Path, job_name: str = "conflictbench") -> None:

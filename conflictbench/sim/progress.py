@@ -24,6 +24,7 @@ class RunProgress:
         self.note = ""
         self.started = time.monotonic()
         self._last_log = self.started
+        self._logged: tuple | None = None
         self._live = None
         if self.enabled and getattr(self.stream, "isatty", lambda: False)():
             self._start_live()
@@ -44,7 +45,7 @@ class RunProgress:
             self._refresh()
             self._live.stop()
             self._live = None
-        elif self.enabled:
+        elif self.enabled and self._logged != (self.done, dict(self.counts)):  # not what the last log line said
             print(self.line(), file=self.stream, flush=True)
         self.enabled = False
 
@@ -92,6 +93,7 @@ class RunProgress:
             self._live.update(self._renderable())
         elif self.enabled and time.monotonic() - self._last_log >= LOG_EVERY_S:
             self._last_log = time.monotonic()
+            self._logged = (self.done, dict(self.counts))
             print(self.line(), file=self.stream, flush=True)
 
 
