@@ -1,8 +1,10 @@
 """The viewer on real LIBERO episodes: videos by replay retrace the stored paths, and the pages work in Chromium."""
 
 import math
+import multiprocessing
 import os
 import shutil
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,11 +14,12 @@ from testing_support import conflict_spec, reference_spec
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES
 from conflictbench.core.plugins import Plugins
+from conflictbench.sim.replay import ReplayJob, replay_all
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.suite.file import load_suite
 from conflictbench.view import Selection, build_site
-from conflictbench.view.build import FRAME_EVERY, video_meta
+from conflictbench.view.videos import FRAME_EVERY, video_meta
 
 STEPS = 16
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -156,3 +159,51 @@ def test_the_pages_load_plot_filter_and_play_in_chromium(site):
         browser.close()
     assert len(played) == 2 and all(t > 0.1 and width == 256 and ok for t, width, ok in played), played
     assert not problems, problems
+
+
+class SlowSink:
+    """Takes half a second per frame and keeps nothing: a replay long enough to be caught under way."""
+
+    def open(self):
+        pass
+
+    def add(self, frame):
+        time.sleep(0.5)
+
+    def close(self):
+        return 0
+
+    def abort(self):
+        pass
+
+
+@pytest.mark.sim
+def test_leaving_the_replays_early_ends_their_processes_at_once(site):
+    """What Ctrl-C in `conflictbench view` does (the generator is closed): no waiting for replays under way."""
+    _, store, _ = site
+    jobs = [
+        ReplayJob(
+            r.episode_id, r.suite, r.task_id, r.init_state, r.seed, r.warmup_steps, r.actions, r.eef_pos, SlowSink()
+        )  # fmt: skip
+        for r in store.records()
+    ]
+    replays = replay_all(jobs, workers=1)
+    first = next(replays)  # then the second replay is under way (17 frames: about 8 s)
+    assert first.error is None and first.deviation_m == 0.0
+    children = multiprocessing.active_children()
+    assert children
+    started = time.monotonic()
+    replays.close()
+    assert time.monotonic() - started < 3
+    assert not any(child.is_alive() for child in children)
+
+
+@pytest.mark.sim
+def test_a_pair_named_gets_its_videos_without_narrowing_the_site(site, tmp_path):
+    plugins, store, built = site
+    index = (built.out / "index.html").read_text()
+    second = index.split('href="pairs/')[2].split(".html")[0]
+    again = build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, video_pairs={second},
+                       progress=False)  # fmt: skip
+    assert (again.pairs, again.rendered) == (2, 2)  # the pair's conflict episode and its reference
+    assert (tmp_path / "site" / "pairs" / f"{second}.html").read_text().count("<video") == 2

@@ -13,9 +13,9 @@ from conflictbench.metrics import evaluate_pairs
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.suite.file import load_suite
 from conflictbench.view import Selection, build_site
-from conflictbench.view.build import episode_digest
 from conflictbench.view.pairs import OUTCOMES, target_distance
 from conflictbench.view.site import replay_words, script_json
+from conflictbench.view.videos import FRAME_EVERY, episode_digest
 
 SHIPPED = load_suite().cases
 
@@ -62,22 +62,23 @@ def store(tmp_path):
     physical = next(c for c in goal3 if c.family == "physical")
     store = EpisodeStore(tmp_path / "results")
     store.write(episode("ref", seed=1))
-    store.write(episode("c-ground", case=grounding, success=False, seed=2))
+    # ids that list physical first: the index's order (the paper's: grounding before physical) is another
     store.write(episode("c-phys", case=physical, success=True, seed=3))
+    store.write(episode("d-ground", case=grounding, success=False, seed=2))
     store.write(episode("c-orphan", case=physical, prompt="p1", seed=4))  # no reference: not a pair
-    return store, {"c-ground": grounding, "c-phys": physical}
+    return store, {"d-ground": grounding, "c-phys": physical}
 
 
 def test_one_page_per_pair_with_its_texts_measures_and_plot_data(store, plugins, tmp_path):
     store, cases = store
     built = build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
     assert (built.pairs, built.rendered) == (2, 0)
-    assert sorted(p.name for p in (tmp_path / "site" / "pairs").iterdir()) == ["c-ground.html", "c-phys.html"]
+    assert sorted(p.name for p in (tmp_path / "site" / "pairs").iterdir()) == ["c-phys.html", "d-ground.html"]
 
     records = {r.episode_id: r for r in store.records()}
-    ref, con = records["ref"], records["c-ground"]
-    page = (tmp_path / "site" / "pairs" / "c-ground.html").read_text()
-    case = cases["c-ground"]
+    ref, con = records["ref"], records["d-ground"]
+    page = (tmp_path / "site" / "pairs" / "d-ground.html").read_text()
+    case = cases["d-ground"]
     for text in (ref.instruction, con.instruction, case.premise, case.case_id, "qualified failure"):
         assert text.replace("'", "&#x27;") in page
     assert "No video rendered" in page and "<video" not in page  # --videos 0
@@ -88,10 +89,39 @@ def test_one_page_per_pair_with_its_texts_measures_and_plot_data(store, plugins,
     np.testing.assert_allclose(data["conflict"]["distance"], target_distance(con), atol=5e-5)
     assert data["target_names"] == list(ref.target_names)
 
-    frame = evaluate_pairs([ref], [con], plugins=plugins)
-    tar = frame["tar"].iloc[0]
-    shown = re.search(r"<td>TAR</td><td class='num'>(.*?)</td>", page)[1]
-    assert shown == ('<span class="undefined">undefined</span>' if np.isnan(tar) else f"{100 * tar:.1f} %")
+    assert shown_measures(page) == expected_measures(ref, con, plugins)
+
+
+def shown_measures(page: str) -> dict[str, str]:
+    return dict(re.findall(r"<tr><td>([^<]+)</td><td class='num'>(.*?)</td>", page))
+
+
+def expected_measures(reference, conflict, plugins) -> dict[str, str]:
+    row = evaluate_pairs([reference], [conflict], plugins=plugins).iloc[0]
+    labels = {"tar": "TAR", "early20_ts": "Early20 TS", "ts": "TS", "ams": "AMS"}
+    return {
+        label: '<span class="undefined">undefined</span>' if np.isnan(row[name]) else f"{100 * row[name]:.1f} %"
+        for name, label in labels.items()
+    }
+
+
+def test_each_page_and_index_row_belongs_to_its_own_pair(store, plugins, tmp_path):
+    store, cases = store
+    build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    records = {r.episode_id: r for r in store.records()}
+    index = (tmp_path / "site" / "index.html").read_text()
+    links = re.findall(r'href="pairs/([^"]+)\.html"', index)
+    assert links == ["d-ground", "c-phys"]  # the paper's order, not the store's
+    rows = re.findall(r"<tr data-model.*?</tr>", index, re.S)
+    for name, row in zip(links, rows, strict=True):
+        conflict = records[name]
+        expected = expected_measures(records["ref"], conflict, plugins)
+        page = (tmp_path / "site" / "pairs" / f"{name}.html").read_text()
+        assert f"noop · {conflict.family} {conflict.level} · p0" in page and cases[name].case_id in page
+        assert shown_measures(page) == expected
+        assert re.findall(r"<td class='num'>(.*?)</td>", row) == list(expected.values())
+        assert f'data-family="{conflict.family}"' in row
+    assert len({str(expected_measures(records["ref"], records[n], plugins)) for n in links}) == 2
 
 
 def test_d_t_is_the_distance_to_the_nearest_target_at_each_state():
@@ -114,8 +144,9 @@ def test_the_index_filters_by_model_family_level_prompt_and_outcome(store, plugi
     assert selects == {"model", "family", "level", "prompt", "outcome"}
     assert all(r["data-model"] == "noop" and r["data-prompt"] == "p0" for r in rows)
 
-    only = build_site(store.root, tmp_path / "only", plugins, Selection(family={"physical"}), videos=0, progress=False)
-    assert only.pairs == 1 and [p.name for p in (tmp_path / "only" / "pairs").iterdir()] == ["c-phys.html"]
+    only = build_site(store.root, tmp_path / "site", plugins, Selection(family={"physical"}), videos=0, progress=False)
+    assert only.pairs == 1  # into the same folder: the page of the pair it no longer shows goes
+    assert [p.name for p in (tmp_path / "site" / "pairs").iterdir()] == ["c-phys.html"]
 
 
 def test_filters_naming_nothing_are_refused_with_what_there_is(store, plugins, tmp_path):
@@ -138,6 +169,60 @@ def test_the_command_names_mistakes_in_one_line(store, tmp_path, capsys):
     assert "L9" in err[2] and "Traceback" not in "".join(err)
     assert main(["view", str(store.root), "--videos", "0", "--no-progress"]) == 0
     assert "2 pair pages" in capsys.readouterr().out and (store.root / "view" / "index.html").is_file()
+
+
+def test_a_folder_the_site_cannot_go_to_is_named_in_one_line(store, tmp_path, capsys):
+    store, _ = store
+    (tmp_path / "a-file").write_text("")
+    assert main(["view", str(store.root), "--videos", "0", "--out", str(tmp_path / "a-file")]) == 2
+    assert main(["view", str(store.root), "--videos", "0", "--out", "/proc/no-site-here"]) == 2
+    assert main(["view", str(store.root), "--videos", "0", "--pair", "nope"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert all(line.startswith("conflictbench: error:") for line in err) and len(err) == 3
+    assert "it is a file" in err[0] and "/proc/no-site-here" in err[1] and "--pair nope" in err[2]
+
+
+def test_a_video_shows_where_its_note_names_the_episode_as_stored_and_its_replay_worked(store, plugins, tmp_path):
+    """Videos from an earlier build: shown on every page they belong to (not only the first N pairs'), never when
+    the episode changed since, never when the replay failed."""
+    store, _ = store
+    site = tmp_path / "site"
+    records = {r.episode_id: r for r in store.records()}
+
+    def note(eid, **extra):
+        meta = {"episode": episode_digest(records[eid]), "frame_every": FRAME_EVERY, "deviation_m": 0.0, **extra}
+        (site / "videos").mkdir(parents=True, exist_ok=True)
+        (site / "videos" / f"{eid}.json").write_text(json.dumps(meta))
+        (site / "videos" / f"{eid}.mp4").write_bytes(b"video")
+
+    for eid in ("ref", "d-ground", "c-phys"):
+        note(eid)
+    build_site(store.root, site, plugins, Selection(), videos=0, progress=False)
+    assert (site / "index.html").read_text().count("<td>yes</td>") == 2
+    assert all((site / "pairs" / f"{n}.html").read_text().count("<video") == 2 for n in ("d-ground", "c-phys"))
+
+    note("c-phys", error="EGLError: could not make a context")
+    changed = records["d-ground"]
+    changed.actions = changed.actions + 1.0  # played again under the same id: the old video shows another rollout
+    store.write(changed)
+    build_site(store.root, site, plugins, Selection(), videos=0, progress=False)
+    assert (site / "index.html").read_text().count("<td>yes</td>") == 0
+    failed_page = (site / "pairs" / "c-phys.html").read_text()
+    assert "The replay failed: EGLError" in failed_page and failed_page.count("<video") == 1  # the reference's
+    assert (site / "pairs" / "d-ground.html").read_text().count("<video") == 1
+
+
+def test_a_page_without_video_says_the_command_to_render_it_escaped(tmp_path, plugins):
+    goal3 = next(c for c in SHIPPED if (c.suite, c.task_id) == ("libero_goal", 3))
+    root = tmp_path / "r<img src=x onerror=alert(1)>"
+    store = EpisodeStore(root)
+    store.write(episode("ref", seed=1))
+    store.write(episode("c1", case=goal3, seed=2))
+    build_site(root, tmp_path / "site", plugins, Selection(), videos=0, progress=False,
+               command=["conflictbench", "view", str(root), "--family", goal3.family])  # fmt: skip
+    page = (tmp_path / "site" / "pairs" / "c1.html").read_text()
+    assert "<img src=x" not in page and "&lt;img src=x onerror=alert(1)&gt;" in page
+    assert f"--family {goal3.family} --pair c1" in page
 
 
 def test_a_store_without_pairs_is_refused(tmp_path, plugins):
@@ -167,3 +252,15 @@ def test_a_video_is_tied_to_the_episode_it_shows():
     b.actions = b.actions.copy()
     b.actions[2, 0] += 1e-12  # the same episode id played again with other actions: its old video is stale
     assert episode_digest(a) != episode_digest(b)
+
+
+def test_ctrl_c_says_the_finished_videos_are_kept(store, monkeypatch, capsys):
+    store, _ = store
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("conflictbench.view.build_site", interrupted)
+    assert main(["view", str(store.root)]) == 130
+    err = capsys.readouterr().err
+    assert "every finished video is kept" in err and "episode" not in err  # not the run's message

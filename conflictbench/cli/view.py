@@ -34,7 +34,8 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--out", help="where to write the site (default: DIR/view)")
     for name in ("model", "family", "level", "prompt", "outcome"):
         parser.add_argument(f"--{name}", action="append", metavar="NAMES", help=f"only these {name}s (comma-separated)")
-    parser.add_argument("--pair", action="append", metavar="ID", help="only these pairs (their conflict episode ids)")
+    parser.add_argument("--pair", action="append", metavar="ID",
+                        help="also render videos for these pairs (conflict episode ids: a page's name)")  # fmt: skip
     parser.add_argument("--videos", default="30", metavar="N",
                         help="render videos for the first N pairs shown, or 'all' (default: 30)")  # fmt: skip
     parser.add_argument("--workers", type=int, default=2, help="replay processes (default: 2)")
@@ -50,12 +51,17 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         raise UserError("--workers must be at least 1")
     if args.suite and not Path(args.suite).is_file():
         raise UserError(f"no such suite file: {args.suite}")
-    selection = Selection(
-        **{name: _names(getattr(args, name)) for name in ("model", "family", "level", "prompt", "outcome", "pair")}
-    )
+    selection = Selection(**{name: _names(getattr(args, name)) for name in ("model", "family", "level", "prompt",
+                                                                             "outcome")})  # fmt: skip
     out = Path(args.out) if args.out else root / "view"
-    built = build_site(root, out, plugins, selection, videos=_videos(args.videos), workers=args.workers,
-                       suite_file=args.suite, progress=not args.no_progress)  # fmt: skip
+    try:
+        built = build_site(root, out, plugins, selection, videos=_videos(args.videos), video_pairs=_names(args.pair),
+                           workers=args.workers, suite_file=args.suite, progress=not args.no_progress,
+                           command=["conflictbench", "view", *argv])  # fmt: skip
+    except KeyboardInterrupt:
+        print("\nconflictbench: interrupted; every finished video is kept, and the same command goes on from them",
+              file=sys.stderr)  # fmt: skip
+        return 130
     failed = f", {built.failed} failed (see their pages)" if built.failed else ""
     print(
         f"conflictbench: {built.pairs} pair pages, {built.rendered} videos rendered{failed} in "

@@ -10,7 +10,7 @@ per process), several at once, each keeping the env of the base task it played l
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -29,6 +29,7 @@ class FrameSink(Protocol):
     def open(self) -> None: ...
     def add(self, frame: np.ndarray) -> None: ...
     def close(self) -> int: ...  # bytes written
+    def abort(self) -> None: ...  # after a failure: keep nothing
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,7 @@ def replay(job: ReplayJob) -> ReplayResult:
         written = job.sink.close()
     except Exception as exc:  # a simulator or encoder failure is this replay's, not the run's
         _env_cache.pop("key", None)
+        job.sink.abort()
         return failed(job, f"{type(exc).__name__}: {exc}", time.perf_counter() - start)
     deviation = path_deviation(np.array(path), job.eef_pos)
     return ReplayResult(job.episode_id, len(job.actions), deviation, written, time.perf_counter() - start)
@@ -144,23 +146,29 @@ def replay_all(
     *,
     workers: int = 2,
     image_size: int = 256,
-    on_done: Callable[[ReplayResult], None] | None = None,
 ) -> Iterator[ReplayResult]:
-    """Replay ``jobs`` in ``workers`` processes (grouped by base task: each env is built once per process)."""
+    """Replay ``jobs`` in ``workers`` processes, as they finish. ``jobs`` is read lazily (a few per process in
+    flight), so it can load episodes as they are needed; give it grouped by base task (an env is built once per
+    task and process). Leaving early (an error, Ctrl-C, the generator closed) ends the processes at once."""
     import multiprocessing as mp
 
-    pending = sorted(jobs, key=lambda j: j.task_key)
-    if not pending:
-        return
-    with sigint_ignored():  # replay processes are born ignoring Ctrl-C: the main process ends them
-        executor = ProcessPoolExecutor(
-            max_workers=max(1, min(workers, len(pending))),
-            mp_context=mp.get_context("spawn"),
-            initializer=_start,
-            initargs=(image_size,),
-        )
-        running = {executor.submit(replay, job): job for job in pending}
+    jobs = iter(jobs)
+    running: dict[Any, ReplayJob] = {}
+    executor: ProcessPoolExecutor | None = None
+    finished = False
+
+    def submit_more() -> None:
+        while len(running) < 2 * workers and (job := next(jobs, None)) is not None:
+            with sigint_ignored():  # a replay process is born (on a submit) ignoring Ctrl-C: we end it
+                running[executor.submit(replay, job)] = job
+
     try:
+        with sigint_ignored():
+            executor = ProcessPoolExecutor(
+                max_workers=max(1, workers), mp_context=mp.get_context("spawn"), initializer=_start,
+                initargs=(image_size,),
+            )  # fmt: skip
+        submit_more()
         while running:
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in done:
@@ -169,8 +177,14 @@ def replay_all(
                     result = future.result()
                 except Exception as exc:  # the replay process died (a crash in the GL stack, killed)
                     result = failed(job, f"the replay process ended: {type(exc).__name__}: {exc}")
-                if on_done is not None:
-                    on_done(result)
                 yield result
+            submit_more()
+        finished = True
     finally:
-        executor.shutdown(wait=False, cancel_futures=True)
+        if executor is not None:
+            processes = [] if finished else list(getattr(executor, "_processes", {}).values())
+            for process in processes:  # shutdown() alone would wait for the replays under way: end them now
+                process.terminate()
+            executor.shutdown(wait=finished, cancel_futures=True)
+            for process in processes:
+                process.join(timeout=5)

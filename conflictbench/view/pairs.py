@@ -36,8 +36,6 @@ class Selection:
     level: set[str] = field(default_factory=set)
     prompt: set[str] = field(default_factory=set)
     outcome: set[str] = field(default_factory=set)
-    pair: set[str] = field(default_factory=set)
-    """Conflict episode ids (a page's name)."""
 
     def check(self, rows: pd.DataFrame) -> None:
         """A value that names nothing in the store is the user's mistake: say what there is."""
@@ -52,8 +50,6 @@ class Selection:
         for name in FILTERS:
             if getattr(self, name):
                 keep &= rows[name].astype(str).isin(getattr(self, name))
-        if self.pair:
-            keep &= rows["conflict_episode"].isin(self.pair)
         return keep
 
 
@@ -81,8 +77,6 @@ def choose(store: EpisodeStore, selection: Selection) -> tuple[list[Pair], pd.Da
     if not pairs:
         raise UserError(f"{store.root} holds no pairs to show (a conflict episode and its reference)")
     selection.check(rows)
-    if selection.pair - set(rows["conflict_episode"]):
-        raise UserError(f"no pair named {', '.join(sorted(selection.pair - set(rows['conflict_episode'])))} here")
     keep = selection.mask(rows)
     if not keep.any():
         raise UserError("no pair matches all of the filters given")

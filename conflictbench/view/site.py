@@ -65,9 +65,10 @@ def replay_words(meta: Mapping[str, Any] | None) -> tuple[str, bool]:
     if deviation > EQUAL_PATH_M:
         return (f"The replay's end-effector path differs from the stored one by up to {1000 * deviation:.2f} mm: "
                 "this video may not show what happened.", True)  # fmt: skip
+    assumed = " (a store from before the warm-up was kept: the usual 10 no-op steps assumed)"
     return (
         "Replayed from the stored actions (same seed and initial state); its end-effector path equals the stored "
-        f"one (largest difference {1e6 * deviation:.2g} µm).",
+        f"one (largest difference {1e6 * deviation:.2g} µm){assumed if meta.get('warmup_assumed') else ''}.",
         False,
     )
 
@@ -75,9 +76,9 @@ def replay_words(meta: Mapping[str, Any] | None) -> tuple[str, bool]:
 def _video(kind: str, record: EpisodeRecord, meta: Mapping[str, Any] | None, hint: str) -> str:
     caption = f'<figcaption><span class="{kind}-mark">{kind.capitalize()}</span>: {_episode_words(record)}</figcaption>'
     if meta and not meta.get("error"):
-        src = f"../videos/{escape(record.episode_id)}.mp4"
+        src = f"../videos/{escape(record.episode_id, quote=True)}.mp4"
         return f'<figure>{caption}<video src="{src}" controls muted playsinline preload="auto"></video></figure>'
-    return f'<figure>{caption}<p class="no-video">No video rendered for this episode. {hint}</p></figure>'
+    return f'<figure>{caption}<p class="no-video">No video rendered for this episode. {escape(hint)}</p></figure>'
 
 
 def pair_page(

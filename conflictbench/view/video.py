@@ -60,6 +60,15 @@ class Mp4Sink:
         for packet in self._stream.encode(image):
             self._container.mux(packet)
 
+    def abort(self) -> None:
+        """A replay that failed: close what is open, keep nothing."""
+        try:
+            if self._container is not None:
+                self._container.close()
+        except Exception:  # the encoder's own failure may be why we are here
+            pass
+        self._temporary.unlink(missing_ok=True)
+
     def close(self) -> int:
         if self._stream is not None:
             for packet in self._stream.encode():

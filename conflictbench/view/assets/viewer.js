@@ -33,8 +33,8 @@ function linePlot(container, { series, xlabel, ylabel, title, equal = false, wid
   if (x1 - x0 < 1e-9) { x0 -= 0.5; x1 += 0.5; }
   if (y1 - y0 < 1e-9) { y0 -= 0.5; y1 += 0.5; }
   const w = width - pad.left - pad.right, h = height - pad.top - pad.bottom;
-  if (equal) {  // the same metres per pixel on both axes, centred
-    const scale = Math.max((x1 - x0) / w, (y1 - y0) / h);
+  if (equal) {  // the same metres per pixel on both axes, centred, with a margin (no point on the frame)
+    const scale = Math.max((x1 - x0) / w, (y1 - y0) / h) * 1.08;
     const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
     [x0, x1, y0, y1] = [cx - scale * w / 2, cx + scale * w / 2, cy - scale * h / 2, cy + scale * h / 2];
   } else {

@@ -1,0 +1,148 @@
+"""The viewer's videos: one per episode, made by replay, kept between builds with a note of what each shows.
+
+``videos/<episode>.mp4`` and ``videos/<episode>.json`` (the episode's digest, the replay's deviation from the
+stored path, its cost). A video is current while its note names the episode as stored now; a second build
+renders only what is new or changed, and an interrupted one keeps every video whose note was written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from conflictbench.core import EpisodeRecord
+from conflictbench.sim.progress import RunProgress, duration
+from conflictbench.store import EpisodeStore
+
+from .video import FPS, Mp4Sink
+
+FRAME_EVERY = 2  # 10 frames per second of a 20 Hz rollout, played in real time: half the renders
+LOAD_CHUNK = 64  # episodes whose arrays are in memory at once
+
+
+class ReplayProgress(RunProgress):
+    def line(self) -> str:
+        left = self.remaining_s()
+        return " | ".join(
+            [
+                f"videos: {self.done}/{self.total} episodes replayed",
+                f"{self.counts['errors']} failed",
+                f"about {duration(left)} left" if left is not None else "time left: after the first one",
+                f"{duration(time.monotonic() - self.started)} so far",
+            ]
+        )
+
+
+def write_atomic(path: Path, data: str | bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    temporary.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
+    os.replace(temporary, path)
+
+
+def episode_digest(record: EpisodeRecord) -> str:
+    """What a video shows of an episode: its actions and stored path (an episode played again under the same id,
+    after an infrastructure failure, has other ones)."""
+    digest = hashlib.sha256(np.ascontiguousarray(record.actions, dtype=np.float64).tobytes())
+    digest.update(np.ascontiguousarray(record.eef_pos, dtype=np.float64).tobytes())
+    return digest.hexdigest()[:20]
+
+
+def video_meta(out: Path, episode_id: str) -> dict[str, Any] | None:
+    try:
+        return json.loads((out / "videos" / f"{episode_id}.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def current_meta(out: Path, record: EpisodeRecord) -> dict[str, Any] | None:
+    """The note of a video that shows ``record`` as stored now (failed replays included), else None."""
+    meta = video_meta(out, record.episode_id)
+    if not meta or meta.get("episode") != episode_digest(record) or meta.get("frame_every") != FRAME_EVERY:
+        return None
+    if not meta.get("error") and not (out / "videos" / f"{record.episode_id}.mp4").is_file():
+        return None
+    return meta
+
+
+def playable(meta: dict[str, Any] | None) -> bool:
+    return bool(meta) and not meta.get("error")
+
+
+def remove_dead_temporaries(folder: Path) -> None:
+    """Half-written files of builds that were killed (``.<name>.<pid>.tmp``, their process gone)."""
+    for path in folder.glob(".*.tmp") if folder.is_dir() else ():
+        try:
+            pid = int(path.name.rsplit(".", 2)[-2])
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            path.unlink(missing_ok=True)
+        except (ValueError, PermissionError, IndexError):
+            continue
+
+
+def _chunks(store: EpisodeStore, keys: Sequence[tuple[str, str]]) -> Iterator[EpisodeRecord]:
+    for start in range(0, len(keys), LOAD_CHUNK):
+        yield from store.load(keys[start : start + LOAD_CHUNK])
+
+
+def render_videos(
+    store: EpisodeStore, out: Path, keys: Sequence[tuple[str, str]], workers: int, progress: bool
+) -> tuple[int, int, float]:
+    """Replay the (episode id, policy) given (in that order: by base task) that lack a current video; returns
+    (rendered, failed, seconds)."""
+    from conflictbench.core.policy import DEFAULT_WARMUP_STEPS
+    from conflictbench.sim.replay import ReplayJob, replay_all
+
+    remove_dead_temporaries(out / "videos")
+    # what has no video showing the episode as stored now, or one whose replay failed (tried again)
+    todo = [(r.episode_id, r.policy) for r in _chunks(store, keys) if not playable(current_meta(out, r))]
+    notes: dict[str, dict[str, Any]] = {}
+
+    def jobs() -> Iterator[ReplayJob]:  # arrays loaded a chunk at a time, as the replays need them
+        for r in _chunks(store, todo):
+            notes[r.episode_id] = {"episode": episode_digest(r), "warmup_assumed": r.warmup_steps is None}
+            yield ReplayJob(
+                episode_id=r.episode_id,
+                suite=r.suite,
+                task_id=r.task_id,
+                init_state=r.init_state,
+                seed=r.seed,
+                warmup_steps=DEFAULT_WARMUP_STEPS if r.warmup_steps is None else r.warmup_steps,
+                actions=r.actions,
+                eef_pos=r.eef_pos,
+                sink=Mp4Sink(str(out / "videos" / f"{r.episode_id}.mp4"), fps=FPS // FRAME_EVERY),
+                frame_every=FRAME_EVERY,
+            )
+
+    bar = ReplayProgress(len(todo), "videos", enabled=progress)
+    rendered = failed = 0
+    started = time.perf_counter()
+    try:
+        with contextlib.closing(replay_all(jobs(), workers=workers)) as replays:  # closed: its processes end
+            for result in replays:
+                meta = {
+                    **notes.pop(result.episode_id),
+                    "steps": result.steps if result.error is None else None,
+                    "frame_every": FRAME_EVERY,
+                    "deviation_m": result.deviation_m,
+                    "seconds": round(result.seconds, 2),
+                    "bytes": result.bytes,
+                    "error": result.error,
+                }
+                write_atomic(out / "videos" / f"{result.episode_id}.json", json.dumps(meta))
+                rendered += result.error is None
+                failed += result.error is not None
+                bar.set_postfix(errors=failed)
+                bar.update()
+    finally:
+        bar.close()
+    return rendered, failed, time.perf_counter() - started
