@@ -69,6 +69,6 @@ grep -q "2 played, 0 already stored, 0 played by another job, 0 with errors" "$w
 # 5. The viewer from the wheel: its page assets are packaged, and videos encode with the sim extra's PyAV.
 "$work/venv/bin/conflictbench" view results --no-progress >"$work/view.log" || { cat "$work/view.log" >&2; exit 1; }
 cat "$work/view.log" >&2
-grep -q "1 pair pages, 2 videos rendered" "$work/view.log" && [ -s results/view/assets/viewer.js ] \
+grep -q "1 pair page, 2 videos rendered" "$work/view.log" && [ -s results/view/assets/viewer.js ] \
   || { say "the viewer did not write its site with both videos"; exit 1; }
 say "ok: the installed wheel passes the tests without a simulator, lists its plugins, plays real episodes and shows them"

@@ -54,8 +54,9 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     selection = Selection(**{name: _names(getattr(args, name)) for name in ("model", "family", "level", "prompt",
                                                                              "outcome")})  # fmt: skip
     out = Path(args.out) if args.out else root / "view"
+    pages = {name.removesuffix(".html") for name in _names(args.pair)}  # an id, or its page's file name
     try:
-        built = build_site(root, out, plugins, selection, videos=_videos(args.videos), video_pairs=_names(args.pair),
+        built = build_site(root, out, plugins, selection, videos=_videos(args.videos), video_pairs=pages,
                            workers=args.workers, suite_file=args.suite, progress=not args.no_progress,
                            command=["conflictbench", "view", *argv])  # fmt: skip
     except KeyboardInterrupt:
@@ -64,7 +65,8 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         return 130
     failed = f", {built.failed} failed (see their pages)" if built.failed else ""
     print(
-        f"conflictbench: {built.pairs} pair pages, {built.rendered} videos rendered{failed} in "
+        f"conflictbench: {built.pairs} pair page{'s' * (built.pairs != 1)}, {built.rendered} video"
+        f"{'s' * (built.rendered != 1)} rendered{failed} in "
         f"{built.seconds:.0f} s; {built.bytes / 1e6:.1f} MB in {built.out}/\n"
         f"open {(built.out / 'index.html').resolve().as_uri()}",
         file=sys.stdout,

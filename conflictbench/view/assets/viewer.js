@@ -25,7 +25,7 @@ function ticks(lo, hi, count) {
 
 // A line plot as SVG: series = [{points: [[x, y], ...], color, label, dash, marker}]; equal: same scale on both axes.
 function linePlot(container, { series, xlabel, ylabel, title, equal = false, width = 360, height = 260, extra = [] }) {
-  const pad = { left: 56, right: 12, top: 26, bottom: 40 };
+  const pad = { left: 56, right: 12, top: 38, bottom: 40 };  // the legend sits between the title and the frame
   const all = series.flatMap((s) => s.points).concat(extra.map((e) => e.point));
   const xs = all.map((p) => p[0]), ys = all.map((p) => p[1]);
   let [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
@@ -70,9 +70,9 @@ function linePlot(container, { series, xlabel, ylabel, title, equal = false, wid
       node("circle", { cx: X(sx), cy: Y(sy), r: 3.5, fill: s.color, class: "start" }, layer);
     }
     if (s.label) {
-      node("line", { x1: legendX, x2: legendX + 16, y1: pad.top + 10, y2: pad.top + 10, stroke: s.color,
+      node("line", { x1: legendX, x2: legendX + 16, y1: pad.top - 8, y2: pad.top - 8, stroke: s.color,
                      "stroke-width": 2, "stroke-dasharray": s.dash || "none" }, svg);
-      node("text", { x: legendX + 20, y: pad.top + 14, class: "legend" }, svg, s.label);
+      node("text", { x: legendX + 20, y: pad.top - 4, class: "legend" }, svg, s.label);
       legendX += 28 + 6.5 * s.label.length;
     }
   }
@@ -101,7 +101,7 @@ function pairPage(data) {
   names.forEach((name, j) => linePlot(box, {
     series: episodes.map((k) => ({ points: data[k].actions.map((a, t) => [t, a[j]]), color: COLORS[k],
                                    label: j ? "" : k, dash: k === "conflict" ? "5 3" : "" })),
-    title: `action: ${name}`, xlabel: "step", width: 300, height: 170 }));
+    title: `action: ${name}`, xlabel: "step", width: 300, height: 180 }));
   const videos = [...document.querySelectorAll("video")];
   const both = document.getElementById("play-both");
   if (both && videos.length === 2) {
