@@ -4,6 +4,7 @@
     conflictbench list                listing.py  policies, metrics, families, levels, prompts, presets
     conflictbench report DIR          report.py   tables from an episode store, running nothing
     conflictbench view DIR            view.py     a static HTML site of the store's pairs, videos by replay
+    conflictbench merge OUT SHARD...  merge.py    one store from stores written on different machines
     conflictbench suite ...           suite.py    validate, inspect, sample, export or rebuild the conflict suite
 
 Each verb's module has ``command(argv, plugins) -> int``; a new verb is a new module named in ``VERBS``.
@@ -30,12 +31,14 @@ VERBS = {
     "report": "report",
     "suite": "suite",
     "view": "view",
+    "merge": "merge",
 }  # verb -> module; anything else is a run
 USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noop suite=physical prompt=p1
        conflictbench -m [OVERRIDE ...]     sweep, e.g. -m model=noop,random prompt=p0,p1
        conflictbench list                  what can be chosen, and which package provides it
        conflictbench report DIR            tables from the episode store in DIR
        conflictbench view DIR              a web page per pair (videos, paths, measures): DIR/view/index.html
+       conflictbench merge OUT SHARD...    one store from stores written on different machines
        conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
        conflictbench --config-help         the configuration, its groups and their options
        conflictbench --hydra-help          Hydra's own options

@@ -97,6 +97,25 @@ class RunProgress:
             print(self.line(), file=self.stream, flush=True)
 
 
+class CountProgress(RunProgress):
+    """The same display for other long work (replays, files): ``what`` done of ``total``, failures if counted."""
+
+    def __init__(self, total: int, what: str, enabled: bool = True, stream: Any = None, failures: bool = False):
+        super().__init__(total, what, enabled, stream)
+        self.failures = failures
+
+    def line(self) -> str:
+        left = self.remaining_s()
+        return " | ".join(
+            [
+                f"{self.name}: {self.done}/{self.total}",
+                *([f"{self.counts['errors']} failed"] if self.failures else []),
+                f"about {duration(left)} left" if left is not None else "time left: after the first one",
+                f"{duration(time.monotonic() - self.started)} so far",
+            ]
+        )
+
+
 def plan_line(to_play: int, stored: int, seconds_each: float | None, workers: int, basis: str = "so far") -> str:
     """What a run is about to do, and how long it may take: from the wall time of this run's episodes already
     stored (a resumed run) or of the policy's earlier ones (``basis`` says which), else said to be unknown until

@@ -81,6 +81,14 @@ class EpisodeStore:
             return []
         return sorted(p for p in folder.glob(f"*/*{SUFFIX}") if not p.name.startswith("."))
 
+    def kept_files(self) -> list[Path]:
+        """The episodes stored for good (not those waiting to be played again)."""
+        return self._parquet_files(self.episodes_dir)
+
+    def waiting_files(self) -> list[Path]:
+        """The episodes the serving infrastructure ended, waiting to be played again."""
+        return self._parquet_files(self.replay_dir)
+
     def files(self) -> list[Path]:
         """Every stored episode: those kept, then those waiting to be played again."""
         kept = self._parquet_files(self.episodes_dir)

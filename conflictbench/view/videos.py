@@ -19,26 +19,13 @@ from typing import Any
 import numpy as np
 
 from conflictbench.core import EpisodeRecord
-from conflictbench.sim.progress import RunProgress, duration
+from conflictbench.sim.progress import CountProgress
 from conflictbench.store import EpisodeStore
 
 from .video import FPS, Mp4Sink
 
 FRAME_EVERY = 2  # 10 frames per second of a 20 Hz rollout, played in real time: half the renders
 LOAD_CHUNK = 64  # episodes whose arrays are in memory at once
-
-
-class ReplayProgress(RunProgress):
-    def line(self) -> str:
-        left = self.remaining_s()
-        return " | ".join(
-            [
-                f"videos: {self.done}/{self.total} episodes replayed",
-                f"{self.counts['errors']} failed",
-                f"about {duration(left)} left" if left is not None else "time left: after the first one",
-                f"{duration(time.monotonic() - self.started)} so far",
-            ]
-        )
 
 
 def write_atomic(path: Path, data: str | bytes) -> None:
@@ -123,7 +110,7 @@ def render_videos(
                 frame_every=FRAME_EVERY,
             )
 
-    bar = ReplayProgress(len(todo), "videos", enabled=progress)
+    bar = CountProgress(len(todo), "videos: episodes replayed", enabled=progress, failures=True)
     rendered = failed = 0
     started = time.perf_counter()
     try:

@@ -1,0 +1,141 @@
+"""Merging episode stores written on different machines (``conflictbench merge OUT SHARD...``).
+
+An episode's id names everything that decides its rollout (the policy, its settings and code, the simulator
+stack, the episode itself), so one id in two shards is one episode played twice: the copy already merged stays
+and the other is dropped (counted; counted apart where its rollout differs: a policy that is not deterministic
+across machines). Where the two copies record other versions of the code or the simulator, they are not the
+same experiment and the merge is refused before anything is written. Episodes the serving infrastructure ended
+(``replay/``) are left out: the next run plays them again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from conflictbench.core import UserError
+
+from .episodes import EpisodeStore
+from .schema import ARRAY_COLUMNS
+
+#: What must agree for two copies of one episode id to be the same experiment.
+VERSION_COLUMNS = (
+    "conflictbench_version",
+    "plugin",
+    "plugin_version",
+    "code_versions",
+    "libero_version",
+    "robosuite_version",
+    "mujoco_version",
+    "numpy_version",
+)
+
+
+@dataclass(frozen=True)
+class Copy:
+    """One stored file of an episode: where, what versions it records, a digest of its rollout."""
+
+    path: Path
+    policy: str
+    episode_id: str
+    versions: tuple
+    rollout: str
+
+
+@dataclass
+class MergePlan:
+    new: list[Copy] = field(default_factory=list)
+    duplicates: int = 0
+    differing: list[tuple[Copy, Copy]] = field(default_factory=list)
+    """Duplicates whose rollout differs from the copy kept (same versions)."""
+    clashes: list[tuple[Copy, Copy]] = field(default_factory=list)
+    left_out_replays: int = 0
+
+
+def _flat(column: pa.ChunkedArray) -> bytes:
+    """A nested list column's numbers and its outer lengths, as bytes (what a digest of a rollout needs)."""
+    array = column.combine_chunks()
+    lengths = array.value_lengths().to_numpy(zero_copy_only=False).tobytes()
+    while pa.types.is_list(array.type) or pa.types.is_fixed_size_list(array.type):
+        array = array.flatten()
+    return lengths + array.to_numpy(zero_copy_only=False).tobytes()
+
+
+def read_copy(path: Path) -> Copy:
+    """One episode file's identity, recorded versions and a digest of its rollout (its arrays)."""
+    table = pq.read_table(path, columns=["policy", "episode_id", *VERSION_COLUMNS, *ARRAY_COLUMNS])
+    if table.num_rows != 1:
+        raise UserError(f"{path} holds {table.num_rows} rows, not one episode")
+    digest = hashlib.sha256()
+    for name in ARRAY_COLUMNS:
+        digest.update(_flat(table[name]))
+    row = table.select(["policy", "episode_id", *VERSION_COLUMNS]).to_pylist()[0]
+    versions = tuple(tuple(row[k] or ()) if k == "code_versions" else row[k] for k in VERSION_COLUMNS)
+    return Copy(path, row["policy"], row["episode_id"], versions, digest.hexdigest()[:20])
+
+
+def _describe(a: Copy, b: Copy) -> str:
+    diffs = [f"{n} {x!r} vs {y!r}" for n, x, y in zip(VERSION_COLUMNS, a.versions, b.versions, strict=True) if x != y]
+    return f"{a.episode_id} ({a.path.parents[2]} and {b.path.parents[2]}): {'; '.join(diffs)}"
+
+
+def plan_merge(
+    out: EpisodeStore, shards: Sequence[EpisodeStore], on_file: Callable[[], None] | None = None
+) -> MergePlan:
+    """What merging ``shards`` into ``out`` would do; reads every file, writes nothing."""
+    plan = MergePlan()
+    kept: dict[str, Copy] = {}
+    for store in (out, *shards):
+        for path in store.kept_files():
+            copy = read_copy(path)
+            if on_file is not None:
+                on_file()
+            first = kept.get(copy.episode_id)
+            if first is None:
+                kept[copy.episode_id] = copy
+                if store is not out:
+                    plan.new.append(copy)
+            elif first.versions != copy.versions:
+                plan.clashes.append((first, copy))
+            else:
+                plan.duplicates += 1
+                if first.rollout != copy.rollout:
+                    plan.differing.append((first, copy))
+        if store is not out:
+            plan.left_out_replays += len(store.waiting_files())
+    return plan
+
+
+def merge_stores(out: EpisodeStore, shards: Sequence[EpisodeStore], *, dry_run: bool = False,
+                 on_file: Callable[[], None] | None = None) -> MergePlan:  # fmt: skip
+    """Copy every episode of ``shards`` that ``out`` lacks into it, each file whole or not at all (copied under a
+    temporary name, then renamed); refused, writing nothing, where two copies of an episode record other versions."""
+    roots = [out.root.resolve(), *(s.root.resolve() for s in shards)]
+    for shard in shards:
+        if not shard.episodes_dir.is_dir():
+            raise UserError(f"{shard.root} is not an episode store (no {shard.episodes_dir.name}/ folder)")
+    if len(set(roots)) != len(roots):
+        raise UserError("the output and the shards must be different stores (one was named twice)")
+    plan = plan_merge(out, shards, on_file)
+    if plan.clashes:
+        shown = "\n  ".join(_describe(a, b) for a, b in plan.clashes[:5])
+        more = f"\n  ... and {len(plan.clashes) - 5} more" if len(plan.clashes) > 5 else ""
+        raise UserError(
+            f"{len(plan.clashes)} episode(s) were played with other versions in different stores; they are not the "
+            f"same experiment, so nothing was merged:\n  {shown}{more}"
+        )
+    if not dry_run:
+        for copy in plan.new:
+            target = out.path_for(copy.policy, copy.episode_id)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            temporary = target.with_name(f".{target.name}.merge-{os.getpid()}.tmp")
+            temporary.write_bytes(copy.path.read_bytes())
+            os.replace(temporary, target)
+            out.replay_path_for(copy.policy, copy.episode_id).unlink(missing_ok=True)  # played after all
+    return plan
