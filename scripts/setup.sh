@@ -71,7 +71,7 @@ stamp="$VENV/.conflictbench-installed"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   say "installing conflictbench with the LIBERO simulator (first time: about two minutes)"
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q -e ".[sim,test]"
+  "$VENV/bin/python" -m pip install -q -e ".[sim,test,cluster]"
   touch "$stamp"
 fi
 # 4. The model plugins' clients, with the upstream counterparts their tests talk to; first the server half

@@ -239,6 +239,27 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     return 0
 
 
+class PluginsHere:
+    """The plugins of this process, for a job's task function: a launcher that runs jobs in other processes or on
+    other machines (submitit, Ray) pickles the task, and there the job finds the installed plugins itself."""
+
+    def __init__(self, plugins: Plugins | None):
+        self.plugins = plugins
+
+    def __getstate__(self) -> dict:
+        return {}
+
+    def __setstate__(self, state: dict) -> None:
+        self.plugins = None
+
+    def get(self) -> Plugins:
+        if self.plugins is None:
+            import conflictbench
+
+            self.plugins = conflictbench.plugins()
+        return self.plugins
+
+
 def command(argv: list[str], plugins: Plugins) -> int:
     """Compose the run from Hydra overrides and play it (Hydra's own errors exit with code 2)."""
     import hydra
@@ -248,12 +269,13 @@ def command(argv: list[str], plugins: Plugins) -> int:
     check_group_overrides(argv, plugins)
     check_model_fields(argv, plugins)
     state = {"started": False}
+    here = PluginsHere(plugins)
 
     @hydra.main(version_base=None, config_path=CONFIG_PACKAGE, config_name="config")
     def task(cfg) -> int:
         state["started"] = True
         try:
-            return run_job(cfg, plugins, HydraConfig.get().runtime.choices["model"])
+            return run_job(cfg, here.get(), HydraConfig.get().runtime.choices["model"])
         except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             if isinstance(exc, UserError):  # a rejected command leaves nothing behind, not even Hydra's folder

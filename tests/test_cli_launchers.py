@@ -1,0 +1,42 @@
+"""Sweeps through Hydra's maintained launchers (the `cluster` extra): jobs in other processes, one store."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from conflictbench.store import EpisodeStore
+from conflictbench.testing import run_cli
+
+pytestmark = pytest.mark.sim
+pytest.importorskip("hydra_plugins.hydra_submitit_launcher", reason="the cluster extra: pip install -e '.[cluster]'")
+
+
+def job_logs(tmp_path) -> list[str]:
+    return [p.read_text() for p in sorted((tmp_path / "results" / "hydra").rglob("*_log.err"))]
+
+
+def test_a_submitit_sweep_runs_its_jobs_in_processes_of_their_own_into_one_store(tmp_path):
+    """What `hydra/launcher=submitit_slurm` does on a cluster, on this machine: each job pickled, run elsewhere."""
+    out = run_cli(tmp_path, "-m", "hydra/launcher=submitit_local", "model=noop,random", "run.report=true")
+    assert out.returncode == 0, out.stderr[-3000:]
+    stored = EpisodeStore(tmp_path / "results").records()
+    assert sorted(r.policy for r in stored) == ["noop", "noop", "random", "random"]
+    logs = job_logs(tmp_path)
+    assert len(logs) == 2 and all("2 played, 0 already stored" in log for log in logs)  # the jobs' own output
+    report = tmp_path / "results" / "report"
+    combined = (report / "table1_overall.md").read_text()
+    assert "noop" in combined and "random" in combined
+    assert (report / "jobs" / "0-noop" / "table1_overall.md").is_file()
+
+
+def test_two_jobs_wanting_the_same_episodes_play_each_once(tmp_path):
+    """Two concurrent jobs of one policy (run.workers does not change an episode): the store's claims split them."""
+    out = run_cli(tmp_path, "-m", "hydra/launcher=submitit_local", "model=noop", "run.workers=1,2")
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert len(EpisodeStore(tmp_path / "results").records()) == 2
+    closing = [
+        re.search(r"(\d+) played, (\d+) already stored, (\d+) played by another job", log) for log in job_logs(tmp_path)
+    ]
+    assert all(closing) and sum(int(c[1]) for c in closing) == 2  # each episode played by exactly one job
