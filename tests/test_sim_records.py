@@ -76,6 +76,8 @@ class SlowExpert:
     max_steps = {suite: 12 for suite in LIBERO_SUITES}
     warmup_steps = 4
     seen: list = []
+    stamps: list = []
+    claims = None
 
     def __init__(self, cfg):
         SlowExpert.seen = []
@@ -85,6 +87,8 @@ class SlowExpert:
 
     def act(self, obs):
         SlowExpert.seen.append(obs)
+        claim = SlowExpert.claims / f"{obs.episode_id}.claim"  # the runner's claim on this episode, as it is now
+        SlowExpert.stamps.append(float(claim.read_text().split()[2]))
         time.sleep(THINK_S)
         return np.array([0.0, 0.3, 0.0, 0.0, 0.0, 0.0, -1.0])
 
@@ -100,12 +104,15 @@ def test_privileged_geometry_is_typed_and_the_simulation_time_is_stored(tmp_path
     plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
     spec = plugins.policy("slow")
     store = EpisodeStore(tmp_path)
+    store.claim_refresh_s = 0.2  # refreshes within the episode's 12 decisions of 0.05 s
+    SlowExpert.claims, SlowExpert.stamps = store.claims_dir, []
     result = Runner(plugins, spec, spec.make_config(), store=store, progress=False).run(
         [reference_spec("libero_goal", 3)]
     )
     assert result.played == 1 and result.errors == 0
     (record,) = store.records()
     assert record.warmup_steps == 4  # what a replay of the episode must play again
+    assert SlowExpert.stamps[-1] > SlowExpert.stamps[0]  # the claim was kept fresh while it played
     # the worker's own measure leaves out the time spent waiting for the policy
     assert 0 < record.sim_time_s < record.wall_time_s - 12 * THINK_S
 

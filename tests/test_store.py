@@ -142,8 +142,24 @@ def test_claims_exclude_live_processes_and_are_taken_over_from_dead_ones(tmp_pat
 
     (tmp_path / "claims" / "e3.claim").write_text(f"another-host 1 {time.time():.0f}\n")
     assert not store.claim("e3")  # a process on another machine cannot be checked: respected...
-    (tmp_path / "claims" / "e4.claim").write_text(f"another-host 1 {time.time() - 3 * 3600:.0f}\n")
-    assert store.claim("e4")  # ...but not forever
+    (tmp_path / "claims" / "e4.claim").write_text(f"another-host 1 {time.time() - 11 * 60:.0f}\n")
+    assert store.claim("e4")  # ...but not past ten minutes without a refresh (a job the scheduler killed)
+
+
+def test_refreshing_renews_only_this_processs_own_claims(tmp_path):
+    import time
+
+    store = EpisodeStore(tmp_path)
+    assert store.claim("mine")
+    theirs = f"another-host 1 {time.time() - 500:.3f}\n"
+    (tmp_path / "claims" / "theirs.claim").write_text(theirs)
+    before = float((tmp_path / "claims" / "mine.claim").read_text().split()[2])
+    time.sleep(0.01)
+    store.refresh_claims(["mine", "theirs", "unclaimed"])
+    assert float((tmp_path / "claims" / "mine.claim").read_text().split()[2]) > before
+    assert (tmp_path / "claims" / "theirs.claim").read_text() == theirs  # never overwritten
+    assert not (tmp_path / "claims" / "unclaimed.claim").exists()
+    assert not list((tmp_path / "claims").glob(".*.tmp"))
 
 
 def test_empty_store_reads_as_nothing(tmp_path):

@@ -84,6 +84,7 @@ class Runner:
         self._serving: Slot | None = None
         """The slot whose episode a policy without act_batch is serving (it serves one at a time)."""
         self._held: list[tuple[Slot, Any]] = []
+        self._claims_refreshed = time.monotonic()
         """First queries of episodes waiting their turn with such a policy, oldest first."""
 
     # -- policy ----------------------------------------------------------------------------
@@ -295,10 +296,12 @@ class Runner:
                         queue.push(item)
                 fill()
                 continue
+            self._refresh_claims(slots)
             waiting: list[tuple[Slot, Any]] = []
             answers = []
             wakeup = self._calls.wakeup
-            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy] + wakeup):
+            ends = [s.conn for s in busy] + [s.process.sentinel for s in busy] + wakeup
+            for ready in wait(ends, timeout=self.store.claim_refresh_s):
                 if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
                     answers += self._calls.collect()
                     continue
@@ -332,6 +335,13 @@ class Runner:
                 except (BrokenPipeError, ConnectionResetError):
                     pass  # the worker died after asking: the next wait() finds it and stores the episode
             fill()
+
+    def _refresh_claims(self, slots: list[Slot]) -> None:
+        """Keep the claims of the episodes being played fresh (a job on another machine takes over a stale one)."""
+        now = time.monotonic()
+        if now - self._claims_refreshed >= self.store.claim_refresh_s:
+            self._claims_refreshed = now
+            self.store.refresh_claims(s.item.job.episode_id for s in slots if s.item is not None)
 
     def _end_in_flight(self, result: RunResult) -> None:
         """The policy server is gone: store the episodes whose workers already sent their end, then stop

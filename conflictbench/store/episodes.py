@@ -30,8 +30,11 @@ from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, EpisodeRecord
 from .schema import SCHEMA, records_to_table, table_to_records
 
 SUFFIX = ".parquet"
-#: How long a claim made on another machine holds (its process cannot be checked from here).
-REMOTE_CLAIM_TTL_S = 2 * 3600
+#: How long a claim made on another machine holds unless its owner refreshes it (its process cannot be checked
+#: from here): a job the scheduler killed gives its episodes up this long after its last refresh.
+REMOTE_CLAIM_TTL_S = 10 * 60
+#: How often a running job refreshes the claims of the episodes it is playing (well inside the TTL).
+CLAIM_REFRESH_S = 60.0
 
 
 def _pid_alive(pid: int) -> bool:
@@ -45,6 +48,8 @@ def _pid_alive(pid: int) -> bool:
 
 
 class EpisodeStore:
+    claim_refresh_s = CLAIM_REFRESH_S
+    remote_claim_ttl_s = REMOTE_CLAIM_TTL_S
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
         self.episodes_dir = self.root / "episodes"
@@ -142,7 +147,7 @@ class EpisodeStore:
             return False
         if host != self._host:
             # Another machine's process cannot be checked: respect its claim for a while.
-            return time.time() - float(stamp) < REMOTE_CLAIM_TTL_S
+            return time.time() - float(stamp) < self.remote_claim_ttl_s
         return int(pid) != os.getpid() and _pid_alive(int(pid))
 
     def claim(self, episode_id: str) -> bool:
@@ -154,7 +159,7 @@ class EpisodeStore:
         self.claims_dir.mkdir(parents=True, exist_ok=True)
         path = self._claim_path(episode_id)
         mine = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
-        mine.write_text(f"{self._host} {os.getpid()} {time.time():.0f}\n")
+        mine.write_text(self._claim_text())
         try:
             if _link(mine, path):
                 return True
@@ -166,6 +171,29 @@ class EpisodeStore:
                 return _link(mine, path)  # fails if a fresh claim landed meanwhile
         finally:
             mine.unlink(missing_ok=True)
+
+    def _claim_text(self) -> str:
+        return f"{self._host} {os.getpid()} {time.time():.3f}\n"
+
+    def refresh_claims(self, episode_ids: Iterable[str]) -> None:
+        """Renew the time on this process's claims (another machine reads an old one as its owner gone). Under
+        the takeover lock, so a claim taken over meanwhile is never overwritten."""
+        ids = list(episode_ids)
+        if not ids:
+            return
+        self.claims_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.claims_dir / ".takeover.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            for episode_id in ids:
+                path = self._claim_path(episode_id)
+                try:
+                    host, pid, _ = path.read_text().split()
+                except (OSError, ValueError):
+                    continue
+                if host == self._host and int(pid) == os.getpid():
+                    fresh = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
+                    fresh.write_text(self._claim_text())
+                    os.replace(fresh, path)
 
     def release(self, episode_id: str) -> None:
         self._claim_path(episode_id).unlink(missing_ok=True)
