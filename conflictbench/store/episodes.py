@@ -50,6 +50,7 @@ def _pid_alive(pid: int) -> bool:
 class EpisodeStore:
     claim_refresh_s = CLAIM_REFRESH_S
     remote_claim_ttl_s = REMOTE_CLAIM_TTL_S
+
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
         self.episodes_dir = self.root / "episodes"
