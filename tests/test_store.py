@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pandas as pd
@@ -155,11 +156,40 @@ def test_refreshing_renews_only_this_processs_own_claims(tmp_path):
     (tmp_path / "claims" / "theirs.claim").write_text(theirs)
     before = float((tmp_path / "claims" / "mine.claim").read_text().split()[2])
     time.sleep(0.01)
-    store.refresh_claims(["mine", "theirs", "unclaimed"])
+    assert store.refresh_claims(["mine", "theirs", "unclaimed"]) == {"theirs", "unclaimed"}  # not (or no longer) ours
     assert float((tmp_path / "claims" / "mine.claim").read_text().split()[2]) > before
     assert (tmp_path / "claims" / "theirs.claim").read_text() == theirs  # never overwritten
     assert not (tmp_path / "claims" / "unclaimed.claim").exists()
     assert not list((tmp_path / "claims").glob(".*.tmp"))
+
+
+def test_a_claim_taken_over_from_a_job_that_looked_dead_stays_with_the_new_owner(tmp_path):
+    from conflictbench.store.episodes import ClaimKeeper
+
+    old = EpisodeStore(tmp_path)
+    assert old.claim("e")
+    keeper = ClaimKeeper(old)
+    keeper.hold("e")
+    # the old job stalled past the TTL; a job on another machine took the episode over
+    (tmp_path / "claims" / "e.claim").write_text(f"another-host 1 {time.time():.3f}\n")
+    keeper.refresh()
+    assert keeper.lost == {"e"}  # the runner stores nothing of it
+    old.release("e")
+    assert (tmp_path / "claims" / "e.claim").read_text().startswith("another-host")  # still theirs
+    assert not EpisodeStore(tmp_path).claim("e")
+
+
+def test_the_claim_keeper_renews_from_its_own_thread(tmp_path):
+    store = EpisodeStore(tmp_path)
+    store.claim_refresh_s = 0.05
+    from conflictbench.store.episodes import ClaimKeeper
+
+    assert store.claim("e")
+    first = float((tmp_path / "claims" / "e.claim").read_text().split()[2])
+    with ClaimKeeper(store) as keeper:
+        keeper.hold("e")
+        time.sleep(0.3)  # the main thread does nothing meanwhile
+    assert float((tmp_path / "claims" / "e.claim").read_text().split()[2]) > first and not keeper.lost
 
 
 def test_empty_store_reads_as_nothing(tmp_path):

@@ -73,7 +73,8 @@ def test_one_episode_played_with_other_versions_stops_the_merge_before_anything_
     b = shard(tmp_path / "b", episode("e2", 2, mujoco_version="3.3.2"), episode("e3", 3))
     out = EpisodeStore(tmp_path / "out")
     with pytest.raises(
-        UserError, match=r"(?s)1 episode\(s\) were played with other versions.*mujoco_version '2.3.7' vs '3.3.2'"
+        UserError,
+        match=r"(?s)nothing merged: 1 episode.*other versions.*mujoco_version .2.3.7. vs .3.3.2.",
     ):
         merge_stores(out, [a, b])
     assert out.stored_ids() == set()
@@ -95,3 +96,25 @@ def test_the_command_says_what_it_did_and_names_mistakes_in_one_line(tmp_path, c
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(line.startswith("conflictbench: error:") for line in err)
     assert "missing" in err[0] and "not an episode store" in err[1] and "different stores" in err[2]
+
+
+def test_files_from_before_a_column_merge_and_an_unreadable_one_is_named(tmp_path):
+    import pyarrow.parquet as pq
+
+    old = shard(tmp_path / "old", episode("e1", 1))
+    path = old.path_for("pi0", "e1")
+    pq.write_table(pq.read_table(path).drop_columns(["code_versions", "warmup_steps"]), path)  # an older writer's
+    out = EpisodeStore(tmp_path / "out")
+    assert [c.episode_id for c in merge_stores(out, [old]).new] == ["e1"]
+    broken = shard(tmp_path / "broken", episode("e2", 2))
+    broken.path_for("pi0", "e2").write_bytes(b"PAR1 not a parquet file")
+    with pytest.raises(UserError, match=r"cannot read .*e2\.parquet as a stored episode"):
+        merge_stores(out, [broken])
+
+
+def test_an_episode_waiting_for_its_replay_counts_as_left_out_only_where_no_copy_was_kept(tmp_path):
+    failed = episode("e1", 1, error=f"{INFRASTRUCTURE_ERROR_PREFIX}: the server went away")
+    a = shard(tmp_path / "a", failed, episode("e2", 2, error=f"{INFRASTRUCTURE_ERROR_PREFIX}: again"))
+    b = shard(tmp_path / "b", episode("e1", 1))  # played again, on another machine
+    plan = merge_stores(EpisodeStore(tmp_path / "out"), [a, b])
+    assert [c.episode_id for c in plan.new] == ["e1"] and plan.left_out_replays == 1  # e2 only

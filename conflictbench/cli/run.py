@@ -253,7 +253,7 @@ class PluginsHere:
         self.plugins = None
 
     def get(self) -> Plugins:
-        if self.plugins is None:
+        if getattr(self, "plugins", None) is None:  # (pickle protocols < 2 never call __setstate__ for {})
             import conflictbench
 
             self.plugins = conflictbench.plugins()

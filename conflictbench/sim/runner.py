@@ -29,7 +29,7 @@ from conflictbench.core import (
     UserError,
 )
 from conflictbench.core.plugins import Plugins
-from conflictbench.store.episodes import EpisodeStore
+from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 from conflictbench.tasks.libero.base_tasks import base_task
 
 from .deciding import PolicyCalls, reply_for, reset_error
@@ -84,7 +84,7 @@ class Runner:
         self._serving: Slot | None = None
         """The slot whose episode a policy without act_batch is serving (it serves one at a time)."""
         self._held: list[tuple[Slot, Any]] = []
-        self._claims_refreshed = time.monotonic()
+        self._claims = ClaimKeeper(store)
         """First queries of episodes waiting their turn with such a policy, oldest first."""
 
     # -- policy ----------------------------------------------------------------------------
@@ -191,16 +191,18 @@ class Runner:
         self._policy, self._serving, self._held = policy, None, []
         self._calls = PolicyCalls(policy, traits, len(pool.slots))
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
+        self._claims = ClaimKeeper(self.store)
         try:
-            pool.start_all()
-            self._loop(EpisodeQueue(todo), result, traits)
+            with self._claims:  # renews the claims of the episodes being played, from a thread
+                pool.start_all()
+                self._loop(EpisodeQueue(todo), result, traits)
         except ServerUnavailable:
             self._end_in_flight(result)
             raise
         finally:
             for slot in pool.slots:
                 if slot.item is not None:
-                    self.store.release(slot.item.job.episode_id)
+                    self._release(slot.item.job.episode_id)
             self._calls.close()
             pool.stop()
             self._bar.close()
@@ -217,10 +219,11 @@ class Runner:
             if not self.store.claim(eid):
                 deferred.append(item)  # another job is playing it right now
                 continue
+            self._claims.hold(eid)
             # `stored` is a snapshot: another job may have finished this episode (written, then
             # released its claim) since. Writes come before releases, so this check is enough.
             if self.store.path_for(self.spec.name, eid).exists():
-                self.store.release(eid)
+                self._release(eid)
                 result.played_elsewhere += 1
                 self._bar.update(1)
                 continue
@@ -296,12 +299,11 @@ class Runner:
                         queue.push(item)
                 fill()
                 continue
-            self._refresh_claims(slots)
             waiting: list[tuple[Slot, Any]] = []
             answers = []
             wakeup = self._calls.wakeup
             ends = [s.conn for s in busy] + [s.process.sentinel for s in busy] + wakeup
-            for ready in wait(ends, timeout=self.store.claim_refresh_s):
+            for ready in wait(ends):
                 if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
                     answers += self._calls.collect()
                     continue
@@ -336,12 +338,9 @@ class Runner:
                     pass  # the worker died after asking: the next wait() finds it and stores the episode
             fill()
 
-    def _refresh_claims(self, slots: list[Slot]) -> None:
-        """Keep the claims of the episodes being played fresh (a job on another machine takes over a stale one)."""
-        now = time.monotonic()
-        if now - self._claims_refreshed >= self.store.claim_refresh_s:
-            self._claims_refreshed = now
-            self.store.refresh_claims(s.item.job.episode_id for s in slots if s.item is not None)
+    def _release(self, episode_id: str) -> None:
+        self.store.release(episode_id)
+        self._claims.drop(episode_id)
 
     def _end_in_flight(self, result: RunResult) -> None:
         """The policy server is gone: store the episodes whose workers already sent their end, then stop
@@ -394,18 +393,22 @@ class Runner:
         item = slot.item
         assert item is not None
         record = self._record(item, outcome, wall_time_s=time.time() - slot.started)
-        self.store.write(record)
-        self.store.release(item.job.episode_id)
-        result.played += 1
-        result.succeeded += int(record.success)
-        result.errors += int(record.error is not None)
+        if item.job.episode_id in self._claims.lost:  # taken over while this job looked dead: the other one stores it
+            self._claims.drop(item.job.episode_id)
+            result.played_elsewhere += 1
+        else:
+            self.store.write(record)
+            self._release(item.job.episode_id)
+            result.played += 1
+            result.succeeded += int(record.success)
+            result.errors += int(record.error is not None)
         slot.item = None
         if self._serving is slot:
             self._serving = None
         self._held = [(s, o) for s, o in self._held if s is not slot]
         self._bar.update(1)
         self._bar.set_postfix(success=result.succeeded, errors=result.errors)
-        if self.on_episode is not None:
+        if self.on_episode is not None and item.job.episode_id not in self._claims.lost:
             self.on_episode(record)
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import fcntl
 import os
 import socket
+import threading
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -176,28 +177,42 @@ class EpisodeStore:
     def _claim_text(self) -> str:
         return f"{self._host} {os.getpid()} {time.time():.3f}\n"
 
-    def refresh_claims(self, episode_ids: Iterable[str]) -> None:
-        """Renew the time on this process's claims (another machine reads an old one as its owner gone). Under
+    def _owns(self, path: Path) -> bool:
+        try:
+            host, pid, _ = path.read_text().split()
+        except (OSError, ValueError):
+            return False
+        return host == self._host and pid == str(os.getpid())
+
+    def refresh_claims(self, episode_ids: Iterable[str]) -> set[str]:
+        """Renew the time on this process's claims (another machine reads an old one as its owner gone); returns
+        those it no longer holds (taken over after this process looked dead: another job plays them now). Under
         the takeover lock, so a claim taken over meanwhile is never overwritten."""
-        ids = list(episode_ids)
+        ids, lost = list(episode_ids), set()
         if not ids:
-            return
+            return lost
         self.claims_dir.mkdir(parents=True, exist_ok=True)
         with open(self.claims_dir / ".takeover.lock", "a") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             for episode_id in ids:
                 path = self._claim_path(episode_id)
-                try:
-                    host, pid, _ = path.read_text().split()
-                except (OSError, ValueError):
+                if not self._owns(path):
+                    lost.add(episode_id)
                     continue
-                if host == self._host and int(pid) == os.getpid():
-                    fresh = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
-                    fresh.write_text(self._claim_text())
-                    os.replace(fresh, path)
+                fresh = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
+                fresh.write_text(self._claim_text())
+                os.replace(fresh, path)
+        return lost
 
     def release(self, episode_id: str) -> None:
-        self._claim_path(episode_id).unlink(missing_ok=True)
+        """Give up this process's claim (one another process took over stays theirs)."""
+        path = self._claim_path(episode_id)
+        if not path.exists():
+            return
+        with open(self.claims_dir / ".takeover.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if self._owns(path):
+                path.unlink(missing_ok=True)
 
     def held_by_others(self, episode_ids: Iterable[str]) -> set[str]:
         return {e for e in episode_ids if self._claimed_by_other(self._claim_path(e))}
@@ -220,9 +235,57 @@ class EpisodeStore:
         return removed
 
     @property
+    def temporary_tag(self) -> str:
+        """``<pid>@<host>``: in a temporary file's name, what ``clean_stale_temporaries`` checks."""
+        return self._temporary_tag
+
+    @property
     def _temporary_tag(self) -> str:
         """Names this process's temporary files: ``<pid>@<host>``."""
         return f"{os.getpid()}@{self._host}"
+
+
+class ClaimKeeper:
+    """Renews the claims of the episodes a job is playing every ``store.claim_refresh_s``, from a thread of its own
+    (the job's loop may wait on a policy or a restarting worker for longer than a claim lasts). ``lost`` holds the
+    episodes whose claims another job took over meanwhile: that job plays them, so this one must not store them."""
+
+    def __init__(self, store: EpisodeStore):
+        self.store, self.lost = store, set()
+        self._held: set[str] = set()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="conflictbench-claims", daemon=True)
+
+    def __enter__(self) -> ClaimKeeper:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def hold(self, episode_id: str) -> None:
+        with self._lock:
+            self._held.add(episode_id)
+
+    def drop(self, episode_id: str) -> None:
+        with self._lock:
+            self._held.discard(episode_id)
+
+    def refresh(self) -> None:
+        with self._lock:
+            held = sorted(self._held)
+        lost = self.store.refresh_claims(held)
+        with self._lock:
+            self.lost |= lost & self._held
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.store.claim_refresh_s):
+            try:
+                self.refresh()
+            except OSError:  # a network store's hiccup: the next round tries again, well inside the TTL
+                pass
 
 
 def _link(source: Path, target: Path) -> bool:

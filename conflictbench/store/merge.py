@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.parquet as pq
+import pyarrow.dataset as ds
 
 from conflictbench.core import UserError
 
 from .episodes import EpisodeStore
-from .schema import ARRAY_COLUMNS
+from .schema import ARRAY_COLUMNS, SCHEMA
 
 #: What must agree for two copies of one episode id to be the same experiment.
 VERSION_COLUMNS = (
@@ -58,23 +58,31 @@ class MergePlan:
     left_out_replays: int = 0
 
 
-def _flat(column: pa.ChunkedArray) -> bytes:
-    """A nested list column's numbers and its outer lengths, as bytes (what a digest of a rollout needs)."""
+def _digest_column(digest, name: str, column: pa.ChunkedArray) -> None:
+    """A nested list column into a rollout's digest: its name, the lengths at every level, then its numbers."""
     array = column.combine_chunks()
-    lengths = array.value_lengths().to_numpy(zero_copy_only=False).tobytes()
+    digest.update(name.encode() + b"\0")
     while pa.types.is_list(array.type) or pa.types.is_fixed_size_list(array.type):
+        lengths = array.value_lengths().to_numpy(zero_copy_only=False).astype("int64")
+        digest.update(len(lengths).to_bytes(8, "little") + lengths.tobytes())
         array = array.flatten()
-    return lengths + array.to_numpy(zero_copy_only=False).tobytes()
+    digest.update(array.to_numpy(zero_copy_only=False).astype("float64").tobytes())
 
 
 def read_copy(path: Path) -> Copy:
-    """One episode file's identity, recorded versions and a digest of its rollout (its arrays)."""
-    table = pq.read_table(path, columns=["policy", "episode_id", *VERSION_COLUMNS, *ARRAY_COLUMNS])
+    """One episode file's identity, recorded versions and a digest of its rollout (its arrays). Read through the
+    store's schema, as the store reads it (a file from before a column was added has it empty)."""
+    try:
+        table = ds.dataset([str(path)], format="parquet", schema=SCHEMA).to_table(
+            columns=["policy", "episode_id", *VERSION_COLUMNS, *ARRAY_COLUMNS]
+        )
+    except (pa.ArrowException, OSError) as exc:
+        raise UserError(f"cannot read {path} as a stored episode: {exc}") from None
     if table.num_rows != 1:
         raise UserError(f"{path} holds {table.num_rows} rows, not one episode")
     digest = hashlib.sha256()
     for name in ARRAY_COLUMNS:
-        digest.update(_flat(table[name]))
+        _digest_column(digest, name, table[name])
     row = table.select(["policy", "episode_id", *VERSION_COLUMNS]).to_pylist()[0]
     versions = tuple(tuple(row[k] or ()) if k == "code_versions" else row[k] for k in VERSION_COLUMNS)
     return Copy(path, row["policy"], row["episode_id"], versions, digest.hexdigest()[:20])
@@ -91,6 +99,7 @@ def plan_merge(
     """What merging ``shards`` into ``out`` would do; reads every file, writes nothing."""
     plan = MergePlan()
     kept: dict[str, Copy] = {}
+    waiting: set[str] = set()
     for store in (out, *shards):
         for path in store.kept_files():
             copy = read_copy(path)
@@ -108,7 +117,8 @@ def plan_merge(
                 if first.rollout != copy.rollout:
                     plan.differing.append((first, copy))
         if store is not out:
-            plan.left_out_replays += len(store.waiting_files())
+            waiting.update(p.stem for p in store.waiting_files())
+    plan.left_out_replays = len(waiting - set(kept))  # played again somewhere: not left out
     return plan
 
 
@@ -118,7 +128,7 @@ def merge_stores(out: EpisodeStore, shards: Sequence[EpisodeStore], *, dry_run: 
     temporary name, then renamed); refused, writing nothing, where two copies of an episode record other versions."""
     roots = [out.root.resolve(), *(s.root.resolve() for s in shards)]
     for shard in shards:
-        if not shard.episodes_dir.is_dir():
+        if not (shard.episodes_dir.is_dir() or shard.replay_dir.is_dir()):
             raise UserError(f"{shard.root} is not an episode store (no {shard.episodes_dir.name}/ folder)")
     if len(set(roots)) != len(roots):
         raise UserError("the output and the shards must be different stores (one was named twice)")
@@ -127,15 +137,18 @@ def merge_stores(out: EpisodeStore, shards: Sequence[EpisodeStore], *, dry_run: 
         shown = "\n  ".join(_describe(a, b) for a, b in plan.clashes[:5])
         more = f"\n  ... and {len(plan.clashes) - 5} more" if len(plan.clashes) > 5 else ""
         raise UserError(
-            f"{len(plan.clashes)} episode(s) were played with other versions in different stores; they are not the "
-            f"same experiment, so nothing was merged:\n  {shown}{more}"
+            f"nothing merged: {len(plan.clashes)} episode(s) were played with other versions in different stores "
+            f"(not the same experiment):\n  {shown}{more}"
         )
     if not dry_run:
         for copy in plan.new:
             target = out.path_for(copy.policy, copy.episode_id)
             target.parent.mkdir(parents=True, exist_ok=True)
-            temporary = target.with_name(f".{target.name}.merge-{os.getpid()}.tmp")
-            temporary.write_bytes(copy.path.read_bytes())
+            temporary = target.with_name(f".{target.name}.{out.temporary_tag}.tmp")  # cleaned if we die here
+            with open(temporary, "wb") as fh:
+                fh.write(copy.path.read_bytes())
+                fh.flush()
+                os.fsync(fh.fileno())
             os.replace(temporary, target)
             out.replay_path_for(copy.policy, copy.episode_id).unlink(missing_ok=True)  # played after all
     return plan
