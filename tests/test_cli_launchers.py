@@ -40,3 +40,12 @@ def test_two_jobs_wanting_the_same_episodes_play_each_once(tmp_path):
         re.search(r"(\d+) played, (\d+) already stored, (\d+) played by another job", log) for log in job_logs(tmp_path)
     ]
     assert all(closing) and sum(int(c[1]) for c in closing) == 2  # each episode played by exactly one job
+
+
+def test_a_job_failing_in_its_own_process_is_one_line_naming_it_and_the_sweeps_exit_code(tmp_path):
+    out = run_cli(tmp_path, "-m", "hydra/launcher=submitit_local", "model=noop", "run.init_states=1,52")
+    assert out.returncode == 2, out.stderr[-3000:]  # the job's own exit code, a user's mistake
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert lines == ["conflictbench: error: sweep job 1: run.init_states=52, but LIBERO has 50 fixed initial states "
+                     "per task"]  # fmt: skip
+    assert len(EpisodeStore(tmp_path / "results").records()) == 2  # the other job's episodes

@@ -265,6 +265,9 @@ def command(argv: list[str], plugins: Plugins) -> int:
     import hydra
     from hydra.core.hydra_config import HydraConfig
 
+    from conflictbench.cli import sweep
+    from conflictbench.cli.sweep import record_failure, sweep_job
+
     register_model_configs(plugins)
     check_group_overrides(argv, plugins)
     check_model_fields(argv, plugins)
@@ -278,22 +281,27 @@ def command(argv: list[str], plugins: Plugins) -> int:
             return run_job(cfg, here.get(), HydraConfig.get().runtime.choices["model"])
         except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
+            hydra_config, job = HydraConfig.get(), sweep_job()
+            if job is not None:  # the sweep goes on; its end says which jobs failed (and takes the record back)
+                record_failure(job[0], job[1], exc.exit_code, str(exc))
             if isinstance(exc, UserError):  # a rejected command leaves nothing behind, not even Hydra's folder
-                hydra_config = HydraConfig.get()
                 remove_hydra_output(Path(hydra_config.runtime.output_dir), Path(cfg.run.out), hydra_config.job.name)
+            if job is not None:
+                return exc.exit_code
             raise SystemExit(exc.exit_code) from None
 
     saved = sys.argv
     sys.argv = ["conflictbench", *hydra_argv(argv)]
+    sweep.failed_exit_code = 0
     try:
         task()
     except SystemExit as exc:
-        if exc.code == 1 and not state["started"]:
+        if exc.code == 1 and not state["started"] and not sweep.failed_exit_code:
             return 2  # Hydra rejected an override; it has printed why
         return int(exc.code or 0)
     finally:
         sys.argv = saved
-    return 0
+    return sweep.failed_exit_code  # a sweep whose jobs failed (each said why)
 
 
 def check_suite_file(suite, plugins: Plugins) -> None:
