@@ -84,8 +84,8 @@ class Runner:
         self._serving: Slot | None = None
         """The slot whose episode a policy without act_batch is serving (it serves one at a time)."""
         self._held: list[tuple[Slot, Any]] = []
-        self._claims = ClaimKeeper(store)
         """First queries of episodes waiting their turn with such a policy, oldest first."""
+        self._claims = ClaimKeeper(store)  # each run starts its own (a keeper's thread starts once)
 
     # -- policy ----------------------------------------------------------------------------
     def _load_policy(self) -> Any:
@@ -302,8 +302,7 @@ class Runner:
             waiting: list[tuple[Slot, Any]] = []
             answers = []
             wakeup = self._calls.wakeup
-            ends = [s.conn for s in busy] + [s.process.sentinel for s in busy] + wakeup
-            for ready in wait(ends):
+            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy] + wakeup):
                 if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
                     answers += self._calls.collect()
                     continue

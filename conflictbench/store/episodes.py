@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import fcntl
 import os
+import shutil
 import socket
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import pyarrow as pa
@@ -38,7 +39,7 @@ REMOTE_CLAIM_TTL_S = 10 * 60
 CLAIM_REFRESH_S = 60.0
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -67,16 +68,25 @@ class EpisodeStore:
         """Where an episode the serving infrastructure ended waits to be played again."""
         return self.replay_dir / policy / f"{episode_id}{SUFFIX}"
 
+    def _land(self, final: Path, write: Callable[[Path], object]) -> None:
+        """``write(temporary)`` beside ``final``, flushed to disk, then renamed into place: whole or absent."""
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = final.with_name(f".{final.name}.{self._temporary_tag}.tmp")  # clean_stale_temporaries knows it
+        write(tmp)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, final)
+
+    def copy_in(self, source: Path, policy: str, episode_id: str) -> None:
+        """Store an episode file from another store as it is (``conflictbench merge``), atomically."""
+        self._land(self.path_for(policy, episode_id), lambda tmp: shutil.copyfile(source, tmp))
+        self.replay_path_for(policy, episode_id).unlink(missing_ok=True)  # played after all
+
     def write(self, record: EpisodeRecord) -> Path:
         """Write one episode atomically (temporary file in the same directory, then rename)."""
         replay = record.error is not None and record.error.startswith(INFRASTRUCTURE_ERROR_PREFIX)
         final = (self.replay_path_for if replay else self.path_for)(record.policy, record.episode_id)
-        final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = final.with_name(f".{final.name}.{self._temporary_tag}.tmp")
-        pq.write_table(records_to_table([record]), tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, final)
+        self._land(final, lambda tmp: pq.write_table(records_to_table([record]), tmp))
         if not replay:  # the replay of an episode the infrastructure ended: drop the failed attempt
             self.replay_path_for(record.policy, record.episode_id).unlink(missing_ok=True)
         return final
@@ -150,7 +160,7 @@ class EpisodeStore:
         if host != self._host:
             # Another machine's process cannot be checked: respect its claim for a while.
             return time.time() - float(stamp) < self.remote_claim_ttl_s
-        return int(pid) != os.getpid() and _pid_alive(int(pid))
+        return int(pid) != os.getpid() and pid_alive(int(pid))
 
     def claim(self, episode_id: str) -> bool:
         """Mark an episode as being played by this process; False if another live process holds it.
@@ -229,15 +239,10 @@ class EpisodeStore:
             for tmp in folder.glob(pattern) if folder.is_dir() else ():
                 rest, _, host = tmp.name[: -len(".tmp")].rpartition("@")
                 pid = rest.rpartition(".")[2]
-                if host == self._host and pid.isdigit() and not _pid_alive(int(pid)):
+                if host == self._host and pid.isdigit() and not pid_alive(int(pid)):
                     tmp.unlink(missing_ok=True)
                     removed += 1
         return removed
-
-    @property
-    def temporary_tag(self) -> str:
-        """``<pid>@<host>``: in a temporary file's name, what ``clean_stale_temporaries`` checks."""
-        return self._temporary_tag
 
     @property
     def _temporary_tag(self) -> str:

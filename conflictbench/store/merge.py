@@ -11,7 +11,6 @@ same experiment and the merge is refused before anything is written. Episodes th
 from __future__ import annotations
 
 import hashlib
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -142,13 +141,5 @@ def merge_stores(out: EpisodeStore, shards: Sequence[EpisodeStore], *, dry_run: 
         )
     if not dry_run:
         for copy in plan.new:
-            target = out.path_for(copy.policy, copy.episode_id)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            temporary = target.with_name(f".{target.name}.{out.temporary_tag}.tmp")  # cleaned if we die here
-            with open(temporary, "wb") as fh:
-                fh.write(copy.path.read_bytes())
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(temporary, target)
-            out.replay_path_for(copy.policy, copy.episode_id).unlink(missing_ok=True)  # played after all
+            out.copy_in(copy.path, copy.policy, copy.episode_id)
     return plan

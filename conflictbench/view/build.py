@@ -8,14 +8,17 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
+from itertools import islice
 from pathlib import Path
 
 from conflictbench.core import UserError
 from conflictbench.core.plugins import Plugins
-from conflictbench.report.from_store import loaded_pairs
+from conflictbench.metrics import evaluate_pairs
+from conflictbench.report.from_store import CHUNK_PAIRS, loaded_pairs
+from conflictbench.report.summary import select_metrics
 from conflictbench.store import EpisodeStore
 
-from .pairs import Selection, choose, measures
+from .pairs import Selection, choose
 from .site import index_page, pair_page
 from .videos import current_meta, playable, render_videos, write_atomic
 
@@ -70,8 +73,6 @@ def build_site(
     if unknown := set(video_pairs) - set(names):
         raise UserError(f"--pair {', '.join(sorted(unknown))}: not among the pairs this command shows")
     prepare_out(out)
-    frame, metrics = measures(store, pairs, plugins)
-    rows = rows.join(frame[[m.name for m in metrics]])
     rows["instruction"] = [p.conflict.instruction for p in pairs]
 
     with_video = [p for i, p in enumerate(pairs) if (videos is None or i < videos) or names[i] in video_pairs]
@@ -81,21 +82,30 @@ def build_site(
                                                progress)  # fmt: skip
 
     rerun = list(command or ["conflictbench", "view", str(store_dir), "--out", str(out)])
+    metrics = select_metrics(plugins, None)
+    measure_names = [m.name for m in metrics]
     with_both: set[str] = set()
-    for i, (reference, conflict) in enumerate(loaded_pairs(store, pairs)):
-        metas = {r.episode_id: meta for r in (reference, conflict) if (meta := current_meta(out, r))}
-        if all(playable(metas.get(r.episode_id)) for r in (reference, conflict)):
-            with_both.add(conflict.episode_id)
-        neighbours = (names[i - 1] if i else None, names[i + 1] if i + 1 < len(names) else None)
-        hint = "Render it with: " + shlex.join([*rerun, "--pair", conflict.episode_id])
-        page = pair_page(rows.iloc[i].to_dict(), reference, conflict, cases.get(conflict.case_id or ""), metrics,
-                         metas, neighbours, hint)  # fmt: skip
-        write_atomic(out / "pairs" / f"{conflict.episode_id}.html", page)
+    index_rows: list[dict] = []
+    loaded = loaded_pairs(store, pairs)  # each pair's arrays read once: measured, then its page written
+    while chunk := list(islice(loaded, CHUNK_PAIRS)):
+        frame = evaluate_pairs([r for r, _ in chunk], [c for _, c in chunk], plugins=plugins, metrics=measure_names)
+        for (reference, conflict), measured in zip(chunk, frame[measure_names].to_dict("records"), strict=True):
+            i = len(index_rows)
+            row = {**rows.iloc[i].to_dict(), **measured}
+            index_rows.append(row)
+            metas = {r.episode_id: meta for r in (reference, conflict) if (meta := current_meta(out, r))}
+            if all(playable(metas.get(r.episode_id)) for r in (reference, conflict)):
+                with_both.add(conflict.episode_id)
+            neighbours = (names[i - 1] if i else None, names[i + 1] if i + 1 < len(names) else None)
+            hint = "Render it with: " + shlex.join([*rerun, "--pair", conflict.episode_id])
+            page = pair_page(row, reference, conflict, cases.get(conflict.case_id or ""), metrics, metas,
+                             neighbours, hint)  # fmt: skip
+            write_atomic(out / "pairs" / f"{conflict.episode_id}.html", page)
     shown = set(names)
     for stale in (out / "pairs").glob("*.html"):  # pages of pairs this build does not show (filters, a new store)
         if stale.stem not in shown:
             stale.unlink(missing_ok=True)
-    write_atomic(out / "index.html", index_page(rows.to_dict("records"), metrics, str(store_dir), with_both))
+    write_atomic(out / "index.html", index_page(index_rows, metrics, str(store_dir), with_both))
     for name in ("viewer.js", "viewer.css"):
         write_atomic(out / "assets" / name, (resources.files("conflictbench.view") / "assets" / name).read_bytes())
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())

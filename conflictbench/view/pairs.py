@@ -2,20 +2,16 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
-from itertools import tee
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from conflictbench.core import EpisodeRecord, Pair, UserError
-from conflictbench.core.plugins import Plugins
-from conflictbench.metrics import evaluate_pairs
 from conflictbench.metrics.aggregate import sort_groups, with_model
-from conflictbench.report.from_store import light_records, loaded_pairs
-from conflictbench.report.summary import pair_up, select_metrics
+from conflictbench.report.from_store import light_records
+from conflictbench.report.summary import pair_up
 from conflictbench.store import EpisodeStore
 
 OUTCOMES = {  # (reference succeeded, conflict completed the original goal) -> words
@@ -83,15 +79,6 @@ def choose(store: EpisodeStore, selection: Selection) -> tuple[list[Pair], pd.Da
     rows = rows.assign(position=range(len(rows)))[keep.to_numpy()]
     rows = sort_groups(rows, ["model", "family", "level", "prompt", "case_id"])  # the paper's order
     return [pairs[i] for i in rows.pop("position")], rows
-
-
-def measures(store: EpisodeStore, pairs: Sequence[Pair], plugins: Plugins) -> tuple[pd.DataFrame, list]:
-    """Every registered metric of each pair (NaN: undefined), in the order of ``pairs``."""
-    specs = select_metrics(plugins, None)
-    first, second = tee(loaded_pairs(store, pairs))
-    frame = evaluate_pairs((r for r, _ in first), (c for _, c in second), plugins=plugins,
-                           metrics=[m.name for m in specs])  # fmt: skip
-    return frame, specs
 
 
 def target_distance(record: EpisodeRecord) -> np.ndarray:

@@ -21,6 +21,7 @@ import numpy as np
 from conflictbench.core import EpisodeRecord
 from conflictbench.sim.progress import CountProgress
 from conflictbench.store import EpisodeStore
+from conflictbench.store.episodes import pid_alive
 
 from .video import FPS, Mp4Sink
 
@@ -67,13 +68,9 @@ def playable(meta: dict[str, Any] | None) -> bool:
 def remove_dead_temporaries(folder: Path) -> None:
     """Half-written files of builds that were killed (``.<name>.<pid>.tmp``, their process gone)."""
     for path in folder.glob(".*.tmp") if folder.is_dir() else ():
-        try:
-            pid = int(path.name.rsplit(".", 2)[-2])
-            os.kill(pid, 0)
-        except ProcessLookupError:
+        pid = path.name.rsplit(".", 2)[-2]
+        if pid.isdigit() and not pid_alive(int(pid)):
             path.unlink(missing_ok=True)
-        except (ValueError, PermissionError, IndexError):
-            continue
 
 
 def _chunks(store: EpisodeStore, keys: Sequence[tuple[str, str]]) -> Iterator[EpisodeRecord]:
