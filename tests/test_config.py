@@ -29,6 +29,7 @@ def test_default_composition_is_the_quick_slice(composed):
     assert list(cfg.level.levels) == list(LEVELS)
     assert list(cfg.prompt.conditions) == ["p0"]
     assert opts.init_states == [0] and opts.cases_per_cell == 1 and opts.workers == 2
+    assert (opts.backend, opts.ray_address) == ("local", None)
     assert str(opts.out) == "results"
     assert cfg.model.max_steps["libero_10"] > 0  # the scripted expert's settings: it is the default model
 
@@ -82,6 +83,7 @@ def test_run_options_accept_a_list_of_initial_states(composed):
         ("run.cases_per_cell=-1", "run.cases_per_cell"),
         ("run.cases_per_cell=some", "run.cases_per_cell"),
         ("run.workers=0", "run.workers must be an integer >= 1"),
+        ("run.backend=dask", "unknown run.backend 'dask'; valid choices: local, ray"),
         ("run.libero_suites=[libero_90]", "unknown LIBERO suite 'libero_90'"),
     ],
 )

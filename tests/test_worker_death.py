@@ -1,5 +1,6 @@
-"""A simulator worker killed mid-episode: that episode is stored as a simulator failure, the worker
-restarts and the run goes on; an answer to the dead worker's query never reaches the next episode."""
+"""A simulator worker killed mid-episode: the worker restarts, that episode is played again (a second loss
+stores it as a simulator failure) and the run goes on; an answer to the dead worker's query never reaches
+the next episode."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from testing_support import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, SIMULATOR_ERROR_PREFIX, Plugins
-from conflictbench.sim.runner import Runner
+from conflictbench.sim.runner import Runner, RunResult
 from conflictbench.store import EpisodeStore
 
 pytestmark = pytest.mark.sim
@@ -53,7 +54,9 @@ class Still:
         return action
 
 
-def run_killing_the_worker(tmp_path, concurrent: bool, when) -> EpisodeStore:
+def run_killing_the_worker(tmp_path, concurrent: bool, at_calls: list[int]) -> tuple[EpisodeStore, RunResult]:
+    """Kill the worker once the policy has answered ``at_calls[0]`` queries, again at ``at_calls[1]`` ..."""
+
     class Plugin:
         __name__ = "still"
 
@@ -68,28 +71,41 @@ def run_killing_the_worker(tmp_path, concurrent: bool, when) -> EpisodeStore:
 
     def kill() -> None:
         deadline = time.time() + 120
-        while time.time() < deadline and not (runner._policy is not None and when(runner._policy)):
-            time.sleep(0.02)
-        runner._pool.slots[0].process.kill()
+        for calls in at_calls:
+            while time.time() < deadline and not (runner._policy is not None and runner._policy.calls >= calls):
+                time.sleep(0.02)
+            runner._pool.slots[0].process.kill()
 
     threading.Thread(target=kill, daemon=True).start()
     result = runner.run(specs())
-    assert result.played == 2
-    return store
+    return store, result
 
 
-def test_a_killed_worker_is_a_simulator_failure_and_the_run_goes_on(tmp_path):
-    store = run_killing_the_worker(tmp_path, concurrent=False, when=lambda policy: policy.calls >= 5)
+def test_a_killed_workers_episode_is_played_again_and_the_run_goes_on(tmp_path):
+    store, result = run_killing_the_worker(tmp_path, concurrent=False, at_calls=[5])
+    assert (result.played, result.replayed_after_loss, result.errors) == (2, 1, 0)
+    first, second = sorted(store.records(), key=lambda r: r.init_state)
+    assert first.error is None and first.steps == 30  # played whole the second time
+    np.testing.assert_allclose(first.raw_actions[:, 3], 0.001 * np.arange(30))
+    assert second.error is None and second.steps == 30
+
+
+def test_an_episode_lost_twice_is_stored_as_a_simulator_failure(tmp_path):
+    # First episode killed at its 5th query, the second played (30), the first again killed at its 5th.
+    store, result = run_killing_the_worker(tmp_path, concurrent=False, at_calls=[5, 40])
+    assert (result.played, result.replayed_after_loss, result.errors) == (2, 1, 1)
     first, second = sorted(store.records(), key=lambda r: r.init_state)
     assert first.error.startswith(SIMULATOR_ERROR_PREFIX) and "worker process died" in first.error
     assert second.error is None and second.steps == 30
 
 
 def test_an_answer_for_a_dead_workers_query_never_reaches_the_next_episode(tmp_path):
-    # The worker dies while its 5th query is being answered (2 s); the slot then plays the next episode.
-    store = run_killing_the_worker(tmp_path, concurrent=True, when=lambda policy: policy.calls >= 5)
+    # The worker dies while its 5th query is being answered (2 s); the slot then plays the next episode,
+    # then the first one again.
+    store, result = run_killing_the_worker(tmp_path, concurrent=True, at_calls=[5])
     first, second = sorted(store.records(), key=lambda r: r.init_state)
-    assert first.error.startswith(SIMULATOR_ERROR_PREFIX)
-    assert second.error is None and second.steps == 30
+    assert first.error is None and second.error is None and first.steps == second.steps == 30
     np.testing.assert_array_equal(second.raw_actions[:, 4], 0.2)  # only answers to its own queries ...
     np.testing.assert_allclose(second.raw_actions[:, 3], 0.001 * np.arange(30))  # ... each for its own step
+    np.testing.assert_array_equal(first.raw_actions[:, 4], 0.1)
+    np.testing.assert_allclose(first.raw_actions[:, 3], 0.001 * np.arange(30))

@@ -26,6 +26,7 @@ from conflictbench.core import (
     UserError,
 )
 from conflictbench.core.plugins import Plugins, unknown_choice
+from conflictbench.sim import BACKENDS
 
 CONFIG_PACKAGE = "pkg://conflictbench.conf"
 GROUPS = ("model", "suite", "level", "prompt", "run")
@@ -42,6 +43,8 @@ class RunOptions:
     libero_suites: list[str]
     seed: int
     workers: int
+    backend: str
+    ray_address: str | None
     out: Path
     metrics: list[str] | None
     progress: bool
@@ -93,6 +96,8 @@ def run_options(run: DictConfig) -> RunOptions:
         libero_suites=_names(run.libero_suites, "LIBERO suite", LIBERO_SUITES),
         seed=_int(run.seed, "run.seed"),
         workers=_int(run.workers, "run.workers", minimum=1),
+        backend=_names(run.backend, "run.backend", BACKENDS)[0],
+        ray_address=None if run.ray_address is None else str(run.ray_address),
         out=Path(str(run.out)),
         metrics=metrics,
         progress=bool(run.progress),
@@ -221,12 +226,21 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         file=sys.stderr,
     )
     runner = Runner(
-        plugins, spec, config, store=store, workers=options.workers, seed=options.seed, progress=options.progress
+        plugins,
+        spec,
+        config,
+        store=store,
+        workers=options.workers,
+        seed=options.seed,
+        progress=options.progress,
+        backend=options.backend,
+        ray_address=options.ray_address,
     )
     result = runner.run(plan)
     print(
         f"conflictbench: {result.played} played, {result.already_stored} already stored, "
-        f"{result.played_elsewhere} played by another job, {result.errors} with errors",
+        f"{result.played_elsewhere} played by another job, {result.errors} with errors"
+        + (f", {n} played again after their worker was lost" if (n := result.replayed_after_loss) else ""),
         file=sys.stderr,
     )
     job = sweep_job()

@@ -30,6 +30,8 @@ class Item:
 
     spec: EpisodeSpec
     job: EpisodeJob
+    losses: int = 0
+    """Times a worker was lost while playing it (it is played again once; see the runner)."""
 
 
 @dataclass
@@ -42,6 +44,8 @@ class Slot:
     item: Item | None = None
     task_key: TaskKey | None = None
     started: float = 0.0
+    retired: bool = False
+    """Its worker was lost and none could take its place (a Ray node gone): it plays no more."""
 
 
 class EpisodeQueue:
@@ -115,14 +119,28 @@ class WorkerPool:
             try:
                 msg = slot.conn.recv()
             except EOFError:
-                raise SimulatorUnavailable(
-                    f"a simulator worker died while starting (exit code {slot.process.exitcode})"
-                ) from None
+                lost = self.lost_reason(slot)
+                raise SimulatorUnavailable(f"a simulator worker died while starting: {lost}") from None
             if isinstance(msg, Fatal):
                 raise SimulatorUnavailable(msg.message)
             if not isinstance(msg, Ready):
                 raise SimulatorUnavailable(f"a simulator worker said {type(msg).__name__} instead of Ready")
+            self.check_versions(msg.versions)
             self.versions = dict(msg.versions)
+
+    def check_versions(self, versions: dict[str, str]) -> None:
+        """One run's episodes come from one simulator: a worker reporting other versions stops the run."""
+        if self.versions and versions != self.versions:
+            differ = sorted(k for k in set(versions) | set(self.versions) if versions.get(k) != self.versions.get(k))
+            raise SimulatorUnavailable(
+                "simulator workers run different versions ("
+                + ", ".join(f"{k}: {self.versions.get(k)} vs {versions.get(k)}" for k in differ)
+                + "); install the same everywhere"
+            )
+
+    def lost_reason(self, slot: Slot) -> str:
+        """Why ``slot``'s worker is gone, in words (stored as the error of an episode it could not finish)."""
+        return f"the worker process died (exit code {slot.process.exitcode})"
 
     def start_all(self) -> None:
         for slot in self.slots:

@@ -26,12 +26,14 @@ from conflictbench.core import (
     PolicySpec,
     PolicyTraits,
     ServerUnavailable,
+    SimulatorUnavailable,
     UserError,
 )
 from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 from conflictbench.tasks.libero.base_tasks import base_task
 
+from . import BACKENDS
 from .deciding import PolicyCalls, reply_for, reset_error
 from .libero_env import EnvSettings
 from .messages import Abort, Done, EpisodeJob, EpisodeOutcome, Play, Query
@@ -50,6 +52,8 @@ class RunResult:
     played_elsewhere: int = 0
     """Episodes another job sharing the store was playing when this one reached them."""
     played: int = 0
+    replayed_after_loss: int = 0
+    """Episodes played again because their worker was lost mid-episode."""
     succeeded: int = 0
     errors: int = 0
     episode_ids: list[str] = field(default_factory=list)
@@ -69,9 +73,14 @@ class Runner:
         seed: int = 7,
         progress: bool = True,
         on_episode: Callable[[EpisodeRecord], None] | None = None,
+        backend: str = "local",
+        ray_address: str | None = None,
     ):
         if workers < 1:
             raise UserError(f"run.workers must be >= 1, got {workers}")
+        if backend not in BACKENDS:
+            raise UserError(f"unknown run.backend {backend!r}; valid choices: {', '.join(BACKENDS)}")
+        self.backend, self.ray_address = backend, ray_address
         self.plugins, self.spec, self.config = plugins, spec, config
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
@@ -187,7 +196,7 @@ class Runner:
 
         self._start_policy(policy)  # only now that there is something to play (a model server loads for minutes)
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
-        pool = self._pool = WorkerPool(settings, size=min(self.workers, len(todo)))
+        pool = self._pool = self._make_pool(settings, size=min(self.workers, len(todo)))
         self._policy, self._serving, self._held = policy, None, []
         self._calls = PolicyCalls(policy, traits, len(pool.slots))
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
@@ -207,6 +216,13 @@ class Runner:
             pool.stop()
             self._bar.close()
         return result
+
+    def _make_pool(self, settings: EnvSettings, size: int) -> WorkerPool:
+        if self.backend == "ray":
+            from .ray_pool import RayWorkerPool
+
+            return RayWorkerPool(settings, size, address=self.ray_address)
+        return WorkerPool(settings, size)
 
     def _next_item(
         self, slot: Slot, queue: EpisodeQueue, deferred: list[Item], stored: set[str], busy: set, result: RunResult
@@ -232,7 +248,7 @@ class Runner:
 
     def _assign(self, slot: Slot, item: Item, result: RunResult, traits: PolicyTraits) -> None:
         job = dataclasses.replace(item.job, stream=slot.index)
-        item = Item(item.spec, job)
+        item = dataclasses.replace(item, job=job)
         slot.item, slot.task_key, slot.started = item, item.spec.task_key, time.time()
         if traits.batched:  # otherwise reset comes right before the episode's first act (_serve)
             try:
@@ -266,14 +282,13 @@ class Runner:
             waiting.append((slot, observation))
 
     def _loop(self, queue: EpisodeQueue, result: RunResult, traits: PolicyTraits) -> None:
-        slots = self._pool.slots
         deferred: list[Item] = []
         stored = self.store.stored_ids()
 
         def fill() -> None:
-            for slot in slots:
-                while slot.item is None:
-                    busy = {s.task_key for s in slots if s.item is not None}
+            for slot in self._pool.slots:
+                while slot.item is None and not slot.retired:
+                    busy = {s.task_key for s in self._pool.slots if s.item is not None}
                     item = self._next_item(slot, queue, deferred, stored, busy, result)
                     if item is None:
                         break
@@ -281,6 +296,11 @@ class Runner:
 
         fill()
         while True:
+            slots = [s for s in self._pool.slots if not s.retired]
+            if not slots:
+                raise SimulatorUnavailable(
+                    "every simulator worker was lost; the episodes not yet played are played by the next run"
+                )
             busy = [s for s in slots if s.item is not None]
             if not busy:
                 if not deferred:
@@ -302,21 +322,22 @@ class Runner:
             waiting: list[tuple[Slot, Any]] = []
             answers = []
             wakeup = self._calls.wakeup
-            for ready in wait([s.conn for s in busy] + [s.process.sentinel for s in busy] + wakeup):
+            owners = {s.conn: s for s in busy} | {s.process.sentinel: s for s in busy}
+            lost_now: set[int] = set()  # their waitables this round were the lost worker's, not its successor's
+            for ready in wait([*owners, *wakeup]):
                 if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
                     answers += self._calls.collect()
                     continue
-                slot = next((s for s in busy if ready == s.conn or ready == s.process.sentinel), None)
-                if slot is None or slot.item is None or any(w[0] is slot for w in waiting):
+                slot = owners.get(ready)
+                if slot is None or slot.index in lost_now or slot.item is None or any(w[0] is slot for w in waiting):
                     continue
                 try:
                     if ready == slot.process.sentinel and not slot.conn.poll():
                         raise EOFError
                     msg = slot.conn.recv()
                 except (EOFError, ConnectionResetError):
-                    error = f"{SIMULATOR_ERROR_PREFIX}: the worker process died (exit code {slot.process.exitcode})"
-                    self._finish(slot, EpisodeOutcome.failed(error, len(slot.item.job.targets)), result)
-                    self._pool.restart(slot)
+                    lost_now.add(slot.index)
+                    self._worker_lost(slot, queue, result)
                     continue
                 match msg:
                     case Query(observation=observation):
@@ -337,6 +358,23 @@ class Runner:
                     pass  # the worker died after asking: the next wait() finds it and stores the episode
             fill()
 
+    def _worker_lost(self, slot: Slot, queue: EpisodeQueue, result: RunResult) -> None:
+        """The worker playing ``slot``'s episode is gone (crashed, its node lost): the episode is played again
+        by another worker, once; lost a second time it is stored as a simulator failure (left out of the
+        measures, played again by the next run). Then the slot gets a new worker, or is retired."""
+        item = slot.item
+        reason = self._pool.lost_reason(slot)
+        if item.losses == 0:
+            self._free(slot)
+            self._release(item.job.episode_id)
+            queue.push(dataclasses.replace(item, losses=1))
+            result.replayed_after_loss += 1
+            print(f"conflictbench: {reason}; its episode is played again", file=sys.stderr)
+        else:
+            error = f"{SIMULATOR_ERROR_PREFIX}: {reason}"
+            self._finish(slot, EpisodeOutcome.failed(error, len(item.job.targets)), result)
+        self._pool.restart(slot)
+
     def _release(self, episode_id: str) -> None:
         self.store.release(episode_id)
         self._claims.drop(episode_id)
@@ -354,6 +392,12 @@ class Runner:
                 pass
             if slot.process is not None:
                 slot.process.kill()  # its episode cannot finish: no need to wait for it to reach a Stop
+
+    def _free(self, slot: Slot) -> None:
+        slot.item = None
+        if self._serving is slot:
+            self._serving = None
+        self._held = [(s, o) for s, o in self._held if s is not slot]
 
     def _record(self, item: Item, outcome: EpisodeOutcome, wall_time_s: float) -> EpisodeRecord:
         """The stored row: the episode's keys and provenance from here, the rest from the worker's outcome."""
@@ -401,10 +445,7 @@ class Runner:
             result.played += 1
             result.succeeded += int(record.success)
             result.errors += int(record.error is not None)
-        slot.item = None
-        if self._serving is slot:
-            self._serving = None
-        self._held = [(s, o) for s, o in self._held if s is not slot]
+        self._free(slot)
         self._bar.update(1)
         self._bar.set_postfix(success=result.succeeded, errors=result.errors)
         if self.on_episode is not None and item.job.episode_id not in self._claims.lost:

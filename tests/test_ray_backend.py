@@ -1,0 +1,132 @@
+"""`run.backend=ray` on a real Ray cluster of two nodes (Ray's multi-node test cluster, in this machine):
+simulator workers as actors spread over the nodes, real LIBERO episodes, a node lost mid-run."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+from testing_support import reference_spec
+
+from conflictbench import BUILTIN_PLUGINS, hookimpl
+from conflictbench.core import LIBERO_SUITES, Plugins
+from conflictbench.sim.runner import Runner
+from conflictbench.store import EpisodeStore
+from conflictbench.testing import episode_counts, run_cli
+
+pytestmark = pytest.mark.sim
+if not os.environ.get("CI"):  # CI installs the cluster extra: there a missing Ray fails
+    pytest.importorskip("ray", reason="the cluster extra: pip install -e '.[cluster]'")
+
+
+def start_cluster(nodes: int):
+    from ray.cluster_utils import Cluster
+
+    # The head has no CPU: every actor lands on a worker node, as on a cluster whose driver only drives.
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+    for _ in range(nodes):
+        cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    return cluster
+
+
+@pytest.fixture(scope="module")
+def two_nodes():
+    cluster = start_cluster(2)
+    yield cluster
+    cluster.shutdown()
+
+
+class Still:
+    """Stands still for 30 steps; marks each action with its step (dim 3)."""
+
+    needs_images = False
+    max_steps = dict.fromkeys(LIBERO_SUITES, 30)
+
+    def __init__(self):
+        self.calls = 0
+
+    def reset(self, instruction):
+        pass
+
+    def act(self, observation):
+        self.calls += 1
+        return np.array([0, 0, 0, 0.001 * observation.step, 0, 0, -1.0])
+
+
+def test_a_node_lost_mid_run_its_episode_is_played_elsewhere_and_each_is_stored_once(tmp_path, capfd):
+    class Plugin:
+        __name__ = "still"
+
+        @hookimpl
+        def conflictbench_register_policies(self, register):
+            register("still", load=lambda cfg: Still())
+
+    plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
+    spec = plugins.policy("still")
+    store = EpisodeStore(tmp_path / "store")
+    cluster = start_cluster(2)  # its own: this test takes a node away
+    lost: dict = {}
+    try:
+        runner = Runner(
+            plugins,
+            spec,
+            spec.make_config(),
+            store=store,
+            workers=2,
+            progress=False,
+            backend="ray",
+            ray_address=cluster.address,
+        )
+
+        def lose_a_node() -> None:
+            """Once the policy has answered 5 queries, the node of the episode it serves goes: its raylet and
+            the actor's process killed, as when a machine disappears."""
+            deadline = time.time() + 240
+            while time.time() < deadline and not (runner._policy is not None and runner._policy.calls >= 5):
+                time.sleep(0.02)
+            slot = runner._serving
+            handle = slot.process
+            lost.update(slot=slot.index, episode=slot.item.job.episode_id, node=handle.node_id)
+            os.kill(handle.pid, signal.SIGKILL)
+            node = next(n for n in cluster.list_all_nodes() if n.node_id == handle.node_id)
+            cluster.remove_node(node, allow_graceful=False)
+
+        threading.Thread(target=lose_a_node, daemon=True).start()
+        plan = [reference_spec("libero_object", 4, i) for i in range(4)]
+        result = runner.run(plan)
+    finally:
+        cluster.shutdown()
+
+    assert lost, "the node was never taken away"
+    assert (result.played, result.replayed_after_loss, result.errors) == (4, 1, 0)
+    records = store.records()
+    assert sorted(r.episode_id for r in records) == sorted(result.episode_ids)  # each once, none missing
+    assert all(r.error is None and r.steps == 30 for r in records)
+    replayed = next(r for r in records if r.episode_id == lost["episode"])
+    np.testing.assert_allclose(replayed.raw_actions[:, 3], 0.001 * np.arange(30))  # whole, from its first step
+    assert len({(r.mujoco_version, r.robosuite_version) for r in records}) == 1 and records[0].mujoco_version
+    assert runner._pool.slots[lost["slot"]].retired  # no CPU was left for a new actor: the run went on with one
+    assert re.search(r"the Ray actor on node \S+ was lost \(.+\); its episode is played again", capfd.readouterr().err)
+
+
+def test_the_command_line_plays_on_the_cluster(tmp_path, two_nodes):
+    out = run_cli(tmp_path, "model=noop", "run.backend=ray", f"run.ray_address={two_nodes.address}")
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert episode_counts(out.stderr) == (2, 0, 0)
+    records = EpisodeStore(tmp_path / "results").records()
+    assert len(records) == 2 and all(r.error is None for r in records)
+
+
+def test_more_workers_than_the_cluster_has_cpus_is_a_clear_error(tmp_path, two_nodes):
+    # 4 episodes: 3 workers wanted (a run never starts more workers than it has episodes)
+    address = f"run.ray_address={two_nodes.address}"
+    out = run_cli(tmp_path, "model=noop", "run.init_states=2", "run.backend=ray", "run.workers=3", address)
+    assert out.returncode == 2
+    assert "run.workers=3 needs 3 CPUs in the Ray cluster; it has 2" in out.stderr
+    assert "Traceback" not in out.stderr
