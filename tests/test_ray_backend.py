@@ -3,6 +3,7 @@ simulator workers as actors spread over the nodes, real LIBERO episodes, a node 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -15,6 +16,7 @@ from testing_support import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, Plugins
+from conflictbench.sim import ray_pool
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import episode_counts, run_cli
@@ -24,11 +26,14 @@ if not os.environ.get("CI"):  # CI installs the cluster extra: there a missing R
     pytest.importorskip("ray", reason="the cluster extra: pip install -e '.[cluster]'")
 
 
-def start_cluster(nodes: int):
+def start_cluster(nodes: int, quick_node_death: bool = False):
     from ray.cluster_utils import Cluster
 
     # The head has no CPU: every actor lands on a worker node, as on a cluster whose driver only drives.
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+    head = {"num_cpus": 0, "include_dashboard": False}
+    if quick_node_death:  # a silent node is declared dead after 2 missed health checks 1 s apart (default 5 x 3 s)
+        head["_system_config"] = {"health_check_period_ms": 1000, "health_check_failure_threshold": 2}
+    cluster = Cluster(initialize_head=True, head_node_args=head)
     for _ in range(nodes):
         cluster.add_node(num_cpus=1)
     cluster.wait_for_nodes()
@@ -59,7 +64,14 @@ class Still:
         return np.array([0, 0, 0, 0.001 * observation.step, 0, 0, -1.0])
 
 
-def test_a_node_lost_mid_run_its_episode_is_played_elsewhere_and_each_is_stored_once(tmp_path, capfd):
+@pytest.mark.parametrize(
+    "how",
+    [
+        "crashed",  # the node's processes die: the actor's connection closes at once
+        "silent",  # the machine freezes or its network goes: nothing closes, Ray's word that the node is dead counts
+    ],
+)
+def test_a_node_lost_mid_run_its_episode_is_played_elsewhere_and_each_is_stored_once(tmp_path, capfd, monkeypatch, how):
     class Plugin:
         __name__ = "still"
 
@@ -67,10 +79,11 @@ def test_a_node_lost_mid_run_its_episode_is_played_elsewhere_and_each_is_stored_
         def conflictbench_register_policies(self, register):
             register("still", load=lambda cfg: Still())
 
+    monkeypatch.setattr(ray_pool, "FREE_CPU_WAIT_S", 1.0)  # no CPU will come back here: do not wait 10 s for one
     plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
     spec = plugins.policy("still")
     store = EpisodeStore(tmp_path / "store")
-    cluster = start_cluster(2)  # its own: this test takes a node away
+    cluster = start_cluster(2, quick_node_death=True)  # its own: this test takes a node away
     lost: dict = {}
     try:
         runner = Runner(
@@ -85,22 +98,30 @@ def test_a_node_lost_mid_run_its_episode_is_played_elsewhere_and_each_is_stored_
         )
 
         def lose_a_node() -> None:
-            """Once the policy has answered 5 queries, the node of the episode it serves goes: its raylet and
-            the actor's process killed, as when a machine disappears."""
+            """Once the policy has answered 5 queries, the node of the episode it serves goes: its raylet
+            killed, the actor's process killed or frozen."""
             deadline = time.time() + 240
             while time.time() < deadline and not (runner._policy is not None and runner._policy.calls >= 5):
                 time.sleep(0.02)
             slot = runner._serving
             handle = slot.process
             lost.update(slot=slot.index, episode=slot.item.job.episode_id, node=handle.node_id)
-            os.kill(handle.pid, signal.SIGKILL)
             node = next(n for n in cluster.list_all_nodes() if n.node_id == handle.node_id)
-            cluster.remove_node(node, allow_graceful=False)
+            lost["pids"] = [handle.pid, *(p.process.pid for p in node.all_processes["raylet"])]
+            if how == "silent":
+                for pid in lost["pids"]:
+                    os.kill(pid, signal.SIGSTOP)
+            else:
+                os.kill(handle.pid, signal.SIGKILL)
+                cluster.remove_node(node, allow_graceful=False)
 
         threading.Thread(target=lose_a_node, daemon=True).start()
         plan = [reference_spec("libero_object", 4, i) for i in range(4)]
         result = runner.run(plan)
     finally:
+        for pid in lost.get("pids", []):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
         cluster.shutdown()
 
     assert lost, "the node was never taken away"
@@ -112,7 +133,11 @@ def test_a_node_lost_mid_run_its_episode_is_played_elsewhere_and_each_is_stored_
     np.testing.assert_allclose(replayed.raw_actions[:, 3], 0.001 * np.arange(30))  # whole, from its first step
     assert len({(r.mujoco_version, r.robosuite_version) for r in records}) == 1 and records[0].mujoco_version
     assert runner._pool.slots[lost["slot"]].retired  # no CPU was left for a new actor: the run went on with one
-    assert re.search(r"the Ray actor on node \S+ was lost \(.+\); its episode is played again", capfd.readouterr().err)
+    err = capfd.readouterr().err
+    said = re.search(r"the Ray actor on node \S+ was lost \((.+)\); its episode is played again", err)
+    assert said
+    if how == "silent":  # nothing closed: the run learnt it from Ray
+        assert "connection closed" not in said[1] and "Actor" in said[1]
 
 
 def test_the_command_line_plays_on_the_cluster(tmp_path, two_nodes):

@@ -1,10 +1,11 @@
 """Simulator workers as Ray actors (``run.backend=ray``): one run's episodes played on every node of a cluster.
 
-The runner does not know the difference. Each actor is reached through a local pipe, like a worker
-process: a bridge thread per actor forwards what the runner sends (Play, Actions, Abort, Stop) as one
-actor call, whose answer is the worker's next message (Ready or Fatal, Query, Done). When an actor is
-lost (its node went away, its process crashed) the bridge closes the pipe and the slot's sentinel
-fires: the runner sees a dead worker and plays that episode again on another one. The driver alone
+Ray places the actors (one CPU each, spread over the nodes) and tells when one is gone; the
+conversation itself is the local pool's: each actor runs :func:`worker_main` over a connection to a
+listener of this process (``multiprocessing.connection``, authenticated with a key made per run), so
+an episode step costs what it costs locally plus the network's round trip. The runner does not know
+the difference. An actor lost (its process crashed: the socket closes; its node went away: Ray says
+so) is a dead worker to the runner, which plays that episode again on another one. The driver alone
 writes the store, so an episode whose actor was lost is never stored twice.
 """
 
@@ -12,16 +13,16 @@ from __future__ import annotations
 
 import logging
 import os
-import queue
+import secrets
 import threading
 import time
+from multiprocessing.connection import Client, Listener
 from typing import Any
 
 from conflictbench.core import SimulatorUnavailable, UserError
 
 from .libero_env import EnvSettings
-from .messages import Stop
-from .pool import STOP_TIMEOUT_S, Slot, WorkerPool
+from .pool import START_TIMEOUT_S, STOP_TIMEOUT_S, Slot, WorkerPool
 from .worker import worker_main
 
 #: How long a restart waits for the cluster to show a free CPU (a crashed actor's takes a moment to
@@ -38,64 +39,44 @@ def import_ray():
     return ray
 
 
-class _Inbox:
-    """The worker loop's end of the conversation inside an actor."""
-
-    def __init__(self) -> None:
-        self.incoming: queue.Queue = queue.Queue()
-        self.outgoing: queue.Queue = queue.Queue()
-
-    def send(self, message: Any) -> None:
-        self.outgoing.put(message)
-
-    def recv(self) -> Any:
-        return self.incoming.get()
-
-
 class SimulatorActor:
-    """One LIBERO env on a Ray node: :func:`worker_main` in a thread of its own, fed a message per call
-    (the thread keeps the GL context on one thread for the env's whole life)."""
+    """One LIBERO env on a Ray node, talking to the driver over its own connection."""
 
-    def __init__(self, settings: EnvSettings):
-        self._inbox = _Inbox()
-        self._thread = threading.Thread(target=worker_main, args=(self._inbox, settings), daemon=True)
-        self._thread.start()
-
-    def where(self) -> tuple[str, str, int]:
+    def serve(self, address: Any, authkey: bytes, token: str, settings: EnvSettings) -> None:
+        """Connect, say who this is and where it runs, then be a worker until told to stop."""
         import ray
 
-        return ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address(), os.getpid()
-
-    def ready(self) -> Any:
-        return self._next()
-
-    def exchange(self, message: Any) -> Any:
-        """Hand ``message`` to the worker; its next message (``None`` once it stopped)."""
-        self._inbox.incoming.put(message)
-        if isinstance(message, Stop):
-            self._thread.join(timeout=STOP_TIMEOUT_S)
-            return None
-        return self._next()
-
-    def _next(self) -> Any:
-        while True:
-            try:
-                return self._inbox.outgoing.get(timeout=1.0)
-            except queue.Empty:
-                if not self._thread.is_alive() and self._inbox.outgoing.empty():
-                    raise RuntimeError("the simulator worker's thread ended") from None
+        conn = Client(address, authkey=authkey)
+        try:
+            conn.send((token, ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address(), os.getpid()))
+            worker_main(conn, settings)
+        finally:
+            conn.close()
 
 
 class ActorHandle:
     """What the runner knows of a worker process, for an actor: a sentinel that fires when it is gone,
     ``kill`` and ``join``; and where it runs."""
 
-    def __init__(self, ray: Any, actor: Any):
-        self._ray, self.actor = ray, actor
-        self.sentinel, self._gone = os.pipe()  # readable (EOF) once the bridge has ended
+    def __init__(self, ray: Any, actor: Any, token: str):
+        self._ray, self.actor, self.token = ray, actor, token
+        self.sentinel, self._gone = os.pipe()  # readable (EOF) once the actor's serve call has ended
         self.lost_because: str | None = None
         self.node_id, self.node_ip, self.pid = "?", "?", 0
-        self.bridge: threading.Thread | None = None
+        self.conn: Any = None
+        self.arrived = threading.Event()
+        self.watcher: threading.Thread | None = None
+
+    def watch(self, serving: Any) -> None:
+        """Wait (in a thread) for the actor's serve call to end: returned (stopped) or failed (lost)."""
+        try:
+            self._ray.get(serving)
+        except Exception as exc:  # RayActorError: its process or node is gone; RayTaskError: serve raised
+            text = str(exc).strip()
+            self.lost_because = f"{type(exc).__name__}: {text.splitlines()[0] if text else ''}"
+        finally:
+            os.close(self._gone)
+            self._gone = None
 
     def kill(self) -> None:
         try:
@@ -104,19 +85,13 @@ class ActorHandle:
             pass
 
     def is_alive(self) -> bool:
-        return self.bridge is not None and self.bridge.is_alive()
+        return self.watcher is not None and self.watcher.is_alive()
 
     def join(self, timeout: float | None = None) -> None:
-        if self.bridge is not None:
-            self.bridge.join(timeout)
-
-    def mark_gone(self) -> None:
-        if self._gone is not None:
-            os.close(self._gone)
-            self._gone = None
+        if self.watcher is not None:
+            self.watcher.join(timeout)
 
     def close(self) -> None:
-        self.mark_gone()
         if self.sentinel is not None:
             os.close(self.sentinel)
             self.sentinel = None
@@ -131,6 +106,8 @@ class RayWorkerPool(WorkerPool):
         super().__init__(settings, size)
         ray = self._ray = import_ray()
         self._owns_ray = not ray.is_initialized()
+        self._listener: Listener | None = None
+        self._closing = False
         if self._owns_ray:
             try:
                 ray.init(address=address, logging_level=logging.WARNING, include_dashboard=False)
@@ -142,38 +119,68 @@ class RayWorkerPool(WorkerPool):
             self.stop()
             raise UserError(f"run.workers={size} needs {size} CPUs in the Ray cluster; it has {cpus:g}")
         self._actor_class = ray.remote(num_cpus=1, max_restarts=0)(SimulatorActor)
+        self._authkey = secrets.token_bytes(32)
+        # On the address the cluster knows this node by: the actors on other nodes connect to it.
+        self._listener = Listener((ray.util.get_node_ip_address(), 0), authkey=self._authkey)
+        self._expected: dict[str, ActorHandle] = {}
+        self._lock = threading.Lock()
+        threading.Thread(target=self._accept, daemon=True, name="conflictbench-ray-listener").start()
+
+    def _accept(self) -> None:
+        """Hand each actor's connection to its slot (actors connect in any order: each says its token)."""
+        while True:
+            try:
+                conn = self._listener.accept()
+            except OSError:  # the listener was closed: the run is over
+                return
+            except Exception:  # a client without the key (AuthenticationError): ignore it
+                continue
+            if self._closing:  # the wake-up call of stop()
+                conn.close()
+                return
+            try:
+                token, node_id, node_ip, pid = conn.recv()
+            except (EOFError, OSError, ValueError, TypeError):
+                conn.close()
+                continue
+            with self._lock:
+                handle = self._expected.pop(token, None)
+            if handle is None:
+                conn.close()
+                continue
+            handle.node_id, handle.node_ip, handle.pid, handle.conn = node_id, node_ip, pid, conn
+            handle.arrived.set()
 
     def start(self, slot: Slot) -> None:
-        actor = self._actor_class.options(scheduling_strategy="SPREAD").remote(self.settings)
-        handle = ActorHandle(self._ray, actor)
-        parent, child = self._ctx.Pipe()
-        handle.bridge = threading.Thread(
-            target=self._bridge, args=(handle, child), daemon=True, name=f"conflictbench-ray-{slot.index}"
-        )
-        handle.bridge.start()
-        slot.process, slot.conn, slot.item, slot.task_key = handle, parent, None, None
+        token = secrets.token_hex(8)
+        actor = self._actor_class.options(scheduling_strategy="SPREAD").remote()
+        handle = ActorHandle(self._ray, actor, token)
+        with self._lock:
+            self._expected[token] = handle
+        serving = actor.serve.remote(self._listener.address, self._authkey, token, self.settings)
+        handle.watcher = threading.Thread(target=handle.watch, args=(serving,), daemon=True)
+        handle.watcher.start()
+        slot.process, slot.conn, slot.item, slot.task_key = handle, None, None, None
 
-    def _bridge(self, handle: ActorHandle, end: Any) -> None:
-        ray, actor = self._ray, handle.actor
-        try:
-            handle.node_id, handle.node_ip, handle.pid = ray.get(actor.where.remote())
-            end.send(ray.get(actor.ready.remote()))
-            while True:
-                reply = ray.get(actor.exchange.remote(end.recv()))
-                if reply is None:  # it stopped
-                    return
-                end.send(reply)
-        except (EOFError, OSError):  # the runner closed its end
-            pass
-        except Exception as exc:  # RayActorError (node or process lost), RayTaskError (the worker thread ended)
-            handle.lost_because = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
-        finally:
-            end.close()
-            handle.mark_gone()
+    def await_ready(self, slots: list[Slot]) -> None:
+        """Wait for each actor to be placed and connect, then for its simulator import (as the local pool)."""
+        deadline = time.monotonic() + START_TIMEOUT_S
+        for slot in slots:
+            handle = slot.process
+            while not handle.arrived.wait(0.2):
+                if not handle.is_alive():
+                    raise SimulatorUnavailable(f"a simulator worker died while starting: {self.lost_reason(slot)}")
+                if time.monotonic() > deadline:
+                    raise SimulatorUnavailable(
+                        f"a Ray simulator actor did not start within {START_TIMEOUT_S} s (no node can place it, "
+                        "or its node cannot reach this one's address)"
+                    )
+            slot.conn = handle.conn
+        super().await_ready(slots)
 
     def lost_reason(self, slot: Slot) -> str:
         handle = slot.process
-        return f"the Ray actor on node {handle.node_ip} was lost ({handle.lost_because or 'it ended'})"
+        return f"the Ray actor on node {handle.node_ip} was lost ({handle.lost_because or 'its connection closed'})"
 
     def restart(self, slot: Slot) -> None:
         """A new actor wherever a CPU is free; none within ``FREE_CPU_WAIT_S``: the slot is retired."""
@@ -196,8 +203,15 @@ class RayWorkerPool(WorkerPool):
         slot.process, slot.conn, slot.item = None, None, None
 
     def stop(self) -> None:
-        super().stop()  # Stop through every bridge, then kill what is left
+        super().stop()  # Stop to every actor, a common deadline, then kill what is left
         for slot in self.slots:
             self._drop(slot)
+        if self._listener is not None:
+            self._closing = True
+            try:  # wake the accepting thread (closing a socket does not interrupt a blocked accept)
+                Client(self._listener.address, authkey=self._authkey).close()
+            except OSError:
+                pass
+            self._listener.close()
         if self._owns_ray and self._ray.is_initialized():
             self._ray.shutdown()
