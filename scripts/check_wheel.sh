@@ -25,14 +25,15 @@ say "building the wheel"
 "$PYTHON" -m pip wheel -q --no-deps --wheel-dir "$work/dist" "$work/src"
 wheel=$(echo "$work"/dist/conflictbench-*.whl)
 
-# 2. Every file under conflictbench/ and conf/ (installed as conflictbench/conf/) is in the wheel.
+# 2. Every file under conflictbench/, conf/ (installed as conflictbench/conf/) and hydra_plugins/ (our Ray
+#    launcher, in Hydra's namespace for plugins) is in the wheel.
 "$PYTHON" - "$work/src" "$wheel" <<'EOF'
 import sys
 import zipfile
 from pathlib import Path
 
 src, wheel = Path(sys.argv[1]), sys.argv[2]
-roots = {"conflictbench": "conflictbench", "conf": "conflictbench/conf"}
+roots = {"conflictbench": "conflictbench", "conf": "conflictbench/conf", "hydra_plugins": "hydra_plugins"}
 want = {f"{dest}/{p.relative_to(src / root).as_posix()}"
         for root, dest in roots.items() for p in (src / root).rglob("*") if p.is_file()}
 missing = sorted(want - set(zipfile.ZipFile(wheel).namelist()))

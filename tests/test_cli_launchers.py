@@ -49,3 +49,32 @@ def test_a_job_failing_in_its_own_process_is_one_line_naming_it_and_the_sweeps_e
     assert lines == ["conflictbench: error: sweep job 1: run.init_states=52, but LIBERO has 50 fixed initial states "
                      "per task"]  # fmt: skip
     assert len(EpisodeStore(tmp_path / "results").records()) == 2  # the other job's episodes
+
+
+def test_a_ray_sweep_runs_each_job_as_a_ray_task_into_one_store(tmp_path):
+    """`hydra/launcher=ray` (ours: Hydra's cannot be installed beside the simulator) on a Ray started here."""
+    pytest.importorskip("ray")
+    out = run_cli(
+        tmp_path, "-m", "hydra/launcher=ray", "hydra.launcher.cpus_per_job=1", "model=noop,random", "run.report=true"
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert sorted(r.policy for r in EpisodeStore(tmp_path / "results").records()) == [
+        "noop",
+        "noop",
+        "random",
+        "random",
+    ]
+    jobs = re.findall(r"\(run_one pid=(\d+)\).*2 played, 0 already stored", out.stderr)  # Ray relays each job's lines
+    assert len(set(jobs)) == 2  # two tasks, each in a process of its own
+    assert (tmp_path / "results" / "report" / "jobs" / "1-random" / "table1_overall.md").is_file()
+
+
+def test_a_ray_job_that_fails_is_named_and_its_exit_code_is_the_sweeps(tmp_path):
+    pytest.importorskip("ray")
+    out = run_cli(
+        tmp_path, "-m", "hydra/launcher=ray", "hydra.launcher.cpus_per_job=1", "model=noop", "run.init_states=1,52"
+    )
+    assert out.returncode == 2, out.stderr[-3000:]
+    assert "conflictbench: error: sweep job 1: run.init_states=52, but LIBERO has 50" in out.stderr
+    assert "Traceback" not in out.stderr
+    assert len(EpisodeStore(tmp_path / "results").records()) == 2
