@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import pytest
@@ -78,3 +79,30 @@ def test_a_ray_job_that_fails_is_named_and_its_exit_code_is_the_sweeps(tmp_path)
     assert "conflictbench: error: sweep job 1: run.init_states=52, but LIBERO has 50" in out.stderr
     assert "Traceback" not in out.stderr
     assert len(EpisodeStore(tmp_path / "results").records()) == 2
+
+
+def test_a_ray_job_whose_process_dies_is_named_and_recorded_and_the_others_are_kept(tmp_path, capfd):
+    """A task that never returns (its worker crashed; a lost node is the same error family): one line, the
+    sweep's failure record (the command's exit code), a result for Hydra instead of an exception."""
+    ray = pytest.importorskip("ray")
+    from omegaconf import OmegaConf
+
+    from conflictbench.cli.sweep import collect_failures
+    from hydra_plugins.conflictbench_ray_launcher.ray_launcher import RayLauncher
+
+    launcher = RayLauncher()
+    launcher.config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path / "sweep")}}})
+    ray.init(num_cpus=1, include_dashboard=False)
+    try:
+        crashed = ray.remote(max_retries=0)(lambda: os._exit(1)).remote()
+        fine = ray.remote(lambda: "done").remote()
+        result = launcher._outcome(ray, crashed, 1)
+        assert ray.get(fine) == "done"
+    finally:
+        ray.shutdown()
+    assert result.return_value == 3
+    assert re.search(
+        r"conflictbench: error: sweep job 1: its Ray task was lost \(\w*Crashed\w*", capfd.readouterr().err
+    )
+    [failure] = collect_failures(tmp_path / "sweep")
+    assert (failure["job"], failure["exit_code"]) == (1, 3)

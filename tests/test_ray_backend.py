@@ -7,8 +7,12 @@ import contextlib
 import os
 import re
 import signal
+import socket
+import struct
 import threading
 import time
+from multiprocessing import AuthenticationError
+from multiprocessing.connection import Client
 
 import numpy as np
 import pytest
@@ -155,3 +159,67 @@ def test_more_workers_than_the_cluster_has_cpus_is_a_clear_error(tmp_path, two_n
     assert out.returncode == 2
     assert "run.workers=3 needs 3 CPUs in the Ray cluster; it has 2" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+@pytest.fixture
+def on_the_cluster(two_nodes):
+    """This process connected to the two-node cluster (a pool then uses it and leaves it connected)."""
+    import ray
+
+    ray.init(address=two_nodes.address, include_dashboard=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_strangers_on_the_listener_neither_block_the_actors_nor_the_end_of_the_run(on_the_cluster):
+    """A connection that resets, one that stays silent and one without the key: the actor still connects,
+    and stopping the pool returns at once."""
+    from conflictbench.sim.libero_env import EnvSettings
+    from conflictbench.sim.ray_pool import RayWorkerPool
+
+    pool = RayWorkerPool(EnvSettings(needs_images=False), size=1)
+    try:
+        reset = socket.create_connection(pool._address)
+        reset.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        reset.close()  # RST
+        silent = socket.create_connection(pool._address)  # says nothing, stays open
+        with pytest.raises((AuthenticationError, EOFError, OSError)):
+            Client(pool._address, authkey=b"not the key")
+        pool.start_all()
+        assert pool.versions["mujoco_version"]
+        started = time.monotonic()
+    finally:
+        pool.stop()
+    assert time.monotonic() - started < 5
+    silent.close()
+
+
+def test_a_message_stalled_part_way_is_a_lost_worker_not_a_hang(on_the_cluster, monkeypatch):
+    """A node that freezes while sending: the run's read gives up after the message timeout."""
+    from conflictbench.sim import ray_pool
+    from conflictbench.sim.libero_env import EnvSettings
+
+    monkeypatch.setattr(ray_pool, "MESSAGE_TIMEOUT_S", 1.0)
+    pool = ray_pool.RayWorkerPool(EnvSettings(needs_images=False), size=1)
+    try:
+        handle = ray_pool.ActorHandle(on_the_cluster, None, "token")
+        pool._expected["token"] = handle
+        client = Client(pool._address, authkey=pool._authkey)
+        client.send(("token", "node", "127.0.0.1", os.getpid()))
+        assert handle.arrived.wait(5)
+        client.send_bytes(b"x" * 100)  # a whole message, then the header of one that never comes whole
+        assert handle.conn.recv_bytes() == b"x" * 100
+        client._send(struct.pack("!i", 400_000) + b"y" * 10)
+        started = time.monotonic()
+        with pytest.raises(OSError):
+            handle.conn.recv_bytes()
+        assert time.monotonic() - started < 5
+        client.close()
+    finally:
+        pool.stop()
+
+
+def test_an_address_nobody_answers_is_one_line_at_once(tmp_path):
+    out = run_cli(tmp_path, "model=noop", "run.backend=ray", "run.ray_address=127.0.0.1:1", timeout=60)
+    assert out.returncode == 3, out.stderr[-3000:]
+    assert "cannot reach the Ray cluster at '127.0.0.1:1'" in out.stderr and "Traceback" not in out.stderr

@@ -1,6 +1,6 @@
 """A simulator worker killed mid-episode: the worker restarts, that episode is played again (a second loss
-stores it as a simulator failure) and the run goes on; an answer to the dead worker's query never reaches
-the next episode."""
+stores it as an infrastructure failure, for the next run to play) and the run goes on; an answer to the dead
+worker's query never reaches the next episode."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from testing_support import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
-from conflictbench.core import LIBERO_SUITES, SIMULATOR_ERROR_PREFIX, Plugins
+from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, LIBERO_SUITES, Plugins
 from conflictbench.sim.runner import Runner, RunResult
 from conflictbench.store import EpisodeStore
 
@@ -90,13 +90,14 @@ def test_a_killed_workers_episode_is_played_again_and_the_run_goes_on(tmp_path):
     assert second.error is None and second.steps == 30
 
 
-def test_an_episode_lost_twice_is_stored_as_a_simulator_failure(tmp_path):
+def test_an_episode_lost_twice_is_an_infrastructure_failure_the_next_run_plays_again(tmp_path):
     # First episode killed at its 5th query, the second played (30), the first again killed at its 5th.
     store, result = run_killing_the_worker(tmp_path, concurrent=False, at_calls=[5, 40])
     assert (result.played, result.replayed_after_loss, result.errors) == (2, 1, 1)
     first, second = sorted(store.records(), key=lambda r: r.init_state)
-    assert first.error.startswith(SIMULATOR_ERROR_PREFIX) and "worker process died" in first.error
+    assert first.error.startswith(INFRASTRUCTURE_ERROR_PREFIX) and "worker process died" in first.error
     assert second.error is None and second.steps == 30
+    assert store.stored_ids() == {second.episode_id}  # not the lost one: the next run plays it again
 
 
 def test_an_answer_for_a_dead_workers_query_never_reaches_the_next_episode(tmp_path):

@@ -24,6 +24,10 @@ STOP_TIMEOUT_S = 10.0  # for all workers together to leave after Stop, before th
 TaskKey = tuple[str, int]
 
 
+class VersionMismatch(SimulatorUnavailable):
+    """A worker's simulator is not the run's (another node's installation): the run stops."""
+
+
 @dataclass
 class Item:
     """A planned episode with everything its worker needs."""
@@ -114,11 +118,11 @@ class WorkerPool:
     def await_ready(self, slots: list[Slot]) -> None:
         """Wait for each worker's simulator import; a worker that cannot start stops the run."""
         for slot in slots:
-            if not slot.conn.poll(START_TIMEOUT_S):
-                raise SimulatorUnavailable(f"a simulator worker did not start within {START_TIMEOUT_S} s")
             try:
+                if not self.message_within(slot, START_TIMEOUT_S):
+                    raise SimulatorUnavailable(f"a simulator worker did not start within {START_TIMEOUT_S} s")
                 msg = slot.conn.recv()
-            except EOFError:
+            except (EOFError, OSError):
                 lost = self.lost_reason(slot)
                 raise SimulatorUnavailable(f"a simulator worker died while starting: {lost}") from None
             if isinstance(msg, Fatal):
@@ -128,11 +132,15 @@ class WorkerPool:
             self.check_versions(msg.versions)
             self.versions = dict(msg.versions)
 
+    def message_within(self, slot: Slot, timeout: float) -> bool:
+        """Whether ``slot``'s worker has said something (or hung up) within ``timeout`` seconds."""
+        return slot.conn.poll(timeout)
+
     def check_versions(self, versions: dict[str, str]) -> None:
         """One run's episodes come from one simulator: a worker reporting other versions stops the run."""
         if self.versions and versions != self.versions:
             differ = sorted(k for k in set(versions) | set(self.versions) if versions.get(k) != self.versions.get(k))
-            raise SimulatorUnavailable(
+            raise VersionMismatch(
                 "simulator workers run different versions ("
                 + ", ".join(f"{k}: {self.versions.get(k)} vs {versions.get(k)}" for k in differ)
                 + "); install the same everywhere"

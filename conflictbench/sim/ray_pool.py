@@ -14,20 +14,27 @@ from __future__ import annotations
 import logging
 import os
 import secrets
+import socket
+import struct
+import sys
 import threading
 import time
-from multiprocessing.connection import Client, Listener
+from multiprocessing.connection import Client, Connection, answer_challenge, deliver_challenge
 from typing import Any
 
 from conflictbench.core import SimulatorUnavailable, UserError
 
 from .libero_env import EnvSettings
-from .pool import START_TIMEOUT_S, STOP_TIMEOUT_S, Slot, WorkerPool
+from .pool import STOP_TIMEOUT_S, Slot, VersionMismatch, WorkerPool
 from .worker import worker_main
 
 #: How long a restart waits for the cluster to show a free CPU (a crashed actor's takes a moment to
 #: come back); past it the slot is retired: its node is gone and the run goes on with fewer workers.
 FREE_CPU_WAIT_S = 10.0
+#: A connection must authenticate within this; once it has, a message stalled this long part-way is a lost
+#: node (a frozen machine leaves its connection open: without it, the run would wait on it for ever).
+HANDSHAKE_TIMEOUT_S = 10.0
+MESSAGE_TIMEOUT_S = 60.0
 INSTALL_HINT = "run.backend=ray needs Ray: pip install 'conflictbench[cluster]'"
 
 
@@ -106,14 +113,10 @@ class RayWorkerPool(WorkerPool):
         super().__init__(settings, size)
         ray = self._ray = import_ray()
         self._owns_ray = not ray.is_initialized()
-        self._listener: Listener | None = None
+        self._server: socket.socket | None = None
         self._closing = False
         if self._owns_ray:
-            try:
-                ray.init(address=address, logging_level=logging.WARNING, include_dashboard=False)
-            except (ConnectionError, ValueError, RuntimeError) as exc:
-                where = address or os.environ.get("RAY_ADDRESS") or "a new local instance"
-                raise SimulatorUnavailable(f"cannot connect to Ray ({where}): {exc}") from None
+            connect(ray, address)
         cpus = ray.cluster_resources().get("CPU", 0)
         if cpus < size:
             self.stop()
@@ -121,35 +124,45 @@ class RayWorkerPool(WorkerPool):
         self._actor_class = ray.remote(num_cpus=1, max_restarts=0)(SimulatorActor)
         self._authkey = secrets.token_bytes(32)
         # On the address the cluster knows this node by: the actors on other nodes connect to it.
-        self._listener = Listener((ray.util.get_node_ip_address(), 0), authkey=self._authkey)
+        self._server = socket.create_server((ray.util.get_node_ip_address(), 0))
+        self._server.settimeout(0.5)  # the accepting thread looks at _closing this often
+        self._address = self._server.getsockname()[:2]
         self._expected: dict[str, ActorHandle] = {}
         self._lock = threading.Lock()
         threading.Thread(target=self._accept, daemon=True, name="conflictbench-ray-listener").start()
 
     def _accept(self) -> None:
-        """Hand each actor's connection to its slot (actors connect in any order: each says its token)."""
-        while True:
+        """Take connections; each is authenticated in a thread of its own (a silent one blocks nobody)."""
+        while not self._closing:
             try:
-                conn = self._listener.accept()
-            except OSError:  # the listener was closed: the run is over
+                sock, _ = self._server.accept()
+            except TimeoutError:
+                continue
+            except OSError:  # closed: the run is over
                 return
-            except Exception:  # a client without the key (AuthenticationError): ignore it
-                continue
-            if self._closing:  # the wake-up call of stop()
-                conn.close()
-                return
-            try:
-                token, node_id, node_ip, pid = conn.recv()
-            except (EOFError, OSError, ValueError, TypeError):
-                conn.close()
-                continue
-            with self._lock:
-                handle = self._expected.pop(token, None)
-            if handle is None:
-                conn.close()
-                continue
-            handle.node_id, handle.node_ip, handle.pid, handle.conn = node_id, node_ip, pid, conn
-            handle.arrived.set()
+            threading.Thread(target=self._greet, args=(sock,), daemon=True).start()
+
+    def _greet(self, sock: socket.socket) -> None:
+        """Authenticate a connection and hand it to the slot whose actor it is (actors connect in any order)."""
+        sock.settimeout(None)
+        _set_timeouts(sock, HANDSHAKE_TIMEOUT_S)
+        conn = Connection(sock.detach())
+        try:
+            deliver_challenge(conn, self._authkey)
+            answer_challenge(conn, self._authkey)
+            token, node_id, node_ip, pid = conn.recv()
+        except Exception:  # a stranger, a reset, a timeout, a malformed hello: not one of ours
+            conn.close()
+            return
+        with socket.socket(fileno=os.dup(conn.fileno())) as same:  # a duplicate of the descriptor, one socket
+            _set_timeouts(same, MESSAGE_TIMEOUT_S)
+        with self._lock:
+            handle = self._expected.pop(token, None)
+        if handle is None:  # an actor whose slot has given up on it
+            conn.close()
+            return
+        handle.node_id, handle.node_ip, handle.pid, handle.conn = node_id, node_ip, pid, conn
+        handle.arrived.set()
 
     def start(self, slot: Slot) -> None:
         token = secrets.token_hex(8)
@@ -157,26 +170,31 @@ class RayWorkerPool(WorkerPool):
         handle = ActorHandle(self._ray, actor, token)
         with self._lock:
             self._expected[token] = handle
-        serving = actor.serve.remote(self._listener.address, self._authkey, token, self.settings)
+        serving = actor.serve.remote(self._address, self._authkey, token, self.settings)
         handle.watcher = threading.Thread(target=handle.watch, args=(serving,), daemon=True)
         handle.watcher.start()
         slot.process, slot.conn, slot.item, slot.task_key = handle, None, None, None
 
-    def await_ready(self, slots: list[Slot]) -> None:
-        """Wait for each actor to be placed and connect, then for its simulator import (as the local pool)."""
-        deadline = time.monotonic() + START_TIMEOUT_S
-        for slot in slots:
-            handle = slot.process
-            while not handle.arrived.wait(0.2):
-                if not handle.is_alive():
-                    raise SimulatorUnavailable(f"a simulator worker died while starting: {self.lost_reason(slot)}")
-                if time.monotonic() > deadline:
-                    raise SimulatorUnavailable(
-                        f"a Ray simulator actor did not start within {START_TIMEOUT_S} s (no node can place it, "
-                        "or its node cannot reach this one's address)"
-                    )
-            slot.conn = handle.conn
-        super().await_ready(slots)
+    def message_within(self, slot: Slot, timeout: float) -> bool:
+        """Wait for the actor to be placed and connect, then for its first message; EOFError once Ray says it
+        is gone (a frozen node's connection never closes)."""
+        deadline = time.monotonic() + timeout
+        handle = slot.process
+        while not handle.arrived.wait(0.2):
+            if not handle.is_alive():
+                raise EOFError
+            if time.monotonic() > deadline:
+                raise SimulatorUnavailable(
+                    f"a Ray simulator actor did not start within {timeout:g} s (no node can place it, "
+                    "or its node cannot reach this one's address)"
+                )
+        slot.conn = handle.conn
+        while not slot.conn.poll(0.5):
+            if not handle.is_alive():
+                raise EOFError
+            if time.monotonic() > deadline:
+                return False
+        return True
 
     def lost_reason(self, slot: Slot) -> str:
         handle = slot.process
@@ -191,10 +209,20 @@ class RayWorkerPool(WorkerPool):
                 slot.retired = True
                 return
             time.sleep(0.5)
-        super().restart(slot)
+        try:
+            super().restart(slot)
+        except VersionMismatch:
+            raise
+        except SimulatorUnavailable as exc:  # it could not start: the run goes on with fewer workers
+            print(f"conflictbench: a replacement simulator worker could not start ({exc}); going on without it",
+                  file=sys.stderr)  # fmt: skip
+            self._drop(slot)
+            slot.retired = True
 
     def _drop(self, slot: Slot) -> None:
         if slot.process is not None:
+            with self._lock:
+                self._expected.pop(slot.process.token, None)
             slot.process.kill()
             slot.process.join(STOP_TIMEOUT_S)
             slot.process.close()
@@ -206,12 +234,30 @@ class RayWorkerPool(WorkerPool):
         super().stop()  # Stop to every actor, a common deadline, then kill what is left
         for slot in self.slots:
             self._drop(slot)
-        if self._listener is not None:
-            self._closing = True
-            try:  # wake the accepting thread (closing a socket does not interrupt a blocked accept)
-                Client(self._listener.address, authkey=self._authkey).close()
-            except OSError:
-                pass
-            self._listener.close()
+        self._closing = True
+        if self._server is not None:
+            self._server.close()
         if self._owns_ray and self._ray.is_initialized():
             self._ray.shutdown()
+
+
+def connect(ray: Any, address: str | None) -> None:
+    """``ray.init`` with one clear line for an address nobody answers (Ray itself retries for minutes)."""
+    where = address or os.environ.get("RAY_ADDRESS")
+    if where and where != "auto" and not where.startswith("ray://"):
+        host, _, port = where.rpartition(":")
+        try:
+            socket.create_connection((host or "127.0.0.1", int(port)), timeout=5).close()
+        except (OSError, ValueError):
+            raise SimulatorUnavailable(f"cannot reach the Ray cluster at {where!r} (its head's GCS port)") from None
+    try:
+        ray.init(address=address, logging_level=logging.WARNING, include_dashboard=False)
+    except (ConnectionError, ValueError, RuntimeError, SystemExit) as exc:
+        raise SimulatorUnavailable(f"cannot connect to Ray ({where or 'a new local instance'}): {exc}") from None
+
+
+def _set_timeouts(sock: socket.socket, seconds: float) -> None:
+    """Kernel-level timeouts, so they hold for the raw reads and writes of a ``Connection`` on this socket."""
+    value = struct.pack("ll", int(seconds), int((seconds % 1) * 1e6))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, value)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, value)

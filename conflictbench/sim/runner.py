@@ -21,7 +21,7 @@ from typing import Any
 import pyarrow.compute as pc
 
 from conflictbench.core import (
-    SIMULATOR_ERROR_PREFIX,
+    INFRASTRUCTURE_ERROR_PREFIX,
     EpisodeRecord,
     PolicySpec,
     PolicyTraits,
@@ -194,9 +194,14 @@ class Runner:
         if not todo:
             return result
 
-        self._start_policy(policy)  # only now that there is something to play (a model server loads for minutes)
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
+        # The pool first (Ray: connecting to the cluster), so a wrong address costs no model server's start.
         pool = self._pool = self._make_pool(settings, size=min(self.workers, len(todo)))
+        try:
+            self._start_policy(policy)  # only now that there is something to play (a model server loads for minutes)
+        except BaseException:
+            pool.stop()
+            raise
         self._policy, self._serving, self._held = policy, None, []
         self._calls = PolicyCalls(policy, traits, len(pool.slots))
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
@@ -335,7 +340,7 @@ class Runner:
                     if ready == slot.process.sentinel and not slot.conn.poll():
                         raise EOFError
                     msg = slot.conn.recv()
-                except (EOFError, ConnectionResetError):
+                except (EOFError, OSError):  # closed, reset, or stalled mid-message past the socket's timeout
                     lost_now.add(slot.index)
                     self._worker_lost(slot, queue, result)
                     continue
@@ -354,13 +359,13 @@ class Runner:
                     continue
                 try:
                     slot.conn.send(reply_for(self.plugins, self.spec.name, item, obs, raw))
-                except (BrokenPipeError, ConnectionResetError):
-                    pass  # the worker died after asking: the next wait() finds it and stores the episode
+                except OSError:  # BrokenPipe, reset, a send timeout: the worker is gone; the next wait() finds it
+                    pass
             fill()
 
     def _worker_lost(self, slot: Slot, queue: EpisodeQueue, result: RunResult) -> None:
         """The worker playing ``slot``'s episode is gone (crashed, its node lost): the episode is played again
-        by another worker, once; lost a second time it is stored as a simulator failure (left out of the
+        by another worker, once; lost a second time it is stored as an infrastructure failure (left out of the
         measures, played again by the next run). Then the slot gets a new worker, or is retired."""
         item = slot.item
         reason = self._pool.lost_reason(slot)
@@ -371,7 +376,7 @@ class Runner:
             result.replayed_after_loss += 1
             print(f"conflictbench: {reason}; its episode is played again", file=sys.stderr)
         else:
-            error = f"{SIMULATOR_ERROR_PREFIX}: {reason}"
+            error = f"{INFRASTRUCTURE_ERROR_PREFIX}: {reason}"
             self._finish(slot, EpisodeOutcome.failed(error, len(item.job.targets)), result)
         self._pool.restart(slot)
 

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from hydra.core.singleton import Singleton
-from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
+from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
@@ -29,10 +31,11 @@ def run_one(
     ``run.out`` means the same there when the nodes share it), then Hydra's own ``run_job``."""
     import ray
 
+    if not Path(cwd).is_dir():  # its relative paths (run.out, the sweep's folder) would land elsewhere
+        raise RuntimeError(f"the folder the sweep was launched from, {cwd}, is not on this node: share it")
+    os.chdir(cwd)
     Singleton.set_state(singletons)
     setup_globals()
-    if Path(cwd).is_dir():
-        os.chdir(cwd)
     sweep_config = hydra_context.config_loader.load_sweep_config(config, overrides)
     with open_dict(sweep_config.hydra.job) as job:
         job.id = f"ray_{ray.get_runtime_context().get_task_id()}"
@@ -46,6 +49,22 @@ def run_one(
     )
 
 
+def lost_job(num: int, job_dir: Path, error: Exception) -> JobReturn:
+    """A job whose task never returned (its process crashed, its node was lost, it could not start): named in
+    one line, recorded for the sweep's end (which sets the command's exit code), the other jobs kept."""
+    from conflictbench.cli.sweep import record_failure
+    from conflictbench.core import SimulatorUnavailable
+
+    text = str(error).strip().splitlines()
+    message = f"its Ray task was lost ({type(error).__name__}: {text[-1] if text else ''})"
+    print(f"conflictbench: error: sweep job {num}: {message}", file=sys.stderr)
+    job_dir.parent.mkdir(parents=True, exist_ok=True)
+    record_failure(job_dir, num, SimulatorUnavailable.exit_code, message)
+    result = JobReturn(status=JobStatus.COMPLETED)
+    result.return_value = SimulatorUnavailable.exit_code
+    return result
+
+
 class RayLauncher(Launcher):
     def __init__(self, address: str | None = None, cpus_per_job: float = 2, gpus_per_job: float = 0) -> None:
         self.address, self.cpus_per_job, self.gpus_per_job = address, cpus_per_job, gpus_per_job
@@ -55,6 +74,12 @@ class RayLauncher(Launcher):
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
         self.config, self.hydra_context, self.task_function = config, hydra_context, task_function
+
+    def _outcome(self, ray: Any, ref: Any, num: int) -> JobReturn:
+        try:
+            return ray.get(ref)
+        except ray.exceptions.RayError as exc:  # RayTaskError (it raised), WorkerCrashedError, NodeDiedError ...
+            return lost_job(num, Path(str(self.config.hydra.sweep.dir)) / str(num), exc)
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
         import ray
@@ -84,7 +109,7 @@ class RayLauncher(Launcher):
                         os.getcwd(),
                     )
                 )
-            return ray.get(pending)
+            return [self._outcome(ray, ref, num) for num, ref in enumerate(pending, start=initial_job_idx)]
         finally:
             if owns_ray:
                 ray.shutdown()
