@@ -14,29 +14,7 @@ import os
 import statistics
 import time
 
-from workers_scaling import BenchPlugin, StillConfig
-
-import conflictbench
-
-
-def play(plan, backend: str, images: bool) -> float:
-    import tempfile
-
-    from conflictbench.core.plugins import Plugins
-    from conflictbench.sim.runner import Runner
-    from conflictbench.store import EpisodeStore
-
-    plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[BenchPlugin()])
-    spec = plugins.policy("bench-still")
-    with tempfile.TemporaryDirectory() as tmp:
-        runner = Runner(
-            plugins, spec, StillConfig(images), store=EpisodeStore(tmp), workers=2, progress=False, backend=backend
-        )
-        start = time.perf_counter()
-        result = runner.run(plan)
-        elapsed = time.perf_counter() - start
-    assert result.played == len(plan) and result.errors == 0
-    return elapsed
+from workers_scaling import play, reference_plan
 
 
 def main() -> None:
@@ -51,21 +29,14 @@ def main() -> None:
 
     import ray
 
-    from conflictbench.sim.plan import EpisodeSpec
-    from conflictbench.tasks.libero.base_tasks import base_task
-
-    plan = [
-        EpisodeSpec(args.suite, t, s, "p0", base_task(args.suite, t).language)
-        for t in range(args.tasks)
-        for s in range(args.states)
-    ]
+    plan = reference_plan(args.suite, args.tasks, args.states)
     start = time.perf_counter()
     ray.init(num_cpus=os.cpu_count(), include_dashboard=False, logging_level=logging.WARNING)
     print(f"Ray started in {time.perf_counter() - start:.1f} s (not counted below)")
     times: dict[str, list[float]] = {"local": [], "ray": []}
     for _ in range(args.rounds):
         for backend in times:
-            seconds = play(plan, backend, args.images)
+            seconds = play(plan, 2, args.images, backend=backend)
             times[backend].append(seconds)
             print(f"{backend:>5}: {seconds:6.1f} s  ({3600 * len(plan) / seconds:.0f} episodes/h)")
     ray.shutdown()

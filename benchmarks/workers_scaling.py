@@ -46,7 +46,8 @@ class BenchPlugin:
         register("bench-still", load=Still, config=StillConfig)
 
 
-def play(plan, workers: int, images: bool) -> float:
+def play(plan, workers: int, images: bool, backend: str = "local") -> float:
+    """Seconds to play ``plan`` into a fresh store (the run's worker start included)."""
     from conflictbench.core.plugins import Plugins
     from conflictbench.sim.runner import Runner
     from conflictbench.store import EpisodeStore
@@ -55,12 +56,27 @@ def play(plan, workers: int, images: bool) -> float:
     spec = plugins.policy("bench-still")
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        result = Runner(
-            plugins, spec, StillConfig(images), store=EpisodeStore(tmp), workers=workers, progress=False
-        ).run(plan)
+        runner = Runner(
+            plugins,
+            spec,
+            StillConfig(images),
+            store=EpisodeStore(tmp),
+            workers=workers,
+            progress=False,
+            backend=backend,
+        )
+        result = runner.run(plan)
         elapsed = time.perf_counter() - start
     assert result.played == len(plan) and result.errors == 0
     return elapsed
+
+
+def reference_plan(suite: str, tasks: int, states: int) -> list:
+    """The reference episodes of the first ``tasks`` base tasks of ``suite`` at its first ``states`` states."""
+    from conflictbench.sim.plan import EpisodeSpec
+    from conflictbench.tasks.libero.base_tasks import base_task
+
+    return [EpisodeSpec(suite, t, s, "p0", base_task(suite, t).language) for t in range(tasks) for s in range(states)]
 
 
 def main() -> None:
@@ -70,14 +86,7 @@ def main() -> None:
     parser.add_argument("--states", type=int, default=3)
     parser.add_argument("--images", action="store_true")
     args = parser.parse_args()
-    from conflictbench.sim.plan import EpisodeSpec
-    from conflictbench.tasks.libero.base_tasks import base_task
-
-    plan = [
-        EpisodeSpec(args.suite, t, s, "p0", base_task(args.suite, t).language)
-        for t in range(args.tasks)
-        for s in range(args.states)
-    ]
+    plan = reference_plan(args.suite, args.tasks, args.states)
     one = play(plan, 1, args.images)
     print(f"workers=1: {one:.1f} s  ({3600 * len(plan) / one:.0f} episodes/h)")
     two = play(plan, 2, args.images)
