@@ -90,6 +90,11 @@ def test_a_ray_job_whose_process_dies_is_named_and_recorded_and_the_others_are_k
     from conflictbench.cli.sweep import collect_failures
     from hydra_plugins.conflictbench_ray_launcher.ray_launcher import RayLauncher
 
+    def refuse():  # defined here: Ray ships it by value (this test module is not importable in its workers)
+        from conflictbench.core import UserError
+
+        raise UserError("the folder the sweep was launched from, /nowhere, is not on this node: share it")
+
     launcher = RayLauncher()
     launcher.config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path / "sweep")}}})
     ray.init(num_cpus=1, include_dashboard=False)
@@ -98,11 +103,13 @@ def test_a_ray_job_whose_process_dies_is_named_and_recorded_and_the_others_are_k
         fine = ray.remote(lambda: "done").remote()
         result = launcher._outcome(ray, crashed, 1)
         assert ray.get(fine) == "done"
+        mistaken = ray.remote(max_retries=0)(refuse).remote()  # as a job on a node without the launch folder
+        refused = launcher._outcome(ray, mistaken, 2)
     finally:
         ray.shutdown()
-    assert result.return_value == 3
-    assert re.search(
-        r"conflictbench: error: sweep job 1: its Ray task was lost \(\w*Crashed\w*", capfd.readouterr().err
-    )
-    [failure] = collect_failures(tmp_path / "sweep")
-    assert (failure["job"], failure["exit_code"]) == (1, 3)
+    assert (result.return_value, refused.return_value) == (3, 2)  # lost: infrastructure; a mistake: the user's
+    said = capfd.readouterr().err
+    assert re.search(r"conflictbench: error: sweep job 1: its Ray task was lost \(\w*Crashed\w*", said)
+    assert "conflictbench: error: sweep job 2: the folder the sweep was launched from, /nowhere, is not" in said
+    failures = collect_failures(tmp_path / "sweep")
+    assert [(f["job"], f["exit_code"]) for f in failures] == [(1, 3), (2, 2)]

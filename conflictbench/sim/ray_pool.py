@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import secrets
 import socket
 import struct
@@ -155,6 +156,7 @@ class RayWorkerPool(WorkerPool):
             conn.close()
             return
         with socket.socket(fileno=os.dup(conn.fileno())) as same:  # a duplicate of the descriptor, one socket
+            same.setblocking(True)  # (a default timeout set by anyone would make the shared socket non-blocking)
             _set_timeouts(same, MESSAGE_TIMEOUT_S)
         with self._lock:
             handle = self._expected.pop(token, None)
@@ -198,7 +200,8 @@ class RayWorkerPool(WorkerPool):
 
     def lost_reason(self, slot: Slot) -> str:
         handle = slot.process
-        return f"the Ray actor on node {handle.node_ip} was lost ({handle.lost_because or 'its connection closed'})"
+        why = handle.lost_because or "its connection closed or stalled"
+        return f"the Ray actor on node {handle.node_ip} was lost ({why})"
 
     def restart(self, slot: Slot) -> None:
         """A new actor wherever a CPU is free; none within ``FREE_CPU_WAIT_S``: the slot is retired."""
@@ -242,13 +245,13 @@ class RayWorkerPool(WorkerPool):
 
 
 def connect(ray: Any, address: str | None) -> None:
-    """``ray.init`` with one clear line for an address nobody answers (Ray itself retries for minutes)."""
-    where = address or os.environ.get("RAY_ADDRESS")
-    if where and where != "auto" and not where.startswith("ray://"):
-        host, _, port = where.rpartition(":")
+    """``ray.init`` with one clear line for a ``host:port`` nobody answers (Ray itself retries for minutes)."""
+    where = address if address not in (None, "auto") else os.environ.get("RAY_ADDRESS")
+    found = re.fullmatch(r"\[?([^\[\]/]+?)\]?:(\d+)", where or "")  # host:port or [v6]:port; not ray://, local
+    if found:
         try:
-            socket.create_connection((host or "127.0.0.1", int(port)), timeout=5).close()
-        except (OSError, ValueError):
+            socket.create_connection((found[1], int(found[2])), timeout=5).close()
+        except OSError:
             raise SimulatorUnavailable(f"cannot reach the Ray cluster at {where!r} (its head's GCS port)") from None
     try:
         ray.init(address=address, logging_level=logging.WARNING, include_dashboard=False)

@@ -9,6 +9,7 @@ first observation.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import sys
@@ -263,7 +264,10 @@ class Runner:
             except Exception as exc:
                 self._finish(slot, EpisodeOutcome.failed(reset_error(exc), len(job.targets)), result)
                 return
-        slot.conn.send(Play(job))
+        try:
+            slot.conn.send(Play(job))
+        except OSError:  # its worker has just gone: the next wait() finds it and plays the episode again
+            pass
 
     def _queried(self, slot: Slot, observation: Any, waiting: list[tuple[Slot, Any]], traits: PolicyTraits) -> None:
         """A worker asks for actions: decide now, or hold its episode until the policy is free."""
@@ -281,7 +285,8 @@ class Runner:
             except ServerUnavailable:
                 raise
             except Exception as exc:
-                slot.conn.send(Abort(reset_error(exc)))
+                with contextlib.suppress(OSError):  # a gone worker is found by the next wait()
+                    slot.conn.send(Abort(reset_error(exc)))
                 continue
             self._serving = slot
             waiting.append((slot, observation))

@@ -32,7 +32,9 @@ def run_one(
     import ray
 
     if not Path(cwd).is_dir():  # its relative paths (run.out, the sweep's folder) would land elsewhere
-        raise RuntimeError(f"the folder the sweep was launched from, {cwd}, is not on this node: share it")
+        from conflictbench.core import UserError
+
+        raise UserError(f"the folder the sweep was launched from, {cwd}, is not on this node: share it")
     os.chdir(cwd)
     Singleton.set_state(singletons)
     setup_globals()
@@ -55,13 +57,18 @@ def lost_job(num: int, job_dir: Path, error: Exception) -> JobReturn:
     from conflictbench.cli.sweep import record_failure
     from conflictbench.core import SimulatorUnavailable
 
-    text = str(error).strip().splitlines()
-    message = f"its Ray task was lost ({type(error).__name__}: {text[-1] if text else ''})"
+    cause = getattr(error, "cause", None)  # a RayTaskError's own exception
+    if hasattr(cause, "exit_code"):  # one of ours: a user's mistake (2), the simulator (3) ...
+        message, exit_code = str(cause), cause.exit_code
+    else:
+        text = str(error).strip().splitlines()
+        message = f"its Ray task was lost ({type(error).__name__}: {text[-1] if text else ''})"
+        exit_code = SimulatorUnavailable.exit_code
     print(f"conflictbench: error: sweep job {num}: {message}", file=sys.stderr)
     job_dir.parent.mkdir(parents=True, exist_ok=True)
-    record_failure(job_dir, num, SimulatorUnavailable.exit_code, message)
+    record_failure(job_dir, num, exit_code, message)
     result = JobReturn(status=JobStatus.COMPLETED)
-    result.return_value = SimulatorUnavailable.exit_code
+    result.return_value = exit_code
     return result
 
 
@@ -92,7 +99,9 @@ class RayLauncher(Launcher):
         log.info(f"Ray sweep output dir: {sweep_dir}")
         owns_ray = not ray.is_initialized()
         if owns_ray:
-            ray.init(address=self.address, include_dashboard=False, logging_level=logging.WARNING)
+            from conflictbench.sim.ray_pool import connect
+
+            connect(ray, self.address)  # a cluster nobody answers: one line at once
         job = ray.remote(num_cpus=self.cpus_per_job, num_gpus=self.gpus_per_job, max_retries=0)(run_one)
         try:
             pending = []
