@@ -247,16 +247,23 @@ class RayWorkerPool(WorkerPool):
 def connect(ray: Any, address: str | None) -> None:
     """``ray.init`` with one clear line for a ``host:port`` nobody answers (Ray itself retries for minutes)."""
     where = address if address not in (None, "auto") else os.environ.get("RAY_ADDRESS")
-    found = re.fullmatch(r"\[?([^\[\]/]+?)\]?:(\d+)", where or "")  # host:port or [v6]:port; not ray://, local
-    if found:
+    target = gcs_target(where)
+    if target:
         try:
-            socket.create_connection((found[1], int(found[2])), timeout=5).close()
+            socket.create_connection(target, timeout=5).close()
         except OSError:
             raise SimulatorUnavailable(f"cannot reach the Ray cluster at {where!r} (its head's GCS port)") from None
     try:
         ray.init(address=address, logging_level=logging.WARNING, include_dashboard=False)
     except (ConnectionError, ValueError, RuntimeError, SystemExit) as exc:
         raise SimulatorUnavailable(f"cannot connect to Ray ({where or 'a new local instance'}): {exc}") from None
+
+
+def gcs_target(address: str | None) -> tuple[str, int] | None:
+    """(host, port) of a ``host:port`` or ``[v6]:port`` address; None for what Ray resolves itself
+    (``ray://...``, ``local``, ``auto``, nothing)."""
+    found = re.fullmatch(r"\[?([^\[\]/]+?)\]?:(\d+)", address or "")
+    return (found[1], int(found[2])) if found else None
 
 
 def _set_timeouts(sock: socket.socket, seconds: float) -> None:
