@@ -139,3 +139,24 @@ def test_a_policy_without_settings_hashes_as_it_always_has():
 
     assert identity_settings(Served()) == {"seed": 3}  # the address is not the policy's identity
     assert config_hash("p", Served(), traits) == config_hash("p", Served(server="ws://b"), traits)
+
+
+def test_a_declaration_added_later_leaves_the_identities_of_policies_without_it():
+    """``needs_scene_state`` came after stores existed: at its default it is not hashed (every stored
+    episode keeps its id); declared, it makes other episodes."""
+    from conflictbench.core import PolicyTraits
+    from conflictbench.sim.plan import config_hash
+
+    class Still:
+        needs_images = False
+
+    class Seeing(Still):
+        needs_scene_state = True
+
+    plain = PolicyTraits(Still())
+    assert set(plain.as_dict()) == {
+        "needs_images", "needs_privileged", "image_size", "warmup_steps", "max_steps", "identity",
+    }  # fmt: skip
+    seeing = PolicyTraits(Seeing())
+    assert seeing.as_dict()["needs_scene_state"] is True
+    assert config_hash("p", None, plain) != config_hash("p", None, seeing)

@@ -32,6 +32,7 @@ from .records import (
     Pair,
     PrivilegedState,
     SceneGeometry,
+    SceneState,
     SiteInfo,
 )
 from .sampling import rng_for, sampling_seed
@@ -66,6 +67,7 @@ __all__ = [
     "PolicySpec",
     "PolicyTraits",
     "PrivilegedState",
+    "SceneState",
     "SIMULATOR_ERROR_PREFIX",
     "SceneGeometry",
     "ServedPolicy",

@@ -45,7 +45,9 @@ def conflictbench_register_policies(register):
     ``concurrent_requests`` [False] (True: ``act_batch`` may run in several threads at once, one
     observation each, so every worker's query goes out as soon as it comes: what a served policy
     declares), and these
-    attributes (defaults in brackets): ``needs_images`` [True], ``needs_privileged`` [False],
+    attributes (defaults in brackets): ``needs_images`` [True], ``needs_privileged`` [False] (simulator
+    truth, the goal and the case: experts and oracles only), ``needs_scene_state`` [False] (object poses,
+    regions and scene joints, nothing about the task: :class:`SceneState`),
     ``image_size`` [256], ``warmup_steps`` [10], ``max_steps`` [a mapping LIBERO suite -> steps;
     220/280/300/520].
 

@@ -34,6 +34,7 @@ class PolicyTraits:
     def __init__(self, policy: Any):
         self.needs_images: bool = bool(getattr(policy, "needs_images", True))
         self.needs_privileged: bool = bool(getattr(policy, "needs_privileged", False))
+        self.needs_scene_state: bool = bool(getattr(policy, "needs_scene_state", False))
         self.image_size: int = int(getattr(policy, "image_size", DEFAULT_IMAGE_SIZE))
         self.warmup_steps: int = int(getattr(policy, "warmup_steps", DEFAULT_WARMUP_STEPS))
         self.max_steps: dict[str, int] = {**DEFAULT_MAX_STEPS, **dict(getattr(policy, "max_steps", None) or {})}
@@ -50,7 +51,12 @@ class PolicyTraits:
         ``batched`` and ``concurrent`` are left out: they change how calls are scheduled, never an
         episode's actions (sampling is seeded per episode and step, see ``rng_for``).
         """
-        return {k: v for k, v in vars(self).items() if k not in ("batched", "concurrent")}
+        later = {"needs_scene_state": False}  # declarations added later: at their default they leave identities
+        return {
+            k: v
+            for k, v in vars(self).items()
+            if k not in ("batched", "concurrent") and not (k in later and v == later[k])
+        }
 
 
 T = TypeVar("T")

@@ -146,6 +146,22 @@ class PrivilegedState:
 
 
 @dataclass(frozen=True)
+class SceneState:
+    """Where things are in the scene, and nothing about the task: what a camera-free learned policy may see.
+
+    Given to policies that declare ``needs_scene_state = True``. Unlike :class:`PrivilegedState` it holds
+    no goal, no conflict case and no geometry, so a policy reading it must learn the task from the words.
+    """
+
+    body_poses: Mapping[str, np.ndarray]
+    """Root pose of every object: ``name -> (7,)`` position + quaternion (w, x, y, z)."""
+    site_positions: Mapping[str, np.ndarray]
+    """World position of every named region of the scene (all of them, not only the task's): ``name -> (3,)``."""
+    joint_positions: Mapping[str, float]
+    """Position of every articulated scene joint (drawers, doors, knobs): ``name -> qpos``."""
+
+
+@dataclass(frozen=True)
 class Observation:
     """What a policy sees at one decision point.
 
@@ -169,6 +185,8 @@ class Observation:
     joint_positions: np.ndarray | None = None
     """The seven arm joint positions."""
     privileged: PrivilegedState | None = None
+    scene: SceneState | None = None
+    """Object poses, regions and scene joints, for a policy that declares ``needs_scene_state``."""
     stream: int = 0
     """Which concurrent episode this belongs to (worker slot); batched policies key state by it."""
     episode_id: str = ""

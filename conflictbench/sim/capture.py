@@ -14,6 +14,7 @@ from conflictbench.core import (
     OrientedBoxes,
     PrivilegedState,
     SceneGeometry,
+    SceneState,
     SiteInfo,
 )
 
@@ -247,6 +248,19 @@ def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase 
     )
 
 
+def scene_state(env) -> SceneState:
+    """Object poses, every region's position and every scene joint's position: no goal, no case, no geometry."""
+    inner, data = env.env, env.sim.data
+    st = _static_for(env)
+    poses = {
+        name: np.concatenate([data.body_xpos[body], data.body_xquat[body]]).copy()
+        for name, body in inner.obj_body_id.items()
+    }
+    sites = {name: np.array(data.site_xpos[sid]) for name, sid, *_ in st.sites}
+    joints = {name: float(data.qpos[adr]) for name, _, _, adr, _ in st.joints}
+    return SceneState(body_poses=poses, site_positions=sites, joint_positions=joints)
+
+
 def make_observation(
     raw_obs: dict,
     *,
@@ -257,6 +271,7 @@ def make_observation(
     suite: str,
     images: bool,
     privileged: PrivilegedState | None,
+    scene: SceneState | None = None,
 ) -> Observation:
     """The policy's view: robosuite's own observation values, exactly as a native client gets them."""
     eef_pos = np.asarray(raw_obs["robot0_eef_pos"], dtype=np.float64).copy()
@@ -276,6 +291,7 @@ def make_observation(
         wrist_image=wrist,
         joint_positions=np.asarray(raw_obs["robot0_joint_pos"], dtype=np.float64).copy(),
         privileged=privileged,
+        scene=scene,
         stream=stream,
         episode_id=episode_id,
         suite=suite,

@@ -34,6 +34,7 @@ class EpisodeJob:
     max_steps: int
     needs_privileged: bool
     case: ConflictCase | None = None
+    needs_scene_state: bool = False
     stream: int = 0
 
 

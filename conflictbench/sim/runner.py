@@ -142,6 +142,7 @@ class Runner:
                 warmup_steps=traits.warmup_steps,
                 max_steps=traits.max_steps[spec.suite],
                 needs_privileged=traits.needs_privileged,
+                needs_scene_state=traits.needs_scene_state,
                 case=spec.case,
             )
             items.append(Item(spec, job))

@@ -82,7 +82,7 @@ class EpisodePlayer:
 
     def play(self, job: EpisodeJob, conn) -> EpisodeOutcome:
         """Play one episode; ``conn`` carries observations out and action chunks in."""
-        from .capture import make_observation, privileged_state, target_resolver
+        from .capture import make_observation, privileged_state, scene_state, target_resolver
 
         start = time.perf_counter()
         out = _Recording(targets=len(job.targets))
@@ -115,6 +115,7 @@ class EpisodePlayer:
             out.success = bool(env.check_success())
             while not out.success and out.steps < job.max_steps:
                 priv = privileged_state(env, job.goal, job.case) if job.needs_privileged else None
+                scene = scene_state(env) if job.needs_scene_state else None
                 conn.send(
                     Query(
                         make_observation(
@@ -126,6 +127,7 @@ class EpisodePlayer:
                             suite=job.suite,
                             images=gate is not None,
                             privileged=priv,
+                            scene=scene,
                         )
                     )
                 )
