@@ -234,20 +234,6 @@ def _geometry(env, st: _SceneStatic, goal) -> SceneGeometry:
     )
 
 
-def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase | None) -> PrivilegedState:
-    inner, data = env.env, env.sim.data
-    st = _static_for(env)
-    poses = {}
-    for name, body in inner.obj_body_id.items():
-        poses[name] = np.concatenate([data.body_xpos[body], data.body_xquat[body]]).copy()
-    geometry = _geometry(env, st, goal)
-    sites = {name: info.pos.copy() for name, info in geometry.sites.items()}
-    joints = {name: info.qpos for name, info in geometry.joints.items()}
-    return PrivilegedState(
-        body_poses=poses, site_positions=sites, joint_positions=joints, goal=goal, case=case, geometry=geometry
-    )
-
-
 def scene_state(env) -> SceneState:
     """Object poses, every region's position and every scene joint's position: no goal, no case, no geometry."""
     inner, data = env.env, env.sim.data
@@ -259,6 +245,19 @@ def scene_state(env) -> SceneState:
     sites = {name: np.array(data.site_xpos[sid]) for name, sid, *_ in st.sites}
     joints = {name: float(data.qpos[adr]) for name, _, _, adr, _ in st.joints}
     return SceneState(body_poses=poses, site_positions=sites, joint_positions=joints)
+
+
+def privileged_state(env, goal: tuple[tuple[str, ...], ...], case: ConflictCase | None) -> PrivilegedState:
+    """The scene state (read once, by :func:`scene_state`) with the task's goal, the case and the geometry."""
+    scene = scene_state(env)
+    return PrivilegedState(
+        body_poses=scene.body_poses,
+        site_positions=scene.site_positions,
+        joint_positions=scene.joint_positions,
+        goal=goal,
+        case=case,
+        geometry=_geometry(env, _static_for(env), goal),
+    )
 
 
 def make_observation(
