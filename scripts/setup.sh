@@ -163,5 +163,20 @@ EOF
   "$VENV/bin/python" scripts/link_identical.py "$VENV/models"  # the same torch in each: keep its files once
   touch "$stamp"
 done
+# 6. The learned subject's training environment (`conflictbench train-subject`): Python 3.12 with LeRobot's
+#    dataset stack and PyTorch, pinned in the file below. Built with the model environments (not with --models none).
+if [ -n "$MODELS" ]; then
+  requirements=conflictbench/policies/subject/training-requirements.txt
+  env_dir="$VENV/models/subject"
+  stamp="$env_dir/.conflictbench-installed"
+  if [ ! -f "$stamp" ] || [ "$requirements" -nt "$stamp" ]; then
+    say "building the subject's training environment in $env_dir with $MODEL_PYTHON"
+    [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
+    "$env_dir/bin/python" -m pip install -q --upgrade pip
+    "$env_dir/bin/python" -m pip install -q -r "$requirements"
+    "$VENV/bin/python" scripts/link_identical.py "$VENV/models"
+    touch "$stamp"
+  fi
+fi
 [ ! -d "$VENV/models" ] || "$VENV/bin/python" scripts/link_identical.py "$VENV/models"  # environments built before
 say "ready: $VENV/bin/conflictbench"

@@ -6,6 +6,7 @@
     conflictbench view DIR            view.py     a static HTML site of the store's pairs, videos by replay
     conflictbench merge OUT SHARD...  merge.py    one store from stores written on different machines
     conflictbench suite ...           suite.py    validate, inspect, sample, export or rebuild the conflict suite
+    conflictbench train-subject       train_subject.py   the learned default policy, trained from scratch
 
 Each verb's module has ``command(argv, plugins) -> int``; a new verb is a new module named in ``VERBS``.
 No module of the package imports this one, and none is named after a builtin: importing
@@ -32,6 +33,7 @@ VERBS = {
     "suite": "suite",
     "view": "view",
     "merge": "merge",
+    "train-subject": "train_subject",
 }  # verb -> module; anything else is a run
 USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noop suite=physical prompt=p1
        conflictbench -m [OVERRIDE ...]     sweep, e.g. -m model=noop,random prompt=p0,p1
@@ -40,6 +42,7 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench view DIR              a web page per pair (videos, paths, measures): DIR/view/index.html
        conflictbench merge OUT SHARD...    one store from stores written on different machines
        conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
+       conflictbench train-subject [--out DIR]   train the learned default policy from scratch (--help)
        conflictbench --config-help         the configuration, its groups and their options
        conflictbench --hydra-help          Hydra's own options
 """

@@ -6,6 +6,7 @@ from conflictbench.core import hookimpl
 
 from .scripted import OraclePolicy, ScriptedConfig, ScriptedPolicy
 from .simple import NoopPolicy, RandomConfig, RandomPolicy
+from .subject.policy import SubjectConfig, SubjectPolicy
 
 
 @hookimpl
@@ -14,6 +15,16 @@ def conflictbench_register_policies(register):
     register("random", load=RandomPolicy, config=RandomConfig)
     register("scripted", load=ScriptedPolicy, config=ScriptedConfig)
     register("oracle", load=OraclePolicy, config=ScriptedConfig)
+    register("subject", load=SubjectPolicy, config=SubjectConfig)
 
 
-__all__ = ["NoopPolicy", "OraclePolicy", "RandomConfig", "RandomPolicy", "ScriptedConfig", "ScriptedPolicy"]
+__all__ = [
+    "NoopPolicy",
+    "OraclePolicy",
+    "RandomConfig",
+    "RandomPolicy",
+    "ScriptedConfig",
+    "ScriptedPolicy",
+    "SubjectConfig",
+    "SubjectPolicy",
+]

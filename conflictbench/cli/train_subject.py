@@ -1,0 +1,145 @@
+"""``conflictbench train-subject``: the learned subject from scratch, seeded, each stage resumable.
+
+1. demonstrations: the scripted expert on every base task at the training initial states (none of the
+   states evaluated), through the normal runner, with noise on what it executes (DART);
+2. the frames as a LeRobot dataset (the training environment's LeRobot writes it);
+3. training (PyTorch in the training environment); the weights, a ``.npz``, are what the policy reads.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from conflictbench.core import LIBERO_SUITES, UserError, model_environment
+
+TRAINING_ENVIRONMENT = "subject"
+"""``.venv/models/subject``: Python 3.12 with ``lerobot[dataset]`` (``scripts/setup.sh`` builds it)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        raise UserError(f"train-subject: {message}")
+
+
+def _states(text: str) -> list[int]:
+    try:
+        if "-" in text:
+            first, last = (int(x) for x in text.split("-", 1))
+            states = list(range(first, last + 1))
+        else:
+            states = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FIRST-LAST or a comma-separated list, got {text!r}") from None
+    if not states or min(states) < 0:
+        raise argparse.ArgumentTypeError(f"no initial states in {text!r}")
+    return states
+
+
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="conflictbench train-subject", description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=Path("subject-training"), help="where every stage writes")
+    p.add_argument("--init-states", type=_states, default=_states("10-29"), help="demonstration states (10-29)")
+    p.add_argument("--libero-suites", nargs="+", default=list(LIBERO_SUITES), choices=LIBERO_SUITES)
+    p.add_argument("--task-ids", type=_states, default=None, help="only these tasks of each suite (default: all)")
+    p.add_argument("--noise", type=float, default=0.2, help="std of the noise on executed arm actions (0.2)")
+    p.add_argument("--workers", type=int, default=2, help="simulator processes recording (2)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int, default=30)
+    p.add_argument("--minutes", type=float, default=45.0, help="training stops after the epoch that passes this")
+    p.add_argument("--threads", type=int, default=2, help="torch threads for training (2)")
+    p.add_argument("--python", type=Path, default=None, help="the training environment's python")
+    return p
+
+
+def _say(message: str) -> None:
+    print(f"conflictbench: {message}", file=sys.stderr, flush=True)
+
+
+def _training_python(given: Path | None) -> Path:
+    python = given or model_environment(TRAINING_ENVIRONMENT) / "bin" / "python"
+    if not Path(python).exists():
+        raise UserError(
+            f"no training environment at {python}: `scripts/setup.sh` builds it (Python 3.12 with LeRobot's "
+            "dataset stack and PyTorch), or name another with --python"
+        )
+    return Path(python)
+
+
+def _in_training_environment(python: Path, *args: str) -> None:
+    script = Path(__file__).resolve().parent.parent / "policies" / "subject" / "train_torch.py"
+    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+    env.pop("PYTHONPATH", None)  # the simulator's packages must not leak into the other interpreter
+    done = subprocess.run([str(python), str(script), *args], env=env)
+    if done.returncode != 0:
+        raise UserError(f"train-subject: the training environment's step `{args[0]}` failed (exit {done.returncode})")
+
+
+def command(argv: list[str], plugins) -> int:
+    from conflictbench.policies.subject.prepare import write_prepared
+    from conflictbench.policies.subject.record import record_demonstrations
+    from conflictbench.tasks.libero.base_tasks import all_base_tasks
+
+    args = parser().parse_args(argv)
+    if args.workers < 1 or args.threads < 1 or args.epochs < 1 or args.noise < 0:
+        raise UserError("train-subject: --workers, --threads and --epochs must be >= 1 and --noise >= 0")
+    python = _training_python(args.python)  # before an hour of recording, not after
+    out: Path = args.out
+    timings: dict[str, float] = {}
+
+    started = time.monotonic()
+    _say(f"1/3 demonstrations: the expert on {len(args.libero_suites)} LIBERO suite(s) x states {args.init_states}")
+    count = record_demonstrations(
+        out / "demonstrations",
+        init_states=args.init_states,
+        noise=args.noise,
+        workers=args.workers,
+        libero_suites=tuple(args.libero_suites),
+        task_ids=tuple(args.task_ids) if args.task_ids else None,
+    )
+    if count == 0:
+        raise UserError("train-subject: the expert succeeded in no episode; nothing to learn from")
+    timings["demonstrations_s"] = time.monotonic() - started
+
+    started = time.monotonic()
+    _say(f"2/3 dataset: {count} demonstrations -> LeRobot dataset {out / 'dataset'}")
+    instructions = [t.language for t in all_base_tasks(tuple(LIBERO_SUITES))]
+    prepared = write_prepared(out / "demonstrations" / "episodes", out / "prepared", instructions)
+    dataset = out / "dataset"
+    if dataset.exists():
+        import shutil
+
+        shutil.rmtree(dataset)  # LeRobot writes a dataset once; it is made again from the demonstrations
+    _in_training_environment(python, "dataset", "--prepared", str(prepared), "--root", str(dataset))
+    timings["dataset_s"] = time.monotonic() - started
+
+    started = time.monotonic()
+    weights = out / "subject.npz"
+    _say(f"3/3 training: seed {args.seed}, up to {args.epochs} epochs or {args.minutes:g} minutes")
+    _in_training_environment(
+        python, "train", "--root", str(dataset), "--out", str(weights), "--seed", str(args.seed),
+        "--epochs", str(args.epochs), "--minutes", str(args.minutes), "--threads", str(args.threads),
+        "--report", str(out / "training-run.json"),
+    )  # fmt: skip
+    run = json.loads((out / "training-run.json").read_text())
+    timings["training_s"] = time.monotonic() - started
+    (out / "training.json").write_text(
+        json.dumps(
+            {"demonstrations": count, **{k: round(v, 1) for k, v in timings.items()}, **vars_of(args), "run": run},
+            indent=2,
+        )
+        + "\n",
+        encoding="utf-8",
+    )
+    minutes = sum(timings.values()) / 60
+    _say(f"done in {minutes:.1f} min: {weights}; play it with `conflictbench model=subject model.weights={weights}`")
+    return 0
+
+
+def vars_of(args: argparse.Namespace) -> dict:
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}

@@ -1,0 +1,100 @@
+"""The subject's network in NumPy: what runs in the benchmark, with no deep-learning library in the process.
+
+A small transformer encoder over one token per instruction word, one per scene entity and one for the arm;
+the arm token's output is read out as a chunk of actions. ``train_torch.py`` defines the same network in
+PyTorch (a test holds the two to the same outputs) and writes the weights this module reads.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+TEXT, ARM = 0, 4
+"""Token types; entities use their kind (1 object, 2 region, 3 joint)."""
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """One batch: B episodes' current frames, padded (word id 0 and kind 0 are padding)."""
+
+    text: np.ndarray  # (B, T) int
+    names: np.ndarray  # (B, E, W) int
+    kinds: np.ndarray  # (B, E) int
+    entities: np.ndarray  # (B, E, ENTITY_NUMBERS) float
+    arm: np.ndarray  # (B, ARM_NUMBERS) float
+
+
+def _layer_norm(x: np.ndarray, gain: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    mean = x.mean(-1, keepdims=True)
+    var = ((x - mean) ** 2).mean(-1, keepdims=True)
+    return (x - mean) / np.sqrt(var + 1e-5) * gain + bias
+
+
+def _gelu(x: np.ndarray) -> np.ndarray:  # the tanh approximation, as in train_torch.py
+    return 0.5 * x * (1.0 + np.tanh(0.7978845608028654 * (x + 0.044715 * x**3)))
+
+
+class SubjectNetwork:
+    """Weights loaded from a ``.npz`` written by ``train_torch.py``."""
+
+    def __init__(self, weights: dict[str, np.ndarray], config: dict):
+        self.w = {k: np.asarray(v, dtype=np.float32) for k, v in weights.items()}
+        self.config = config
+        self.heads = int(config["heads"])
+        self.layers = int(config["layers"])
+        self.chunk = int(config["chunk"])
+
+    @classmethod
+    def load(cls, path: str | Path) -> tuple[SubjectNetwork, tuple[str, ...]]:
+        """The network and its vocabulary."""
+        with np.load(path, allow_pickle=False) as f:
+            config = json.loads(str(f["config"]))
+            vocabulary = tuple(str(w) for w in f["vocabulary"])
+            weights = {k: f[k] for k in f.files if k not in ("config", "vocabulary")}
+        return cls(weights, config), vocabulary
+
+    def _linear(self, x: np.ndarray, name: str) -> np.ndarray:
+        return x @ self.w[f"{name}.weight"].T + self.w[f"{name}.bias"]
+
+    def _mlp_in(self, x: np.ndarray, name: str) -> np.ndarray:
+        return self._linear(_gelu(self._linear(x, f"{name}.0")), f"{name}.2")
+
+    def tokens(self, inputs: Inputs) -> tuple[np.ndarray, np.ndarray]:
+        """(B, 1 + E + T, d) token embeddings and (B, 1 + E + T) validity."""
+        w = self.w
+        words, types = w["word.weight"], w["kind.weight"]
+        text = words[inputs.text] + w["position.weight"][: inputs.text.shape[1]] + types[TEXT]
+        name_valid = (inputs.names != 0)[..., None]
+        names = (words[inputs.names] * name_valid).sum(-2) / np.maximum(name_valid.sum(-2), 1)
+        entities = (inputs.entities - w["entity_mean"]) / w["entity_std"]
+        entity = names + types[inputs.kinds] + self._mlp_in(entities, "entity_in")
+        arm = self._mlp_in((inputs.arm - w["arm_mean"]) / w["arm_std"], "arm_in") + types[ARM]
+        x = np.concatenate([arm[:, None], entity, text], axis=1)
+        valid = np.concatenate([np.ones((len(arm), 1), dtype=bool), inputs.kinds != 0, inputs.text != 0], axis=1)
+        return x, valid
+
+    def __call__(self, inputs: Inputs) -> np.ndarray:
+        """(B, chunk, 7) actions: six arm values in [-1, 1] and the gripper (-1 open, +1 closed)."""
+        x, valid = self.tokens(inputs)
+        bias = np.where(valid, 0.0, -1e9).astype(np.float32)[:, None, None, :]
+        b, n, d = x.shape
+        h = self.heads
+        for i in range(self.layers):
+            p = f"layers.{i}"
+            y = _layer_norm(x, self.w[f"{p}.norm1.weight"], self.w[f"{p}.norm1.bias"])
+            qkv = self._linear(y, f"{p}.qkv").reshape(b, n, 3, h, d // h).transpose(2, 0, 3, 1, 4)
+            scores = qkv[0] @ qkv[1].transpose(0, 1, 3, 2) / np.sqrt(d // h) + bias
+            scores = np.exp(scores - scores.max(-1, keepdims=True))
+            attended = (scores / scores.sum(-1, keepdims=True)) @ qkv[2]
+            x = x + self._linear(attended.transpose(0, 2, 1, 3).reshape(b, n, d), f"{p}.out")
+            y = _layer_norm(x, self.w[f"{p}.norm2.weight"], self.w[f"{p}.norm2.bias"])
+            x = x + self._linear(_gelu(self._linear(y, f"{p}.ff1")), f"{p}.ff2")
+        y = _layer_norm(x[:, 0], self.w["head_norm.weight"], self.w["head_norm.bias"])
+        out = self._linear(_gelu(self._linear(y, "head.0")), "head.2").reshape(b, self.chunk, 7)
+        arm = np.clip(out[..., :6], -1.0, 1.0)
+        gripper = np.where(out[..., 6:] > 0, 1.0, -1.0)
+        return np.concatenate([arm, gripper], axis=-1)

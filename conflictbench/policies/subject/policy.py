@@ -1,0 +1,101 @@
+"""The learned subject as a policy: instruction words + where things are -> actions, in NumPy."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from conflictbench.core import Observation, UserError
+
+from ..scripted import ScriptedConfig
+from .features import Entities, Vocabulary, arm_numbers, entity_numbers, pad_rows
+from .model import Inputs, SubjectNetwork
+
+SHIPPED = "subject.npz"
+"""The weights that ship with the package (``conflictbench train-subject`` makes them again)."""
+
+
+@dataclass
+class SubjectConfig:
+    weights: str | None = None
+    """A ``.npz`` written by ``conflictbench train-subject``; ``null``: the weights shipped with the package."""
+    execute: int = 1
+    """Actions executed of each predicted chunk before the subject looks again (1 to the chunk's length)."""
+
+
+def shipped_weights() -> Path:
+    return Path(str(resources.files(__package__).joinpath(SHIPPED)))
+
+
+class SubjectPolicy:
+    """A small transformer trained by behaviour cloning on the scripted expert's demonstrations.
+
+    It sees the instruction, the arm's state and every object's pose, region's position and scene
+    joint's position (``needs_scene_state``), and nothing of the task: no goal, no case, no expert.
+    Deterministic: the same observation gives the same action.
+    """
+
+    needs_images = False
+    needs_scene_state = True
+    max_steps = ScriptedConfig().max_steps  # it moves at the expert's pace, so it gets the expert's budget
+
+    def __init__(self, cfg: SubjectConfig | None = None):
+        self.cfg = cfg or SubjectConfig()
+        path = Path(self.cfg.weights).expanduser() if self.cfg.weights else shipped_weights()
+        if not path.is_file():
+            raise UserError(f"no subject weights at {path} (make them with `conflictbench train-subject`)")
+        try:
+            self.network, words = SubjectNetwork.load(path)
+        except (OSError, ValueError, KeyError) as exc:
+            raise UserError(f"{path} is not a subject's weights file: {exc}") from None
+        if not 1 <= self.cfg.execute <= self.network.chunk:
+            raise UserError(f"model.execute must be between 1 and {self.network.chunk}, got {self.cfg.execute}")
+        self.vocabulary = Vocabulary(words)
+        self.positions = int(self.network.config["positions"])
+        self.identity = {"weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
+
+    def reset(self, instruction: str) -> None:
+        """Nothing: the subject keeps no memory between its decisions."""
+
+    def act(self, observation: Observation) -> np.ndarray:
+        return self.act_batch([observation])[0]
+
+    def act_batch(self, observations: list[Observation]) -> list[np.ndarray]:
+        chunks = self.network(self.inputs(observations))
+        return [chunk[: self.cfg.execute] for chunk in chunks]
+
+    def inputs(self, observations: list[Observation]) -> Inputs:
+        texts, names, kinds, numbers, arms = [], [], [], [], []
+        for o in observations:
+            scene = o.scene
+            if scene is None:
+                raise UserError("the subject needs the scene state (needs_scene_state); none was given")
+            entities = Entities(
+                tuple(sorted(scene.body_poses)),
+                tuple(sorted(scene.site_positions)),
+                tuple(sorted(scene.joint_positions)),
+            )
+            texts.append(self.vocabulary.ids(o.instruction)[: self.positions])
+            names.append(entities.name_ids(self.vocabulary))
+            kinds.append(entities.kinds())
+            numbers.append(
+                entity_numbers(
+                    np.array([scene.body_poses[n] for n in entities.objects]).reshape(-1, 7),
+                    np.array([scene.site_positions[n] for n in entities.regions]).reshape(-1, 3),
+                    np.array([scene.joint_positions[n] for n in entities.joints]),
+                    o.eef_pos,
+                )
+            )
+            arms.append(arm_numbers(o.eef_pos, o.eef_quat, o.gripper_qpos))
+        longest = max(len(k) for k in kinds)
+        return Inputs(
+            text=pad_rows(texts, max(len(t) for t in texts)),
+            names=pad_rows(names, longest),
+            kinds=pad_rows(kinds, longest),
+            entities=pad_rows(numbers, longest),
+            arm=np.stack(arms),
+        )

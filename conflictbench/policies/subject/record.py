@@ -1,0 +1,167 @@
+"""Demonstrations for the learned subject: the scripted expert played through the normal runner, its view
+and its actions kept step by step, only successful episodes written.
+
+The expert's actions are the labels; what the arm executes may carry Gaussian noise (DART: the expert then
+shows how to come back from states a learner will drift into). The noise is drawn from the episode and step
+(``rng_for``), so a recording is reproducible however the episodes are scheduled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from conflictbench.core import EpisodeRecord, Observation, rng_for
+
+from ..scripted import ScriptedConfig, ScriptedPolicy
+
+NOISE_SEED = 18
+
+
+@dataclass
+class Recording:
+    """One episode's frames while it is being played."""
+
+    instruction: str
+    objects: list[str]
+    regions: list[str]
+    joints: list[str]
+    frames: dict[str, list[np.ndarray]] = field(default_factory=dict)
+
+    def add(self, **arrays: np.ndarray) -> None:
+        for key, value in arrays.items():
+            self.frames.setdefault(key, []).append(np.asarray(value, dtype=np.float32))
+
+
+class RecordingExpert:
+    """The scripted expert, with noise on what it executes and a recording of what it saw and chose."""
+
+    needs_images = False
+    needs_privileged = True
+    needs_scene_state = True
+
+    def __init__(self, out: Path, noise: float, cfg: ScriptedConfig | None = None):
+        self.expert = ScriptedPolicy(cfg)
+        self.max_steps = self.expert.max_steps
+        self.out, self.noise = Path(out), float(noise)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self._recordings: dict[str, Recording] = {}
+        self.written = 0
+
+    def reset(self, instruction: str) -> None:
+        """Nothing: each episode's recording starts at its first observation."""
+
+    def act(self, observation: Observation) -> np.ndarray:
+        label = np.asarray(self.expert.act(observation), dtype=np.float64)
+        scene = observation.scene
+        recording = self._recordings.get(observation.episode_id)
+        if recording is None or observation.step == 0:
+            recording = Recording(
+                instruction=observation.instruction,
+                objects=sorted(scene.body_poses),
+                regions=sorted(scene.site_positions),
+                joints=sorted(scene.joint_positions),
+            )
+            self._recordings[observation.episode_id] = recording
+        executed = label.copy()
+        if self.noise > 0:
+            rng = rng_for(observation, NOISE_SEED)
+            executed[:6] = np.clip(executed[:6] + rng.normal(0.0, self.noise, size=6), -1.0, 1.0)
+        recording.add(
+            object_poses=np.stack([scene.body_poses[n] for n in recording.objects]),
+            region_positions=np.array([scene.site_positions[n] for n in recording.regions]).reshape(-1, 3),
+            joint_positions=np.array([scene.joint_positions[n] for n in recording.joints]),
+            eef_pos=observation.eef_pos,
+            eef_quat=observation.eef_quat,
+            gripper_qpos=observation.gripper_qpos,
+            label=label,
+            executed=executed,
+        )
+        return executed
+
+    def act_batch(self, observations: list[Observation]) -> list[np.ndarray]:
+        return [self.act(o) for o in observations]
+
+    def finish(self, record: EpisodeRecord) -> None:
+        """The runner's ``on_episode``: keep a successful demonstration, drop anything else."""
+        recording = self._recordings.pop(record.episode_id, None)
+        if recording is None or not record.success or record.error:
+            return
+        name = f"{record.suite}-{record.task_id:02d}-{record.init_state:03d}.npz"
+        arrays = {key: np.stack(values) for key, values in recording.frames.items()}
+        np.savez_compressed(
+            self.out / name,
+            instruction=np.array(recording.instruction),
+            suite=np.array(record.suite),
+            task_id=np.array(record.task_id),
+            init_state=np.array(record.init_state),
+            objects=np.array(recording.objects),
+            regions=np.array(recording.regions),
+            joints=np.array(recording.joints),
+            **arrays,
+        )
+        self.written += 1
+
+
+def record_demonstrations(
+    out: Path,
+    *,
+    init_states: list[int],
+    noise: float,
+    workers: int = 2,
+    progress: bool = True,
+    libero_suites: tuple[str, ...] | None = None,
+    task_ids: tuple[int, ...] | None = None,
+) -> int:
+    """Play the expert on every base task at ``init_states`` and write each successful episode under ``out``.
+
+    Episodes already recorded there are skipped (a recording that died goes on where it stopped).
+    Returns how many demonstrations ``out`` holds.
+    """
+    from conflictbench import BUILTIN_PLUGINS, hookimpl
+    from conflictbench.core import LIBERO_SUITES, Plugins
+    from conflictbench.sim.plan import EpisodeSpec
+    from conflictbench.sim.runner import Runner
+    from conflictbench.store import EpisodeStore
+    from conflictbench.tasks.libero.base_tasks import all_base_tasks
+
+    out = Path(out)
+    recorder = RecordingExpert(out / "episodes", noise)
+
+    class Recorder:
+        __name__ = "subject-demonstrations"
+
+        @hookimpl
+        def conflictbench_register_policies(self, register):
+            register("expert-recording", load=lambda cfg: recorder)
+
+    plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Recorder()])
+    spec = plugins.policy("expert-recording")
+    done = {p.stem for p in (out / "episodes").glob("*.npz")}
+    plan = [
+        EpisodeSpec(t.suite, t.task_id, state, "p0", t.language)
+        for t in all_base_tasks(tuple(libero_suites or LIBERO_SUITES))
+        for state in init_states
+        if (task_ids is None or t.task_id in task_ids) and f"{t.suite}-{t.task_id:02d}-{state:03d}" not in done
+    ]
+    if plan:
+        # A store of its own, wiped first: a demonstration is written only as its episode ends, so an episode
+        # stored by a run that died before writing it must be played again.
+        store_dir = out / "store"
+        if store_dir.exists():
+            import shutil
+
+            shutil.rmtree(store_dir)
+        runner = Runner(
+            plugins,
+            spec,
+            spec.make_config(),
+            store=EpisodeStore(store_dir),
+            workers=workers,
+            progress=progress,
+            on_episode=recorder.finish,
+        )
+        runner.run(plan)
+    return len(list((out / "episodes").glob("*.npz")))

@@ -1,0 +1,147 @@
+"""The learned subject: what it sees (features), that it reads nothing of its task, and that it reads the words."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from testing_support import reference_spec
+
+from conflictbench.core import Observation, PolicyTraits, SceneState, UserError
+from conflictbench.policies.subject.features import (
+    ARM_NUMBERS,
+    ENTITY_NUMBERS,
+    UNKNOWN,
+    Entities,
+    Vocabulary,
+    arm_numbers,
+    entity_numbers,
+)
+from conflictbench.policies.subject.policy import SubjectConfig, SubjectPolicy, shipped_weights
+
+
+def test_words_are_lower_case_runs_and_unknown_words_share_one_id():
+    vocabulary = Vocabulary.build(["Put the bowl on the plate", "akita black bowl 1"])
+    assert vocabulary.words[:2] == ("<pad>", "<unknown>")
+    ids = vocabulary.ids("put THE bowl, on the zebra!")
+    assert [vocabulary.words[i] for i in ids] == ["put", "the", "bowl", "on", "the", "<unknown>"]
+    assert list(vocabulary.ids("")) == [UNKNOWN]  # an empty instruction is one unknown word, not nothing
+
+
+def test_entity_names_become_their_words_in_a_fixed_order_of_kinds():
+    vocabulary = Vocabulary.build(["akita black bowl 1 main table plate region flat stove button"])
+    entities = Entities(("akita_black_bowl_1",), ("main_table_plate_region",), ("flat_stove_1_button",))
+    names = entities.name_ids(vocabulary)
+    assert [vocabulary.words[i] for i in names[0] if i] == ["akita", "black", "bowl", "1"]
+    assert [vocabulary.words[i] for i in names[1] if i] == ["main", "table", "plate", "region"]
+    assert list(entities.kinds()) == [1, 2, 3]
+
+
+def test_entity_numbers_hold_positions_relative_positions_orientation_and_joints():
+    poses = np.array([[0.1, 0.2, 0.9, 1.0, 0.0, 0.0, 0.0], [0.3, -0.1, 0.95, 0.0, 0.0, 0.0, 1.0]])
+    regions = np.array([[0.0, 0.0, 0.9]])
+    joints = np.array([0.07])
+    eef = np.array([0.12, 0.2, 1.0])
+    out = entity_numbers(poses, regions, joints, eef)
+    assert out.shape == (4, ENTITY_NUMBERS)
+    np.testing.assert_allclose(out[0, :3], poses[0, :3], atol=1e-6)
+    np.testing.assert_allclose(out[0, 3:6], poses[0, :3] - eef, atol=1e-6)
+    np.testing.assert_allclose(out[0, 6:9], [-0.4, 0.0, -1.0], atol=1e-6)  # within 5 cm at 20x, clipped beyond
+    np.testing.assert_allclose(out[1, 9:13], [0, 0, 0, 1], atol=1e-6)
+    np.testing.assert_allclose(out[2, 3:6], regions[0] - eef, atol=1e-6)
+    assert out[2, 9:13].tolist() == [0, 0, 0, 0]  # a region has no orientation
+    assert out[3, 13] == pytest.approx(0.07) and not out[3, :13].any()  # a joint is its position alone
+    frames = entity_numbers(np.stack([poses] * 3), np.stack([regions] * 3), np.stack([joints] * 3), np.stack([eef] * 3))
+    np.testing.assert_array_equal(frames[1], out)  # a whole episode at once, frame by frame the same
+
+
+def test_arm_numbers_rotation_is_the_quaternions_matrix():
+    quat = Rotation.from_euler("xyz", [3.0, 0.2, -1.1]).as_quat()  # x, y, z, w: robosuite's order
+    out = arm_numbers(np.array([0.1, 0.2, 1.1]), quat, np.array([0.03, -0.03]))
+    assert out.shape == (ARM_NUMBERS,)
+    np.testing.assert_allclose(out[3:12], Rotation.from_quat(quat).as_matrix().reshape(9), atol=1e-6)
+    np.testing.assert_allclose(out[[0, 1, 2, 12, 13]], [0.1, 0.2, 1.1, 0.03, -0.03], atol=1e-6)
+
+
+class Untouchable:
+    """Any read of it fails the test: what the subject must never look at."""
+
+    def __getattr__(self, name):
+        raise AssertionError(f"the subject read privileged.{name}")
+
+
+def observation(instruction: str, *, privileged=None, step: int = 0) -> Observation:
+    scene = SceneState(
+        body_poses={
+            "akita_black_bowl_1": np.array([0.0, 0.1, 0.9, 1, 0, 0, 0]),
+            "plate_1": np.array([0.1, -0.1, 0.9, 1, 0, 0, 0]),
+        },
+        site_positions={"main_table_plate_region": np.array([0.1, -0.1, 0.9])},
+        joint_positions={"flat_stove_1_button": 0.0},
+    )
+    return Observation(
+        step=step,
+        instruction=instruction,
+        eef_pos=np.array([-0.1, 0.0, 1.1]),
+        eef_quat=np.array([1.0, 0.0, 0.0, 0.0]),
+        gripper_qpos=np.array([0.04, -0.04]),
+        state=np.zeros(8),
+        privileged=privileged,
+        scene=scene,
+        episode_id="e",
+        suite="libero_goal",
+    )
+
+
+@pytest.fixture(scope="module")
+def subject() -> SubjectPolicy:
+    return SubjectPolicy()
+
+
+def test_the_subject_declares_the_scene_and_not_the_task(subject):
+    traits = PolicyTraits(subject)
+    assert traits.needs_scene_state and not traits.needs_privileged and not traits.needs_images
+    assert subject.identity["weights_sha256"]  # a retrained subject's episodes get ids of their own
+
+
+def test_act_reads_no_goal_case_or_expert_and_is_deterministic(subject):
+    seen = observation("put the bowl on the plate", privileged=Untouchable())
+    first = subject.act(seen)
+    assert first.shape == (1, 7) and np.all(np.abs(first) <= 1) and first[0, 6] in (-1.0, 1.0)
+    np.testing.assert_array_equal(subject.act(seen), first)
+    np.testing.assert_array_equal(subject.act(dataclasses.replace(seen, privileged=None)), first)
+
+
+def test_a_batch_answers_each_observation_as_alone(subject):
+    a, b = observation("put the bowl on the plate"), observation("turn on the stove")
+    b = dataclasses.replace(b, scene=dataclasses.replace(b.scene, joint_positions={}))  # fewer entities: padding
+    together = subject.act_batch([a, b])
+    np.testing.assert_allclose(together[0], subject.act(a), atol=1e-5)
+    np.testing.assert_allclose(together[1], subject.act(b), atol=1e-5)
+
+
+def test_bad_settings_are_one_line(tmp_path):
+    with pytest.raises(UserError, match="no subject weights"):
+        SubjectPolicy(SubjectConfig(weights=str(tmp_path / "missing.npz")))
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(UserError, match="is not a subject's weights file"):
+        SubjectPolicy(SubjectConfig(weights=str(tmp_path / "junk.npz")))
+    with pytest.raises(UserError, match="model.execute must be between 1 and"):
+        SubjectPolicy(SubjectConfig(execute=0))
+    assert shipped_weights().is_file()
+
+
+@pytest.mark.sim
+def test_in_one_scene_the_words_decide_where_the_arm_goes(play, tmp_path):
+    """libero_goal task 2 (the wine bottle on the cabinet) played with its own words and with task 6's (the cream
+    cheese in the bowl): the first thing to reach differs."""
+    own = reference_spec("libero_goal", 2, 0)
+    other = dataclasses.replace(own, base_instruction=reference_spec("libero_goal", 6, 0).base_instruction)
+    (_, store) = play("subject", [own, other], settings={"weights": None}, store_dir=tmp_path / "s")
+    paths = {r.instruction: r.eef_pos for r in store.records()}
+    a, b = paths[own.instruction], paths[other.instruction]
+    steps = min(len(a), len(b))
+    assert steps > 50
+    assert np.linalg.norm(a[:steps] - b[:steps], axis=1).max() > 0.05  # 5 cm apart somewhere: the words moved it
