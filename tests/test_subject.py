@@ -19,6 +19,7 @@ from conflictbench.policies.subject.features import (
     arm_numbers,
     entity_numbers,
 )
+from conflictbench.policies.subject.model import decode
 from conflictbench.policies.subject.policy import SubjectConfig, SubjectPolicy, shipped_weights
 
 
@@ -48,7 +49,7 @@ def test_entity_numbers_hold_positions_relative_positions_orientation_and_joints
     assert out.shape == (4, ENTITY_NUMBERS)
     np.testing.assert_allclose(out[0, :3], poses[0, :3], atol=1e-6)
     np.testing.assert_allclose(out[0, 3:6], poses[0, :3] - eef, atol=1e-6)
-    np.testing.assert_allclose(out[0, 6:9], [-0.4, 0.0, -1.0], atol=1e-6)  # within 5 cm at 20x, clipped beyond
+    np.testing.assert_allclose(out[0, 6:9], [-0.2, 0.0, -1.0], atol=1e-6)  # within 10 cm at 10x, clipped beyond
     np.testing.assert_allclose(out[1, 9:13], [0, 0, 0, 1], atol=1e-6)
     np.testing.assert_allclose(out[2, 3:6], regions[0] - eef, atol=1e-6)
     assert out[2, 9:13].tolist() == [0, 0, 0, 0]  # a region has no orientation
@@ -145,3 +146,21 @@ def test_in_one_scene_the_words_decide_where_the_arm_goes(play, tmp_path):
     steps = min(len(a), len(b))
     assert steps > 50
     assert np.linalg.norm(a[:steps] - b[:steps], axis=1).max() > 0.05  # 5 cm apart somewhere: the words moved it
+
+
+def test_decoding_picks_one_mode_of_the_bins_never_their_mean():
+    chunk, bins = 2, 5  # bins at -1, -0.5, 0, 0.5, 1
+    raw = np.full((1, chunk, 6 * bins + 1), -10.0)
+    logits = raw[..., : 6 * bins].reshape(1, chunk, 6, bins)
+    logits[..., 4] = 0.0  # every value: +1 ...
+    logits[0, 0, 0, 0] = 0.5  # ... but the first step's first value has a likelier mode at -1 (not 0, the mean)
+    raw[..., : 6 * bins] = logits.reshape(1, chunk, 6 * bins)
+    raw[0, :, -1] = [-2.0, 3.0]  # the gripper opens now, closes a step later
+    out = decode(raw.reshape(1, -1), chunk, bins)
+    assert out.shape == (1, chunk, 7)
+    assert out[0, 0, 0] == pytest.approx(-1.0, abs=1e-3) and out[0, 1, 0] == pytest.approx(1.0, abs=1e-3)
+    assert out[0, 0, 6] == -1.0 and out[0, 1, 6] == 1.0
+    led = decode(raw.reshape(1, -1), chunk, bins, gripper_lead=1)
+    assert led[0, 0, 6] == 1.0 and led[0, 1, 6] == 1.0  # a step early; the chunk's last is kept at its end
+    raw[0, 0, 1 * bins + 2 : 1 * bins + 4] = [4.0, 4.0]  # two neighbouring bins equally likely: between them
+    assert decode(raw.reshape(1, -1), chunk, bins)[0, 0, 1] == pytest.approx(0.25, abs=1e-3)

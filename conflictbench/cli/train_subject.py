@@ -44,7 +44,7 @@ def _states(text: str) -> list[int]:
 def parser() -> argparse.ArgumentParser:
     p = _Parser(prog="conflictbench train-subject", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("subject-training"), help="where every stage writes")
-    p.add_argument("--init-states", type=_states, default=_states("10-29"), help="demonstration states (10-29)")
+    p.add_argument("--init-states", type=_states, default=_states("10-23"), help="demonstration states (10-23)")
     p.add_argument("--libero-suites", nargs="+", default=list(LIBERO_SUITES), choices=LIBERO_SUITES)
     p.add_argument("--task-ids", type=_states, default=None, help="only these tasks of each suite (default: all)")
     p.add_argument("--noise", type=float, default=0.2, help="std of the noise on executed arm actions (0.2)")

@@ -33,7 +33,7 @@ network.load_state_dict({k: torch.tensor(stored[k]) for k in network.state_dict(
 inputs = [frames[k] for k in ("text", "names", "kinds", "entities", "arm")]
 with torch.no_grad():
     raw = network(*inputs).numpy()
-expected = np.concatenate([np.clip(raw[..., :6], -1, 1), np.where(raw[..., 6:] > 0, 1.0, -1.0)], axis=-1)
+expected = numpy_model.decode(raw, trainer.CONFIG["chunk"], trainer.CONFIG["bins"])
 ours, _ = numpy_model.SubjectNetwork.load(weights)
 got = ours(numpy_model.Inputs(*(x.numpy() for x in inputs)))
 print(
@@ -44,7 +44,7 @@ print(
             "tasks": sorted(dataset.meta.tasks.index),
             "first_task": dataset[0]["task"],
             "largest_difference": float(np.abs(got - expected).max()),
-            "decided_close": int((raw[..., 6] > 0).sum()),
+            "decided_close": int((expected[..., 6] > 0).sum()),
         }
     )
 )

@@ -22,9 +22,9 @@ NAME_WORDS = 8
 """Words kept of an entity's name (the longest region names have 7)."""
 KIND = {"object": 1, "region": 2, "joint": 3}
 ENTITY_NUMBERS = 14
-"""position (3), position minus the gripper's (3), the same within 5 cm at 20x (3: fine resolution where a grasp
+"""position (3), position minus the gripper's (3), the same within 10 cm at 10x (3: fine resolution where a grasp
 is decided), quaternion w, x, y, z (4), joint position (1)."""
-NEAR = 0.05
+NEAR = 0.1
 ARM_NUMBERS = 14
 """gripper position (3), rotation matrix (9), finger joints (2)."""
 _WORD = re.compile(r"[a-z]+|\d+")

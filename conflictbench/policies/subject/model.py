@@ -47,6 +47,7 @@ class SubjectNetwork:
         self.heads = int(config["heads"])
         self.layers = int(config["layers"])
         self.chunk = int(config["chunk"])
+        self.bins = int(config["bins"])
 
     @classmethod
     def load(cls, path: str | Path) -> tuple[SubjectNetwork, tuple[str, ...]]:
@@ -77,8 +78,8 @@ class SubjectNetwork:
         valid = np.concatenate([np.ones((len(arm), 1), dtype=bool), inputs.kinds != 0, inputs.text != 0], axis=1)
         return x, valid
 
-    def __call__(self, inputs: Inputs) -> np.ndarray:
-        """(B, chunk, 7) actions: six arm values in [-1, 1] and the gripper (-1 open, +1 closed)."""
+    def __call__(self, inputs: Inputs, gripper_lead: int = 0) -> np.ndarray:
+        """(B, chunk, 7) actions: six arm values in [-1, 1] and the gripper (-1 open, +1 closed); see :func:`decode`."""
         x, valid = self.tokens(inputs)
         bias = np.where(valid, 0.0, -1e9).astype(np.float32)[:, None, None, :]
         b, n, d = x.shape
@@ -94,7 +95,29 @@ class SubjectNetwork:
             y = _layer_norm(x, self.w[f"{p}.norm2.weight"], self.w[f"{p}.norm2.bias"])
             x = x + self._linear(_gelu(self._linear(y, f"{p}.ff1")), f"{p}.ff2")
         y = _layer_norm(x[:, 0], self.w["head_norm.weight"], self.w["head_norm.bias"])
-        out = self._linear(_gelu(self._linear(y, "head.0")), "head.2").reshape(b, self.chunk, 7)
-        arm = np.clip(out[..., :6], -1.0, 1.0)
-        gripper = np.where(out[..., 6:] > 0, 1.0, -1.0)
-        return np.concatenate([arm, gripper], axis=-1)
+        raw = self._linear(_gelu(self._linear(y, "head.0")), "head.2")
+        return decode(raw, self.chunk, self.bins, gripper_lead)
+
+
+def decode(raw: np.ndarray, chunk: int, bins: int, gripper_lead: int = 0) -> np.ndarray:
+    """The head's output (B, chunk * (6 * bins + 1)) -> (B, chunk, 7) actions.
+
+    Each arm value is a choice among ``bins`` values evenly spaced over [-1, 1] (a classification, not a
+    regression: the expert grasps a bowl at one of several rim points, and the mean of those is the bowl's
+    middle, where nothing can be grasped): the most likely bin, refined by the probability-weighted mean of it
+    and its two neighbours. ``gripper_lead``: action i takes the gripper command predicted for step
+    i + lead (the chunk's last at most): switching a few steps before the expert did still grasps (the fingers
+    take ~10 steps to close), copying its exact moment makes a cloned policy hover short of it.
+    """
+    b = len(raw)
+    raw = raw.reshape(b, chunk, 6 * bins + 1)
+    logits = raw[..., : 6 * bins].reshape(b, chunk, 6, bins)
+    centers = np.linspace(-1.0, 1.0, bins)
+    best = logits.argmax(-1)
+    window = np.clip(best[..., None] + np.arange(-1, 2), 0, bins - 1)
+    near = np.take_along_axis(logits, window, -1)
+    weights = np.exp(near - near.max(-1, keepdims=True))
+    arm = (weights * centers[window]).sum(-1) / weights.sum(-1)
+    ahead = np.minimum(np.arange(chunk) + gripper_lead, chunk - 1)
+    gripper = np.where(raw[:, ahead, -1:] > 0, 1.0, -1.0)
+    return np.concatenate([arm, gripper], axis=-1)

@@ -25,6 +25,8 @@ class SubjectConfig:
     """A ``.npz`` written by ``conflictbench train-subject``; ``null``: the weights shipped with the package."""
     execute: int = 1
     """Actions executed of each predicted chunk before the subject looks again (1 to the chunk's length)."""
+    gripper_lead: int = 3
+    """Steps ahead whose predicted gripper command is executed now (0 to the chunk's length - 1)."""
 
 
 def shipped_weights() -> Path:
@@ -54,6 +56,10 @@ class SubjectPolicy:
             raise UserError(f"{path} is not a subject's weights file: {exc}") from None
         if not 1 <= self.cfg.execute <= self.network.chunk:
             raise UserError(f"model.execute must be between 1 and {self.network.chunk}, got {self.cfg.execute}")
+        if not 0 <= self.cfg.gripper_lead < self.network.chunk:
+            raise UserError(
+                f"model.gripper_lead must be between 0 and {self.network.chunk - 1}, got {self.cfg.gripper_lead}"
+            )
         self.vocabulary = Vocabulary(words)
         self.positions = int(self.network.config["positions"])
         self.identity = {"weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
@@ -65,7 +71,7 @@ class SubjectPolicy:
         return self.act_batch([observation])[0]
 
     def act_batch(self, observations: list[Observation]) -> list[np.ndarray]:
-        chunks = self.network(self.inputs(observations))
+        chunks = self.network(self.inputs(observations), gripper_lead=self.cfg.gripper_lead)
         return [chunk[: self.cfg.execute] for chunk in chunks]
 
     def inputs(self, observations: list[Observation]) -> Inputs:

@@ -18,6 +18,8 @@ from conflictbench.core import EpisodeRecord, Observation, rng_for
 from ..scripted import ScriptedConfig, ScriptedPolicy
 
 NOISE_SEED = 18
+FAILED = "failed.txt"
+"""Episodes the expert did not succeed in, one name a line, next to the demonstrations."""
 
 
 @dataclass
@@ -87,9 +89,13 @@ class RecordingExpert:
     def finish(self, record: EpisodeRecord) -> None:
         """The runner's ``on_episode``: keep a successful demonstration, drop anything else."""
         recording = self._recordings.pop(record.episode_id, None)
-        if recording is None or not record.success or record.error:
-            return
+        if recording is None or record.error:
+            return  # an infrastructure failure: played again next time
         name = f"{record.suite}-{record.task_id:02d}-{record.init_state:03d}.npz"
+        if not record.success:  # deterministic: it would fail again, so a resumed recording skips it
+            with open(self.out / FAILED, "a", encoding="utf-8") as f:
+                f.write(name.removesuffix(".npz") + "\n")
+            return
         arrays = {key: np.stack(values) for key, values in recording.frames.items()}
         np.savez_compressed(
             self.out / name,
@@ -139,7 +145,9 @@ def record_demonstrations(
 
     plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Recorder()])
     spec = plugins.policy("expert-recording")
+    failed = out / "episodes" / FAILED
     done = {p.stem for p in (out / "episodes").glob("*.npz")}
+    done |= set(failed.read_text(encoding="utf-8").split()) if failed.exists() else set()
     plan = [
         EpisodeSpec(t.suite, t.task_id, state, "p0", t.language)
         for t in all_base_tasks(tuple(libero_suites or LIBERO_SUITES))

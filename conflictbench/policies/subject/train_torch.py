@@ -28,15 +28,18 @@ FPS = 20
 UNKNOWN = 1
 NO_VIDEO = "pyav"
 """The dataset has no video; named so that LeRobot does not probe torchcodec (a page of traceback without FFmpeg)."""
-CONFIG = {"width": 64, "heads": 4, "layers": 3, "feedforward": 128, "chunk": 4, "positions": 96}
+CONFIG = {"width": 64, "heads": 4, "layers": 3, "feedforward": 128, "chunk": 4, "positions": 96, "bins": 41}
 
 
 # -- the dataset ------------------------------------------------------------------------------------
 
 
 def features(prepared: dict[str, np.ndarray]) -> dict[str, dict]:
+    """Flat vectors (an entity table is stored row after row; ``meta/subject.json`` has its shape): LeRobot
+    stores a 2-D feature as an Arrow extension type that is 5x slower to write."""
+
     def spec(key: str, dtype: str, names: list[str] | None = None) -> dict:
-        return {"dtype": dtype, "shape": tuple(prepared[key].shape[1:]), "names": names}
+        return {"dtype": dtype, "shape": (int(np.prod(prepared[key].shape[1:])),), "names": names}
 
     return {
         "observation.state": spec("arm", "float32", ["x", "y", "z", *(f"r{i}" for i in range(9)), "f0", "f1"]),
@@ -69,14 +72,26 @@ def write_dataset(prepared_path: Path, root: Path) -> None:
     )
     episodes = prepared["episode_index"]
     starts = np.flatnonzero(np.r_[True, episodes[1:] != episodes[:-1]])
-    for start, end in zip(starts, [*starts[1:], len(episodes)], strict=True):
-        for i in range(start, end):
-            frame = {key: prepared[column][i] for key, column in COLUMNS.items()}
-            dataset.add_frame({**frame, "task": str(prepared["task"][i])})
-        dataset.save_episode()
+    for number, (start, end) in enumerate(zip(starts, [*starts[1:], len(episodes)], strict=True)):
+        n = int(end - start)
+        # A whole episode at once (LeRobot's add_frame checks and copies each frame: minutes for 10^5 frames).
+        episode = {key: prepared[column][start:end].reshape(n, -1) for key, column in COLUMNS.items()}
+        episode.update(
+            size=n,
+            task=[str(t) for t in prepared["task"][start:end]],
+            episode_index=number,
+            frame_index=np.arange(n),
+            timestamp=np.arange(n, dtype=np.float32) / FPS,
+            index=None,  # LeRobot fills these two in
+            task_index=None,
+        )
+        dataset.save_episode(episode)
     dataset.finalize()
-    vocabulary = prepared["vocabulary"]
-    (Path(root) / "meta" / "vocabulary.json").write_text(json.dumps([str(w) for w in vocabulary]) + "\n")
+    meta = {
+        "vocabulary": [str(w) for w in prepared["vocabulary"]],
+        "shapes": {column: list(prepared[column].shape[1:]) for column in COLUMNS.values()},
+    }
+    (Path(root) / "meta" / "subject.json").write_text(json.dumps(meta) + "\n")
 
 
 def read_dataset(root: Path) -> tuple[dict[str, torch.Tensor], list[str]]:
@@ -85,10 +100,10 @@ def read_dataset(root: Path) -> tuple[dict[str, torch.Tensor], list[str]]:
 
     dataset = LeRobotDataset(REPO_ID, root=root, video_backend=NO_VIDEO)
     table = dataset.hf_dataset.with_format("torch")[:]
-    frames = {column: table[key] for key, column in COLUMNS.items()}
+    meta = json.loads((Path(root) / "meta" / "subject.json").read_text())
+    frames = {column: table[key].reshape(-1, *meta["shapes"][column]) for key, column in COLUMNS.items()}
     frames["episode_index"] = table["episode_index"]
-    vocabulary = json.loads((Path(root) / "meta" / "vocabulary.json").read_text())
-    return frames, vocabulary
+    return frames, meta["vocabulary"]
 
 
 # -- the network ------------------------------------------------------------------------------------
@@ -125,13 +140,15 @@ class SubjectNetwork(nn.Module):
         self.entity_in, self.arm_in = _mlp(entity_numbers, d), _mlp(arm_numbers, d)
         self.layers = nn.ModuleList(Layer(d, config["heads"], config["feedforward"]) for _ in range(config["layers"]))
         self.head_norm = nn.LayerNorm(d)
-        self.head = nn.Sequential(nn.Linear(d, d), nn.GELU(approximate="tanh"), nn.Linear(d, 7 * config["chunk"]))
+        self.head = nn.Sequential(
+            nn.Linear(d, d), nn.GELU(approximate="tanh"), nn.Linear(d, config["chunk"] * (6 * config["bins"] + 1))
+        )
         for name, size in (("entity", entity_numbers), ("arm", arm_numbers)):
             self.register_buffer(f"{name}_mean", torch.zeros(size))
             self.register_buffer(f"{name}_std", torch.ones(size))
 
     def forward(self, text, names, kinds, entities, arm) -> torch.Tensor:
-        """(B, chunk, 7): six arm values and a gripper logit."""
+        """(B, chunk * (6 * bins + 1)): per step, six arm values' bin logits and a gripper logit (model.decode)."""
         text_tokens = self.word(text) + self.position.weight[: text.shape[1]] + self.kind.weight[0]
         name_valid = (names != 0).unsqueeze(-1).float()
         name = (self.word(names) * name_valid).sum(-2) / name_valid.sum(-2).clamp(min=1)
@@ -142,7 +159,7 @@ class SubjectNetwork(nn.Module):
         bias = torch.where(valid, 0.0, -1e9)[:, None, None, :]
         for layer in self.layers:
             x = layer(x, bias)
-        return self.head(self.head_norm(x[:, 0])).reshape(len(x), self.config["chunk"], 7)
+        return self.head(self.head_norm(x[:, 0]))
 
 
 def export(network: SubjectNetwork, vocabulary: list[str], path: Path, extra: dict) -> None:
@@ -165,6 +182,15 @@ def chunk_targets(actions: torch.Tensor, episodes: torch.Tensor, chunk: int) -> 
         last[s : e + 1] = e
     steps = torch.minimum(index[:, None] + torch.arange(chunk)[None, :], last[:, None])
     return actions[steps]
+
+
+def action_loss(raw: torch.Tensor, target: torch.Tensor, chunk: int, bins: int) -> torch.Tensor:
+    """Cross-entropy of each arm value's bin (the nearest of ``bins`` over [-1, 1]) plus the gripper's."""
+    raw = raw.reshape(len(raw), chunk, 6 * bins + 1)
+    logits = raw[..., : 6 * bins].reshape(-1, bins)
+    wanted = torch.round((target[..., :6].clamp(-1, 1) + 1) / 2 * (bins - 1)).long().reshape(-1)
+    gripper = F.binary_cross_entropy_with_logits(raw[..., -1], (target[..., 6] > 0).float())
+    return F.cross_entropy(logits, wanted) + gripper
 
 
 def standardize(values: torch.Tensor, valid: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -204,10 +230,7 @@ def train(root: Path, out: Path, *, seed: int, minutes: float, epochs: int, batc
             out_ = network(
                 text, frames["names"][rows, :things], kinds, frames["entities"][rows, :things], frames["arm"][rows]
             )
-            target = targets[rows]
-            loss = F.mse_loss(out_[..., :6], target[..., :6]) + F.binary_cross_entropy_with_logits(
-                out_[..., 6], (target[..., 6] > 0).float()
-            )
+            loss = action_loss(out_, targets[rows], CONFIG["chunk"], CONFIG["bins"])
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
