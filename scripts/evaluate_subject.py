@@ -86,4 +86,9 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    from conflictbench.core import UserError
+
+    try:
+        sys.exit(main(sys.argv[1:]))
+    except UserError as exc:
+        sys.exit(f"evaluate_subject: error: {exc}")

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from testing_support import reference_spec
 
-from conflictbench.core import Observation, PolicyTraits, SceneState, UserError
+from conflictbench.core import EpisodeRecord, Observation, PolicyTraits, SceneState, UserError
 from conflictbench.policies.subject.features import (
     ARM_NUMBERS,
     ENTITY_NUMBERS,
@@ -21,6 +22,8 @@ from conflictbench.policies.subject.features import (
 )
 from conflictbench.policies.subject.model import decode
 from conflictbench.policies.subject.policy import SubjectConfig, SubjectPolicy, shipped_weights
+from conflictbench.policies.subject.prepare import prepare
+from conflictbench.policies.subject.record import FAILED, Recording, RecordingExpert
 
 
 def test_words_are_lower_case_runs_and_unknown_words_share_one_id():
@@ -104,13 +107,14 @@ def subject() -> SubjectPolicy:
 def test_the_subject_declares_the_scene_and_not_the_task(subject):
     traits = PolicyTraits(subject)
     assert traits.needs_scene_state and not traits.needs_privileged and not traits.needs_images
-    assert subject.identity["weights_sha256"]  # a retrained subject's episodes get ids of their own
+    digest = hashlib.sha256(shipped_weights().read_bytes()).hexdigest()[:16]
+    assert subject.identity == {"weights_sha256": digest}  # a retrained subject's episodes get ids of their own
 
 
 def test_act_reads_no_goal_case_or_expert_and_is_deterministic(subject):
     seen = observation("put the bowl on the plate", privileged=Untouchable())
     first = subject.act(seen)
-    assert first.shape == (1, 7) and np.all(np.abs(first) <= 1) and first[0, 6] in (-1.0, 1.0)
+    assert first.shape == (1, 7) and first[0, 6] in (-1.0, 1.0)
     np.testing.assert_array_equal(subject.act(seen), first)
     np.testing.assert_array_equal(subject.act(dataclasses.replace(seen, privileged=None)), first)
 
@@ -119,8 +123,8 @@ def test_a_batch_answers_each_observation_as_alone(subject):
     a, b = observation("put the bowl on the plate"), observation("turn on the stove")
     b = dataclasses.replace(b, scene=dataclasses.replace(b.scene, joint_positions={}))  # fewer entities: padding
     together = subject.act_batch([a, b])
-    np.testing.assert_allclose(together[0], subject.act(a), atol=1e-5)
-    np.testing.assert_allclose(together[1], subject.act(b), atol=1e-5)
+    np.testing.assert_array_equal(together[0], subject.act(a))  # bit for bit: batching never changes an action
+    np.testing.assert_array_equal(together[1], subject.act(b))
 
 
 def test_bad_settings_are_one_line(tmp_path):
@@ -129,6 +133,11 @@ def test_bad_settings_are_one_line(tmp_path):
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
     with pytest.raises(UserError, match="is not a subject's weights file"):
         SubjectPolicy(SubjectConfig(weights=str(tmp_path / "junk.npz")))
+    stored = dict(np.load(shipped_weights()))
+    del stored["word.weight"]
+    np.savez(tmp_path / "incomplete.npz", **stored)
+    with pytest.raises(UserError, match="is not a subject's weights file: KeyError"):  # at loading, not in episodes
+        SubjectPolicy(SubjectConfig(weights=str(tmp_path / "incomplete.npz")))
     with pytest.raises(UserError, match="model.execute must be between 1 and"):
         SubjectPolicy(SubjectConfig(execute=0))
     assert shipped_weights().is_file()
@@ -164,3 +173,74 @@ def test_decoding_picks_one_mode_of_the_bins_never_their_mean():
     assert led[0, 0, 6] == 1.0 and led[0, 1, 6] == 1.0  # a step early; the chunk's last is kept at its end
     raw[0, 0, 1 * bins + 2 : 1 * bins + 4] = [4.0, 4.0]  # two neighbouring bins equally likely: between them
     assert decode(raw.reshape(1, -1), chunk, bins)[0, 0, 1] == pytest.approx(0.25, abs=1e-3)
+
+
+def test_training_frames_are_exactly_what_the_policy_computes_when_acting(subject):
+    """A recorded episode through prepare() and the same frames as live observations through the policy."""
+    rng = np.random.default_rng(0)
+    frames = 4
+    objects, regions, joints = ["plate_1", "akita_black_bowl_1"], ["main_table_plate_region"], ["flat_stove_1_button"]
+    quat = rng.normal(size=(frames, 2, 4))
+    episode = {
+        "instruction": np.array("put the bowl on the plate"),
+        "objects": np.array(sorted(objects)),
+        "regions": np.array(regions),
+        "joints": np.array(joints),
+        "object_poses": np.concatenate(
+            [rng.uniform(-0.3, 1, (frames, 2, 3)), quat / np.linalg.norm(quat, axis=-1, keepdims=True)], -1
+        ),
+        "region_positions": rng.uniform(-0.3, 1, (frames, 1, 3)),
+        "joint_positions": rng.uniform(0, 0.1, (frames, 1)),
+        "eef_pos": rng.uniform(-0.3, 1.2, (frames, 3)),
+        "eef_quat": np.tile([0.0, 1.0, 0.0, 0.0], (frames, 1)),
+        "gripper_qpos": np.tile([0.04, -0.04], (frames, 1)),
+        "label": np.zeros((frames, 7)),
+    }
+    episode = {k: v.astype(np.float32) if v.dtype == np.float64 else v for k, v in episode.items()}  # as recorded
+    prepared = prepare([episode], subject.vocabulary)
+    names = [str(n) for n in episode["objects"]]
+    for t in range(frames):
+        scene = SceneState(
+            body_poses={n: episode["object_poses"][t, i].astype(np.float64) for i, n in enumerate(names)},
+            site_positions={regions[0]: episode["region_positions"][t, 0].astype(np.float64)},
+            joint_positions={joints[0]: float(episode["joint_positions"][t, 0])},
+        )
+        seen = dataclasses.replace(
+            observation("put the bowl on the plate"),
+            scene=scene,
+            eef_pos=episode["eef_pos"][t].astype(np.float64),
+            eef_quat=episode["eef_quat"][t].astype(np.float64),
+        )
+        live = subject.inputs([seen])
+        entities = live.kinds.shape[1]
+        np.testing.assert_array_equal(live.entities[0], prepared["entities"][t, :entities])
+        np.testing.assert_array_equal(live.names[0], prepared["names"][t, :entities])
+        np.testing.assert_array_equal(live.kinds[0], prepared["kinds"][t, :entities])
+        assert not prepared["kinds"][t, entities:].any()  # the rest is padding
+        np.testing.assert_array_equal(live.arm[0], prepared["arm"][t])
+        np.testing.assert_array_equal(live.text[0], prepared["text"][t, : live.text.shape[1]])
+
+
+def test_a_demonstration_lands_whole_a_failure_is_listed_and_an_error_leaves_nothing(tmp_path):
+    recorder = RecordingExpert(tmp_path, noise=0.2)
+
+    def ended(episode_id: str, state: int, **outcome) -> EpisodeRecord:
+        recording = Recording("turn on the stove", ["flat_stove_1"], [], ["flat_stove_1_button"])
+        recording.add(label=np.ones(7), executed=np.zeros(7))
+        recorder._recordings[episode_id] = recording
+        record = EpisodeRecord(
+            policy="expert-recording", suite="libero_goal", task_id=7, init_state=state, prompt="p0",
+            instruction="turn on the stove",
+            episode_id=episode_id, **outcome,
+        )  # fmt: skip
+        recorder.finish(record)
+        return record
+
+    ended("a", 12, success=True)
+    ended("b", 13, success=False)
+    ended("c", 14, success=True, error="worker lost")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [FAILED, "libero_goal-07-012.npz"]  # no partial file left
+    assert (tmp_path / FAILED).read_text().split() == ["libero_goal-07-013"]
+    with np.load(tmp_path / "libero_goal-07-012.npz") as demo:
+        assert str(demo["instruction"]) == "turn on the stove" and demo["label"].shape == (1, 7)
+        assert list(demo["joints"]) == ["flat_stove_1_button"]

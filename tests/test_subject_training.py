@@ -71,7 +71,10 @@ def test_train_subject_records_writes_a_lerobot_dataset_and_trains_weights_the_p
     [
         (["--init-states", "ten"], "expected FIRST-LAST or a comma-separated list"),
         (["--libero-suites", "libero_100"], "invalid choice"),
+        (["--init-states", "0-20"], "demonstration states must be in 5-49"),
+        (["--task-ids", "3,12"], "task ids are 0-9"),
         (["--python", "/nowhere/python"], "no training environment at /nowhere/python"),
+        (["--python", sys.executable], "cannot train the subject (ModuleNotFoundError"),
         (["--epochs", "0", "--python", sys.executable], "--epochs must be >= 1"),
     ],
 )

@@ -18,6 +18,9 @@ from pathlib import Path
 
 from conflictbench.core import LIBERO_SUITES, UserError, model_environment
 
+FIRST_TRAINING_STATE = 5
+"""States 0-4 are the evaluation's: never demonstrated."""
+INIT_STATES = 50
 TRAINING_ENVIRONMENT = "subject"
 """``.venv/models/subject``: Python 3.12 with ``lerobot[dataset]`` (``scripts/setup.sh`` builds it)."""
 
@@ -36,9 +39,24 @@ def _states(text: str) -> list[int]:
             states = [int(x) for x in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected FIRST-LAST or a comma-separated list, got {text!r}") from None
-    if not states or min(states) < 0:
+    if not states:
         raise argparse.ArgumentTypeError(f"no initial states in {text!r}")
+    if min(states) < FIRST_TRAINING_STATE or max(states) >= INIT_STATES:
+        raise argparse.ArgumentTypeError(
+            f"demonstration states must be in {FIRST_TRAINING_STATE}-{INIT_STATES - 1} (0-{FIRST_TRAINING_STATE - 1} "
+            f"are evaluated; LIBERO has {INIT_STATES} per task), got {text!r}"
+        )
     return states
+
+
+def _task_ids(text: str) -> list[int]:
+    try:
+        ids = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list of task ids, got {text!r}") from None
+    if not ids or min(ids) < 0 or max(ids) > 9:
+        raise argparse.ArgumentTypeError(f"task ids are 0-9, got {text!r}")
+    return ids
 
 
 def parser() -> argparse.ArgumentParser:
@@ -46,7 +64,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("subject-training"), help="where every stage writes")
     p.add_argument("--init-states", type=_states, default=_states("10-23"), help="demonstration states (10-23)")
     p.add_argument("--libero-suites", nargs="+", default=list(LIBERO_SUITES), choices=LIBERO_SUITES)
-    p.add_argument("--task-ids", type=_states, default=None, help="only these tasks of each suite (default: all)")
+    p.add_argument("--task-ids", type=_task_ids, default=None, help="only these tasks of each suite (default: all)")
     p.add_argument("--noise", type=float, default=0.2, help="std of the noise on executed arm actions (0.2)")
     p.add_argument("--workers", type=int, default=2, help="simulator processes recording (2)")
     p.add_argument("--seed", type=int, default=0)
@@ -68,6 +86,12 @@ def _training_python(given: Path | None) -> Path:
             f"no training environment at {python}: `scripts/setup.sh` builds it (Python 3.12 with LeRobot's "
             "dataset stack and PyTorch), or name another with --python"
         )
+    probe = subprocess.run(
+        [str(python), "-c", "import torch, lerobot.datasets.lerobot_dataset"], capture_output=True, text=True
+    )
+    if probe.returncode != 0:
+        why = (probe.stderr.strip().splitlines() or [f"exit code {probe.returncode}"])[-1]
+        raise UserError(f"{python} cannot train the subject ({why}): `scripts/setup.sh` builds the environment")
     return Path(python)
 
 

@@ -29,6 +29,23 @@ class SubjectConfig:
     """Steps ahead whose predicted gripper command is executed now (0 to the chunk's length - 1)."""
 
 
+def _dry_run_observation() -> Observation:
+    from conflictbench.core import SceneState
+
+    scene = SceneState(
+        body_poses={"plate_1": np.array([0.0, 0.0, 0.9, 1, 0, 0, 0])}, site_positions={}, joint_positions={}
+    )
+    return Observation(
+        step=0,
+        instruction="put the bowl on the plate",
+        eef_pos=np.array([0.0, 0.0, 1.1]),
+        eef_quat=np.array([1.0, 0.0, 0.0, 0.0]),
+        gripper_qpos=np.array([0.04, -0.04]),
+        state=np.zeros(8),
+        scene=scene,
+    )
+
+
 def shipped_weights() -> Path:
     return Path(str(resources.files(__package__).joinpath(SHIPPED)))
 
@@ -52,16 +69,17 @@ class SubjectPolicy:
             raise UserError(f"no subject weights at {path} (make them with `conflictbench train-subject`)")
         try:
             self.network, words = SubjectNetwork.load(path)
-        except (OSError, ValueError, KeyError) as exc:
-            raise UserError(f"{path} is not a subject's weights file: {exc}") from None
+            self.vocabulary = Vocabulary(words)
+            self.positions = int(self.network.config["positions"])
+            self.act_batch([_dry_run_observation()])  # a file missing a tensor fails here, not in every episode
+        except Exception as exc:
+            raise UserError(f"{path} is not a subject's weights file: {type(exc).__name__}: {exc}") from None
         if not 1 <= self.cfg.execute <= self.network.chunk:
             raise UserError(f"model.execute must be between 1 and {self.network.chunk}, got {self.cfg.execute}")
         if not 0 <= self.cfg.gripper_lead < self.network.chunk:
             raise UserError(
                 f"model.gripper_lead must be between 0 and {self.network.chunk - 1}, got {self.cfg.gripper_lead}"
             )
-        self.vocabulary = Vocabulary(words)
-        self.positions = int(self.network.config["positions"])
         self.identity = {"weights_sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16]}
 
     def reset(self, instruction: str) -> None:
@@ -71,8 +89,10 @@ class SubjectPolicy:
         return self.act_batch([observation])[0]
 
     def act_batch(self, observations: list[Observation]) -> list[np.ndarray]:
-        chunks = self.network(self.inputs(observations), gripper_lead=self.cfg.gripper_lead)
-        return [chunk[: self.cfg.execute] for chunk in chunks]
+        # One observation at a time: padded to a batch's longest, the arithmetic (and so a near-tie between two
+        # bins) would depend on which episodes happen to share the batch.
+        lead, execute = self.cfg.gripper_lead, self.cfg.execute
+        return [self.network(self.inputs([o]), gripper_lead=lead)[0][:execute] for o in observations]
 
     def inputs(self, observations: list[Observation]) -> Inputs:
         texts, names, kinds, numbers, arms = [], [], [], [], []
@@ -88,15 +108,17 @@ class SubjectPolicy:
             texts.append(self.vocabulary.ids(o.instruction)[: self.positions])
             names.append(entities.name_ids(self.vocabulary))
             kinds.append(entities.kinds())
+            # float32 first, as the demonstrations were recorded: training and acting compute the same numbers
+            eef = np.asarray(o.eef_pos, dtype=np.float32)
             numbers.append(
                 entity_numbers(
-                    np.array([scene.body_poses[n] for n in entities.objects]).reshape(-1, 7),
-                    np.array([scene.site_positions[n] for n in entities.regions]).reshape(-1, 3),
-                    np.array([scene.joint_positions[n] for n in entities.joints]),
-                    o.eef_pos,
+                    np.array([scene.body_poses[n] for n in entities.objects], dtype=np.float32).reshape(-1, 7),
+                    np.array([scene.site_positions[n] for n in entities.regions], dtype=np.float32).reshape(-1, 3),
+                    np.array([scene.joint_positions[n] for n in entities.joints], dtype=np.float32),
+                    eef,
                 )
             )
-            arms.append(arm_numbers(o.eef_pos, o.eef_quat, o.gripper_qpos))
+            arms.append(arm_numbers(eef, np.asarray(o.eef_quat, np.float32), np.asarray(o.gripper_qpos, np.float32)))
         longest = max(len(k) for k in kinds)
         return Inputs(
             text=pad_rows(texts, max(len(t) for t in texts)),

@@ -8,6 +8,8 @@ shows how to come back from states a learner will drift into). The noise is draw
 
 from __future__ import annotations
 
+import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +22,8 @@ from ..scripted import ScriptedConfig, ScriptedPolicy
 NOISE_SEED = 18
 FAILED = "failed.txt"
 """Episodes the expert did not succeed in, one name a line, next to the demonstrations."""
+MANIFEST = "recording.json"
+"""How the demonstrations next to it were recorded; a resumed recording must use the same."""
 
 
 @dataclass
@@ -97,17 +101,20 @@ class RecordingExpert:
                 f.write(name.removesuffix(".npz") + "\n")
             return
         arrays = {key: np.stack(values) for key, values in recording.frames.items()}
-        np.savez_compressed(
-            self.out / name,
-            instruction=np.array(recording.instruction),
-            suite=np.array(record.suite),
-            task_id=np.array(record.task_id),
-            init_state=np.array(record.init_state),
-            objects=np.array(recording.objects),
-            regions=np.array(recording.regions),
-            joints=np.array(recording.joints),
-            **arrays,
-        )
+        partial = self.out / f"{name}.partial"  # renamed into place whole: a stop mid-write leaves no truncated demo
+        with open(partial, "wb") as f:
+            np.savez_compressed(
+                f,
+                instruction=np.array(recording.instruction),
+                suite=np.array(record.suite),
+                task_id=np.array(record.task_id),
+                init_state=np.array(record.init_state),
+                objects=np.array(recording.objects),
+                regions=np.array(recording.regions),
+                joints=np.array(recording.joints),
+                **arrays,
+            )
+        os.replace(partial, self.out / name)
         self.written += 1
 
 
@@ -135,6 +142,16 @@ def record_demonstrations(
 
     out = Path(out)
     recorder = RecordingExpert(out / "episodes", noise)
+    manifest = out / "episodes" / MANIFEST
+    settings = {"noise": float(noise)}
+    if manifest.exists() and json.loads(manifest.read_text(encoding="utf-8")) != settings:
+        from conflictbench.core import UserError
+
+        raise UserError(
+            f"{out} holds demonstrations recorded with {manifest.read_text(encoding='utf-8').strip()}, not {settings}: "
+            "choose another --out"
+        )
+    manifest.write_text(json.dumps(settings) + "\n", encoding="utf-8")
 
     class Recorder:
         __name__ = "subject-demonstrations"
