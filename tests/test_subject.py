@@ -225,7 +225,7 @@ def test_a_demonstration_lands_whole_a_failure_is_listed_and_an_error_leaves_not
     recorder = RecordingExpert(tmp_path, noise=0.2)
 
     def ended(episode_id: str, state: int, **outcome) -> EpisodeRecord:
-        recording = Recording("turn on the stove", ["flat_stove_1"], [], ["flat_stove_1_button"])
+        recording = Recording("turn on the stove", Entities(("flat_stove_1",), (), ("flat_stove_1_button",)))
         recording.add(label=np.ones(7), executed=np.zeros(7))
         recorder._recordings[episode_id] = recording
         record = EpisodeRecord(

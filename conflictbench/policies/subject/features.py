@@ -89,6 +89,20 @@ class Entities:
     def __len__(self) -> int:
         return len(self.objects) + len(self.regions) + len(self.joints)
 
+    @classmethod
+    def of(cls, scene) -> Entities:
+        """A :class:`~conflictbench.core.SceneState`'s entities, each kind sorted by name."""
+        return cls(*(tuple(sorted(m)) for m in (scene.body_poses, scene.site_positions, scene.joint_positions)))
+
+    def arrays(self, scene, dtype=np.float64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(n, 7) object poses, (m, 3) region positions and (k,) joint positions of ``scene`` in this order: what
+        the recorder stores and the policy reads, read the same way."""
+        return (
+            np.array([scene.body_poses[n] for n in self.objects], dtype=dtype).reshape(-1, 7),
+            np.array([scene.site_positions[n] for n in self.regions], dtype=dtype).reshape(-1, 3),
+            np.array([scene.joint_positions[n] for n in self.joints], dtype=dtype).reshape(-1),
+        )
+
 
 def entity_numbers(
     object_poses: np.ndarray, region_positions: np.ndarray, joint_positions: np.ndarray, eef_pos: np.ndarray

@@ -100,24 +100,13 @@ class SubjectPolicy:
             scene = o.scene
             if scene is None:
                 raise UserError("the subject needs the scene state (needs_scene_state); none was given")
-            entities = Entities(
-                tuple(sorted(scene.body_poses)),
-                tuple(sorted(scene.site_positions)),
-                tuple(sorted(scene.joint_positions)),
-            )
+            entities = Entities.of(scene)
             texts.append(self.vocabulary.ids(o.instruction)[: self.positions])
             names.append(entities.name_ids(self.vocabulary))
             kinds.append(entities.kinds())
             # float32 first, as the demonstrations were recorded: training and acting compute the same numbers
             eef = np.asarray(o.eef_pos, dtype=np.float32)
-            numbers.append(
-                entity_numbers(
-                    np.array([scene.body_poses[n] for n in entities.objects], dtype=np.float32).reshape(-1, 7),
-                    np.array([scene.site_positions[n] for n in entities.regions], dtype=np.float32).reshape(-1, 3),
-                    np.array([scene.joint_positions[n] for n in entities.joints], dtype=np.float32),
-                    eef,
-                )
-            )
+            numbers.append(entity_numbers(*entities.arrays(scene, np.float32), eef))
             arms.append(arm_numbers(eef, np.asarray(o.eef_quat, np.float32), np.asarray(o.gripper_qpos, np.float32)))
         longest = max(len(k) for k in kinds)
         return Inputs(

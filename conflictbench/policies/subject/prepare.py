@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +40,9 @@ def prepare(episodes: list[dict], vocabulary: Vocabulary) -> dict[str, np.ndarra
         text = np.zeros(TEXT_TOKENS, dtype=np.int64)
         ids = vocabulary.ids(str(e["instruction"]))[:TEXT_TOKENS]
         text[: len(ids)] = ids
-        names = np.zeros((ENTITY_TOKENS, entities.name_ids(vocabulary).shape[1]), dtype=np.int64)
-        names[: len(entities)] = entities.name_ids(vocabulary)
+        name_ids = entities.name_ids(vocabulary)
+        names = np.zeros((ENTITY_TOKENS, name_ids.shape[1]), dtype=np.int64)
+        names[: len(entities)] = name_ids
         kinds = np.zeros(ENTITY_TOKENS, dtype=np.int64)
         kinds[: len(entities)] = entities.kinds()
         numbers = entity_numbers(e["object_poses"], e["region_positions"], e["joint_positions"], e["eef_pos"])
@@ -63,13 +63,12 @@ def prepare(episodes: list[dict], vocabulary: Vocabulary) -> dict[str, np.ndarra
 
 
 def write_prepared(demonstrations: Path, out: Path, instructions: list[str]) -> Path:
-    """``out/prepared.npz`` (frames) and ``out/vocabulary.json``; returns the former."""
+    """``out/prepared.npz``: the frames and the vocabulary their word ids index; returns its path."""
     episodes = load_demonstrations(demonstrations)
     if not episodes:
         raise ValueError(f"no demonstrations under {demonstrations}")
     vocabulary = vocabulary_for(episodes, instructions)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "vocabulary.json").write_text(json.dumps(list(vocabulary.words)) + "\n", encoding="utf-8")
     path = out / "prepared.npz"
     np.savez(path, **prepare(episodes, vocabulary), vocabulary=np.array(vocabulary.words))
     return path

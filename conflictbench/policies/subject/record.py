@@ -18,6 +18,7 @@ import numpy as np
 from conflictbench.core import EpisodeRecord, Observation, rng_for
 
 from ..scripted import ScriptedConfig, ScriptedPolicy
+from .features import Entities
 
 NOISE_SEED = 18
 FAILED = "failed.txt"
@@ -26,14 +27,17 @@ MANIFEST = "recording.json"
 """How the demonstrations next to it were recorded; a resumed recording must use the same."""
 
 
+def demonstration_name(suite: str, task_id: int, init_state: int) -> str:
+    """A demonstration's file stem, and its line in the failed list."""
+    return f"{suite}-{task_id:02d}-{init_state:03d}"
+
+
 @dataclass
 class Recording:
     """One episode's frames while it is being played."""
 
     instruction: str
-    objects: list[str]
-    regions: list[str]
-    joints: list[str]
+    entities: Entities
     frames: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
     def add(self, **arrays: np.ndarray) -> None:
@@ -64,21 +68,17 @@ class RecordingExpert:
         scene = observation.scene
         recording = self._recordings.get(observation.episode_id)
         if recording is None or observation.step == 0:
-            recording = Recording(
-                instruction=observation.instruction,
-                objects=sorted(scene.body_poses),
-                regions=sorted(scene.site_positions),
-                joints=sorted(scene.joint_positions),
-            )
+            recording = Recording(observation.instruction, Entities.of(scene))
             self._recordings[observation.episode_id] = recording
         executed = label.copy()
         if self.noise > 0:
             rng = rng_for(observation, NOISE_SEED)
             executed[:6] = np.clip(executed[:6] + rng.normal(0.0, self.noise, size=6), -1.0, 1.0)
+        object_poses, region_positions, joint_positions = recording.entities.arrays(scene)
         recording.add(
-            object_poses=np.stack([scene.body_poses[n] for n in recording.objects]),
-            region_positions=np.array([scene.site_positions[n] for n in recording.regions]).reshape(-1, 3),
-            joint_positions=np.array([scene.joint_positions[n] for n in recording.joints]),
+            object_poses=object_poses,
+            region_positions=region_positions,
+            joint_positions=joint_positions,
             eef_pos=observation.eef_pos,
             eef_quat=observation.eef_quat,
             gripper_qpos=observation.gripper_qpos,
@@ -95,13 +95,15 @@ class RecordingExpert:
         recording = self._recordings.pop(record.episode_id, None)
         if recording is None or record.error:
             return  # an infrastructure failure: played again next time
-        name = f"{record.suite}-{record.task_id:02d}-{record.init_state:03d}.npz"
+        name = demonstration_name(record.suite, record.task_id, record.init_state)
         if not record.success:  # deterministic: it would fail again, so a resumed recording skips it
             with open(self.out / FAILED, "a", encoding="utf-8") as f:
-                f.write(name.removesuffix(".npz") + "\n")
+                f.write(name + "\n")
             return
         arrays = {key: np.stack(values) for key, values in recording.frames.items()}
-        partial = self.out / f"{name}.partial"  # renamed into place whole: a stop mid-write leaves no truncated demo
+        partial = (
+            self.out / f"{name}.npz.partial"
+        )  # renamed into place whole: a stop mid-write leaves no truncated demo
         with open(partial, "wb") as f:
             np.savez_compressed(
                 f,
@@ -109,12 +111,12 @@ class RecordingExpert:
                 suite=np.array(record.suite),
                 task_id=np.array(record.task_id),
                 init_state=np.array(record.init_state),
-                objects=np.array(recording.objects),
-                regions=np.array(recording.regions),
-                joints=np.array(recording.joints),
+                objects=np.array(recording.entities.objects),
+                regions=np.array(recording.entities.regions),
+                joints=np.array(recording.entities.joints),
                 **arrays,
             )
-        os.replace(partial, self.out / name)
+        os.replace(partial, self.out / f"{name}.npz")
         self.written += 1
 
 
@@ -169,7 +171,7 @@ def record_demonstrations(
         EpisodeSpec(t.suite, t.task_id, state, "p0", t.language)
         for t in all_base_tasks(tuple(libero_suites or LIBERO_SUITES))
         for state in init_states
-        if (task_ids is None or t.task_id in task_ids) and f"{t.suite}-{t.task_id:02d}-{state:03d}" not in done
+        if (task_ids is None or t.task_id in task_ids) and demonstration_name(t.suite, t.task_id, state) not in done
     ]
     if plan:
         # A store of its own, wiped first: a demonstration is written only as its episode ends, so an episode
