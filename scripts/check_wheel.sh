@@ -56,12 +56,13 @@ fi
 say "pytest -m 'not sim' against the installed wheel, no simulator"
 "$py" -m pytest -c "$repo/pyproject.toml" --rootdir "$repo" -m "not sim" -q "$repo/tests"
 
-# 4. The simulator added: the command lists what it has and plays real episodes.
+# 4. The simulator added: the command lists what it has and plays real episodes with the default model (the
+#    learned subject, from the weights inside the wheel).
 say "adding the simulator"
 "$py" -m pip install -q "$wheel[sim]"
 "$work/venv/bin/conflictbench" list
 status=0
-"$work/venv/bin/conflictbench" model=scripted suite=physical level=L1 prompt=p0 run.init_states=1 \
+"$work/venv/bin/conflictbench" suite=physical level=L1 prompt=p0 run.init_states=1 \
   run.cases_per_cell=1 run.libero_suites=[libero_spatial] run.progress=false 2>"$work/run.log" || status=$?
 cat "$work/run.log" >&2
 [ "$status" -eq 0 ] || { say "the run exited with code $status"; exit 1; }

@@ -118,6 +118,10 @@ if [ -n "$MODELS" ]; then
     say "the model environments need Python 3.12 (set MODEL_PYTHON=...), or skip them: --models none"
     exit 1
   fi
+  if ! "$MODEL_PYTHON" -c 'import sys; sys.exit(sys.version_info[:2] < (3, 12))' 2>/dev/null; then
+    say "MODEL_PYTHON=$MODEL_PYTHON is not a Python 3.12 or newer (LeRobot 0.6.1 needs it), or skip them: --models none"
+    exit 1
+  fi
 fi
 for name in $MODELS; do
   plugin=plugins/$name

@@ -42,7 +42,7 @@ def test_help_lists_the_verbs(cli):
         (["run.init_states=77"], "50 fixed initial states"),
         (["model=random", "model.sed=3"], "model.sed: random has no setting 'sed' (its settings: seed, scale)"),
         (["-m", "model=random,scripted", "model.scale=2"], "model.scale: scripted has no setting 'scale'"),
-        (["model.sed=3"], "model.sed: scripted has no setting 'sed'"),  # the default model
+        (["model.sed=3"], "model.sed: subject has no setting 'sed'"),  # the default model
         (["suite.file=/no/such/suite.jsonl"], "suite file not found: /no/such/suite.jsonl"),
         (["report", "/no/such/dir"], "no such directory: /no/such/dir"),
         (["report"], "the following arguments are required: DIR"),

@@ -31,7 +31,7 @@ def test_default_composition_is_the_quick_slice(composed):
     assert opts.init_states == [0] and opts.cases_per_cell == 1 and opts.workers == 2
     assert (opts.backend, opts.ray_address) == ("local", None)
     assert str(opts.out) == "results"
-    assert cfg.model.max_steps["libero_10"] > 0  # the scripted expert's settings: it is the default model
+    assert cfg.model.weights is None and cfg.model.sample_gripper  # the learned subject's settings: the default model
 
 
 @pytest.mark.parametrize("group", ["suite", "level", "prompt", "run"])

@@ -175,6 +175,35 @@ def test_decoding_picks_one_mode_of_the_bins_never_their_mean():
     assert decode(raw.reshape(1, -1), chunk, bins)[0, 0, 1] == pytest.approx(0.25, abs=1e-3)
 
 
+def test_decoding_an_edge_bin_weighs_it_once():
+    chunk, bins = 1, 5
+    raw = np.full((1, chunk, 6 * bins + 1), -30.0)
+    raw[0, 0, 0:2] = [3.0, 3.0]  # the first value: bins -1 and -0.5 equally likely, the edge bin listed first
+    assert decode(raw.reshape(1, -1), chunk, bins)[0, 0, 0] == pytest.approx(-0.75, abs=1e-6)  # not -0.83
+
+
+def test_the_gripper_is_a_draw_from_its_probability():
+    chunk, bins = 4, 5
+    raw = np.zeros((1, chunk, 6 * bins + 1))
+    raw[0, :, -1] = [0.0, 0.0, 2.0, 2.0]  # closed with probability 0.5, 0.5, 0.88, 0.88
+    draws = np.array([[0.3, 0.7, 0.8, 0.95]])
+    assert decode(raw.reshape(1, -1), chunk, bins, draws=draws)[0, :, 6].tolist() == [1.0, -1.0, 1.0, -1.0]
+    assert decode(raw.reshape(1, -1), chunk, bins)[0, 2:, 6].tolist() == [1.0, 1.0]  # no draws: the likelier
+
+
+def test_the_gripper_draws_come_from_the_episode_and_step_never_call_order(subject):
+    seen = observation("put the bowl on the plate")
+    first = subject.draws(seen)
+    assert first.shape == (1, subject.network.chunk) and ((0 <= first) & (first < 1)).all()
+    subject.draws(observation("put the bowl on the plate", step=9))  # another decision in between
+    np.testing.assert_array_equal(subject.draws(seen), first)
+    assert not np.array_equal(subject.draws(observation("put the bowl on the plate", step=1)), first)
+    assert not np.array_equal(subject.draws(dataclasses.replace(seen, episode_id="f")), first)
+    reseeded = SubjectPolicy(SubjectConfig(seed=1))
+    assert not np.array_equal(reseeded.draws(seen), first)
+    assert SubjectPolicy(SubjectConfig(sample_gripper=False)).draws(seen) is None
+
+
 def test_training_frames_are_exactly_what_the_policy_computes_when_acting(subject):
     """A recorded episode through prepare() and the same frames as live observations through the policy."""
     rng = np.random.default_rng(0)

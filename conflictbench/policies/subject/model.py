@@ -78,7 +78,7 @@ class SubjectNetwork:
         valid = np.concatenate([np.ones((len(arm), 1), dtype=bool), inputs.kinds != 0, inputs.text != 0], axis=1)
         return x, valid
 
-    def __call__(self, inputs: Inputs, gripper_lead: int = 0) -> np.ndarray:
+    def __call__(self, inputs: Inputs, gripper_lead: int = 0, draws: np.ndarray | None = None) -> np.ndarray:
         """(B, chunk, 7) actions: six arm values in [-1, 1] and the gripper (-1 open, +1 closed); see :func:`decode`."""
         x, valid = self.tokens(inputs)
         bias = np.where(valid, 0.0, -1e9).astype(np.float32)[:, None, None, :]
@@ -96,28 +96,40 @@ class SubjectNetwork:
             x = x + self._linear(_gelu(self._linear(y, f"{p}.ff1")), f"{p}.ff2")
         y = _layer_norm(x[:, 0], self.w["head_norm.weight"], self.w["head_norm.bias"])
         raw = self._linear(_gelu(self._linear(y, "head.0")), "head.2")
-        return decode(raw, self.chunk, self.bins, gripper_lead)
+        return decode(raw, self.chunk, self.bins, gripper_lead, draws)
 
 
-def decode(raw: np.ndarray, chunk: int, bins: int, gripper_lead: int = 0) -> np.ndarray:
+def decode(
+    raw: np.ndarray, chunk: int, bins: int, gripper_lead: int = 0, draws: np.ndarray | None = None
+) -> np.ndarray:
     """The head's output (B, chunk * (6 * bins + 1)) -> (B, chunk, 7) actions.
 
     Each arm value is a choice among ``bins`` values evenly spaced over [-1, 1] (a classification, not a
     regression: the expert grasps a bowl at one of several rim points, and the mean of those is the bowl's
     middle, where nothing can be grasped): the most likely bin, refined by the probability-weighted mean of it
-    and its two neighbours. ``gripper_lead``: action i takes the gripper command predicted for step
-    i + lead (the chunk's last at most): switching a few steps before the expert did still grasps (the fingers
-    take ~10 steps to close), copying its exact moment makes a cloned policy hover short of it.
+    and its neighbours. ``gripper_lead``: action i takes the gripper command predicted for step i + lead (the
+    chunk's last at most): switching a few steps before the expert did still grasps (the fingers take ~10
+    steps to close), copying its exact moment makes a cloned policy hover short of it.
+
+    ``draws`` (B, chunk), uniform in [0, 1): the gripper closes where its predicted probability of being
+    closed exceeds the draw (a sample); None: where it exceeds one half. Sampled because, with noise on what
+    it executes, the expert lets go when a tolerance or a timeout says so: over the plate the demonstrations
+    hold on for a while, then let go, so every hovering state reads "closed" at ~70 % and a thresholded
+    policy holds on forever, a sampled one lets go within a few steps.
     """
     b = len(raw)
     raw = raw.reshape(b, chunk, 6 * bins + 1)
     logits = raw[..., : 6 * bins].reshape(b, chunk, 6, bins)
     centers = np.linspace(-1.0, 1.0, bins)
     best = logits.argmax(-1)
-    window = np.clip(best[..., None] + np.arange(-1, 2), 0, bins - 1)
+    window = best[..., None] + np.arange(-1, 2)
+    inside = (window >= 0) & (window < bins)  # at the first or last bin the window has two bins, not a repeat
+    window = np.clip(window, 0, bins - 1)
     near = np.take_along_axis(logits, window, -1)
-    weights = np.exp(near - near.max(-1, keepdims=True))
+    weights = np.exp(near - near.max(-1, keepdims=True)) * inside
     arm = (weights * centers[window]).sum(-1) / weights.sum(-1)
     ahead = np.minimum(np.arange(chunk) + gripper_lead, chunk - 1)
-    gripper = np.where(raw[:, ahead, -1:] > 0, 1.0, -1.0)
+    closed = 1.0 / (1.0 + np.exp(-raw[:, ahead, -1]))
+    threshold = np.full((b, chunk), 0.5) if draws is None else np.asarray(draws).reshape(b, chunk)
+    gripper = np.where(closed > threshold, 1.0, -1.0)[..., None]
     return np.concatenate([arm, gripper], axis=-1)

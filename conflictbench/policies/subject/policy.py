@@ -9,12 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from conflictbench.core import Observation, UserError
+from conflictbench.core import Observation, UserError, rng_for
 
 from ..scripted import ScriptedConfig
 from .features import Entities, Vocabulary, arm_numbers, entity_numbers, pad_rows
 from .model import Inputs, SubjectNetwork
 
+GRIPPER_SEED = 0x5B1EC7
+"""Keeps the gripper's draws apart from any other randomness derived from the same episode and step."""
 SHIPPED = "subject.npz"
 """The weights that ship with the package (``conflictbench train-subject`` makes them again)."""
 
@@ -27,6 +29,11 @@ class SubjectConfig:
     """Actions executed of each predicted chunk before the subject looks again (1 to the chunk's length)."""
     gripper_lead: int = 3
     """Steps ahead whose predicted gripper command is executed now (0 to the chunk's length - 1)."""
+    sample_gripper: bool = True
+    """Open or close the gripper by a draw from its predicted probability (from the episode and step, so a
+    rollout is reproducible); false: whichever is likelier. See ``model.decode``."""
+    seed: int = 0
+    """Mixed into the gripper's draws (another seed: another sample of the same policy)."""
 
 
 def _dry_run_observation() -> Observation:
@@ -55,7 +62,7 @@ class SubjectPolicy:
 
     It sees the instruction, the arm's state and every object's pose, region's position and scene
     joint's position (``needs_scene_state``), and nothing of the task: no goal, no case, no expert.
-    Deterministic: the same observation gives the same action.
+    Reproducible: the same observation (its episode and step included) gives the same action.
     """
 
     needs_images = False
@@ -92,7 +99,13 @@ class SubjectPolicy:
         # One observation at a time: padded to a batch's longest, the arithmetic (and so a near-tie between two
         # bins) would depend on which episodes happen to share the batch.
         lead, execute = self.cfg.gripper_lead, self.cfg.execute
-        return [self.network(self.inputs([o]), gripper_lead=lead)[0][:execute] for o in observations]
+        return [self.network(self.inputs([o]), lead, self.draws(o))[0][:execute] for o in observations]
+
+    def draws(self, observation: Observation) -> np.ndarray | None:
+        """The gripper's uniform draws for this decision: from its episode and step, never call order."""
+        if not self.cfg.sample_gripper:
+            return None
+        return rng_for(observation, GRIPPER_SEED, self.cfg.seed).random((1, self.network.chunk))
 
     def inputs(self, observations: list[Observation]) -> Inputs:
         texts, names, kinds, numbers, arms = [], [], [], [], []
