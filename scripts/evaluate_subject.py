@@ -60,26 +60,34 @@ def main(argv: list[str]) -> int:
     p.add_argument("--out", type=Path, default=Path("results-subject-bar"))
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--seed", type=int, default=0, help="model.seed: another sample of the gripper's draws")
+    p.add_argument("--likelier-gripper", action="store_true", help="model.sample_gripper=false")
     args = p.parse_args(argv)
 
     plugins = load_plugins()
     spec = plugins.policy("subject")
-    config = spec.make_config({"weights": args.weights})
+    config = spec.make_config({"weights": args.weights, "seed": args.seed, "sample_gripper": not args.likelier_gripper})
     store = EpisodeStore(args.out)
     groups = plan(list(range(args.states)))
     every = [e for group in groups.values() for e in group]
     result = Runner(plugins, spec, config, store=store, workers=args.workers).run(every)
     group_of = {(e.suite, e.task_id, e.init_state, e.instruction): n for n, group in groups.items() for e in group}
-    success = defaultdict(list)
+    success, unscored = defaultdict(list), 0
     for record in store.records(result.episode_ids):  # this run's episodes (the store may hold other weights')
         name = group_of.get((record.suite, record.task_id, record.init_state, record.instruction))
-        if name is not None and not record.error:
-            success[(name, record.suite)].append(record.success)
+        if name is None:
+            continue
+        if record.infrastructure_failed:  # the simulator's or the machine's failure, not the subject's
+            unscored += 1
+        else:  # an error of the policy itself counts as a failure, as in every report
+            success[(name, record.suite)].append(record.success and not record.error)
     rows = {f"{name} / {suite}": (sum(v), len(v)) for (name, suite), v in sorted(success.items())}
     overall = [s for (name, _), v in success.items() if name == "reference" for s in v]
     rows["reference / all"] = (sum(overall), len(overall))
     for label, (ok, n) in rows.items():
         print(f"{label:40s} {ok:4d}/{n:<4d} {100 * ok / max(n, 1):5.1f} %")
+    if unscored:
+        print(f"{unscored} episode(s) not scored: an infrastructure error (play them again: the store keeps the rest)")
     if args.json:
         args.json.write_text(json.dumps({k: {"succeeded": a, "episodes": b} for k, (a, b) in rows.items()}, indent=2))
     return 0

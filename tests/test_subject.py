@@ -120,7 +120,8 @@ def test_act_reads_no_goal_case_or_expert_and_is_deterministic(subject):
 
 
 def test_a_batch_answers_each_observation_as_alone(subject):
-    a, b = observation("put the bowl on the plate"), observation("turn on the stove")
+    a = observation("put the bowl on the plate")
+    b = dataclasses.replace(observation("turn on the stove"), episode_id="f")  # draws of its own
     b = dataclasses.replace(b, scene=dataclasses.replace(b.scene, joint_positions={}))  # fewer entities: padding
     together = subject.act_batch([a, b])
     np.testing.assert_array_equal(together[0], subject.act(a))  # bit for bit: batching never changes an action
@@ -189,6 +190,18 @@ def test_the_gripper_is_a_draw_from_its_probability():
     draws = np.array([[0.3, 0.7, 0.8, 0.95]])
     assert decode(raw.reshape(1, -1), chunk, bins, draws=draws)[0, :, 6].tolist() == [1.0, -1.0, 1.0, -1.0]
     assert decode(raw.reshape(1, -1), chunk, bins)[0, 2:, 6].tolist() == [1.0, 1.0]  # no draws: the likelier
+    raw[0, :, -1] = [-200.0, -200.0, 200.0, 200.0]  # confident either way: no overflow, draws at the ends
+    with np.errstate(all="raise"):
+        out = decode(raw.reshape(1, -1), chunk, bins, draws=np.array([[0.0, 0.5, 0.5, 0.999]]))
+    assert out[0, :, 6].tolist() == [1.0, -1.0, 1.0, 1.0]
+
+
+def test_act_closes_or_opens_the_gripper_by_its_draws(subject, monkeypatch):
+    seen = observation("put the bowl on the plate")
+    monkeypatch.setattr(subject, "draws", lambda o: np.zeros((1, subject.network.chunk)))
+    assert subject.act(seen)[0, 6] == 1.0  # a draw of 0: closed, however unlikely
+    monkeypatch.setattr(subject, "draws", lambda o: np.ones((1, subject.network.chunk)))
+    assert subject.act(seen)[0, 6] == -1.0  # a draw of 1: open, however likely closed
 
 
 def test_the_gripper_draws_come_from_the_episode_and_step_never_call_order(subject):
@@ -199,6 +212,8 @@ def test_the_gripper_draws_come_from_the_episode_and_step_never_call_order(subje
     np.testing.assert_array_equal(subject.draws(seen), first)
     assert not np.array_equal(subject.draws(observation("put the bowl on the plate", step=1)), first)
     assert not np.array_equal(subject.draws(dataclasses.replace(seen, episode_id="f")), first)
+    with pytest.raises(UserError, match="names no episode"):
+        subject.draws(dataclasses.replace(seen, episode_id=""))
     reseeded = SubjectPolicy(SubjectConfig(seed=1))
     assert not np.array_equal(reseeded.draws(seen), first)
     assert SubjectPolicy(SubjectConfig(sample_gripper=False)).draws(seen) is None

@@ -129,7 +129,12 @@ def decode(
     weights = np.exp(near - near.max(-1, keepdims=True)) * inside
     arm = (weights * centers[window]).sum(-1) / weights.sum(-1)
     ahead = np.minimum(np.arange(chunk) + gripper_lead, chunk - 1)
-    closed = 1.0 / (1.0 + np.exp(-raw[:, ahead, -1]))
-    threshold = np.full((b, chunk), 0.5) if draws is None else np.asarray(draws).reshape(b, chunk)
+    closed = raw[:, ahead, -1]  # the logit of "closed"; compared as logits: no overflow on a confident one
+    if draws is None:
+        threshold = np.zeros((b, chunk))
+    else:
+        draws = np.asarray(draws, dtype=np.float64).reshape(b, chunk)
+        with np.errstate(divide="ignore"):  # a draw of 0 is -inf: closed whatever the logit
+            threshold = np.log(draws) - np.log1p(-draws)
     gripper = np.where(closed > threshold, 1.0, -1.0)[..., None]
     return np.concatenate([arm, gripper], axis=-1)

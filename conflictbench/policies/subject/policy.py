@@ -50,6 +50,7 @@ def _dry_run_observation() -> Observation:
         gripper_qpos=np.array([0.04, -0.04]),
         state=np.zeros(8),
         scene=scene,
+        episode_id="dry-run",
     )
 
 
@@ -105,6 +106,11 @@ class SubjectPolicy:
         """The gripper's uniform draws for this decision: from its episode and step, never call order."""
         if not self.cfg.sample_gripper:
             return None
+        if not observation.episode_id:
+            raise UserError(
+                "the subject draws its gripper from the episode and step, and this observation names no episode "
+                "(observation.episode_id is empty): set it, or model.sample_gripper=false"
+            )
         return rng_for(observation, GRIPPER_SEED, self.cfg.seed).random((1, self.network.chunk))
 
     def inputs(self, observations: list[Observation]) -> Inputs:
