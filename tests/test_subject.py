@@ -255,7 +255,7 @@ def test_training_frames_are_exactly_what_the_policy_computes_when_acting(subjec
             eef_pos=episode["eef_pos"][t].astype(np.float64),
             eef_quat=episode["eef_quat"][t].astype(np.float64),
         )
-        live = subject.inputs([seen])
+        live = subject.inputs(seen)
         entities = live.kinds.shape[1]
         np.testing.assert_array_equal(live.entities[0], prepared["entities"][t, :entities])
         np.testing.assert_array_equal(live.names[0], prepared["names"][t, :entities])

@@ -12,7 +12,7 @@ model's input, so the two cannot drift apart. Nothing here reads a goal, a case 
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,12 +134,3 @@ def arm_numbers(eef_pos: np.ndarray, eef_quat_xyzw: np.ndarray, gripper_qpos: np
         axis=-1,
     )  # fmt: skip
     return np.concatenate([eef_pos, rot, gripper_qpos], axis=-1).astype(np.float32)
-
-
-def pad_rows(arrays: Sequence[np.ndarray], length: int, fill: float = 0) -> np.ndarray:
-    """Stack 1-D/2-D arrays of up to ``length`` rows, padded with ``fill``."""
-    first = np.asarray(arrays[0])
-    out = np.full((len(arrays), length, *first.shape[1:]), fill, dtype=first.dtype)
-    for i, a in enumerate(arrays):
-        out[i, : len(a)] = a[:length]
-    return out

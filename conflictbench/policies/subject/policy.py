@@ -12,7 +12,7 @@ import numpy as np
 from conflictbench.core import Observation, UserError, rng_for
 
 from ..scripted import ScriptedConfig
-from .features import Entities, Vocabulary, arm_numbers, entity_numbers, pad_rows
+from .features import Entities, Vocabulary, arm_numbers, entity_numbers
 from .model import Inputs, SubjectNetwork
 
 GRIPPER_SEED = 0x5B1EC7
@@ -100,7 +100,7 @@ class SubjectPolicy:
         # One observation at a time: padded to a batch's longest, the arithmetic (and so a near-tie between two
         # bins) would depend on which episodes happen to share the batch.
         lead, execute = self.cfg.gripper_lead, self.cfg.execute
-        return [self.network(self.inputs([o]), lead, self.draws(o))[0][:execute] for o in observations]
+        return [self.network(self.inputs(o), lead, self.draws(o))[0][:execute] for o in observations]
 
     def draws(self, observation: Observation) -> np.ndarray | None:
         """The gripper's uniform draws for this decision: from its episode and step, never call order."""
@@ -113,25 +113,19 @@ class SubjectPolicy:
             )
         return rng_for(observation, GRIPPER_SEED, self.cfg.seed).random((1, self.network.chunk))
 
-    def inputs(self, observations: list[Observation]) -> Inputs:
-        texts, names, kinds, numbers, arms = [], [], [], [], []
-        for o in observations:
-            scene = o.scene
-            if scene is None:
-                raise UserError("the subject needs the scene state (needs_scene_state); none was given")
-            entities = Entities.of(scene)
-            texts.append(self.vocabulary.ids(o.instruction)[: self.positions])
-            names.append(entities.name_ids(self.vocabulary))
-            kinds.append(entities.kinds())
-            # float32 first, as the demonstrations were recorded: training and acting compute the same numbers
-            eef = np.asarray(o.eef_pos, dtype=np.float32)
-            numbers.append(entity_numbers(*entities.arrays(scene, np.float32), eef))
-            arms.append(arm_numbers(eef, np.asarray(o.eef_quat, np.float32), np.asarray(o.gripper_qpos, np.float32)))
-        longest = max(len(k) for k in kinds)
+    def inputs(self, observation: Observation) -> Inputs:
+        """One observation as a batch of one (the subject never pads one episode's frame to another's)."""
+        scene = observation.scene
+        if scene is None:
+            raise UserError("the subject needs the scene state (needs_scene_state); none was given")
+        entities = Entities.of(scene)
+        # float32 first, as the demonstrations were recorded: training and acting compute the same numbers
+        eef = np.asarray(observation.eef_pos, dtype=np.float32)
+        quat, fingers = np.asarray(observation.eef_quat, np.float32), np.asarray(observation.gripper_qpos, np.float32)
         return Inputs(
-            text=pad_rows(texts, max(len(t) for t in texts)),
-            names=pad_rows(names, longest),
-            kinds=pad_rows(kinds, longest),
-            entities=pad_rows(numbers, longest),
-            arm=np.stack(arms),
+            text=self.vocabulary.ids(observation.instruction)[None, : self.positions],
+            names=entities.name_ids(self.vocabulary)[None],
+            kinds=entities.kinds()[None],
+            entities=entity_numbers(*entities.arrays(scene, np.float32), eef)[None],
+            arm=arm_numbers(eef, quat, fingers)[None],
         )

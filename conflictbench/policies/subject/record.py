@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from conflictbench.core import EpisodeRecord, Observation, rng_for
+from conflictbench.core import EpisodeRecord, Observation, UserError, rng_for
 
 from ..scripted import ScriptedConfig, ScriptedPolicy
 from .features import Entities
@@ -101,9 +101,8 @@ class RecordingExpert:
                 f.write(name + "\n")
             return
         arrays = {key: np.stack(values) for key, values in recording.frames.items()}
-        partial = (
-            self.out / f"{name}.npz.partial"
-        )  # renamed into place whole: a stop mid-write leaves no truncated demo
+        # renamed into place whole: a stop mid-write leaves no truncated demonstration
+        partial = self.out / f"{name}.npz.partial"
         with open(partial, "wb") as f:
             np.savez_compressed(
                 f,
@@ -147,8 +146,6 @@ def record_demonstrations(
     manifest = out / "episodes" / MANIFEST
     settings = {"noise": float(noise)}
     if manifest.exists() and json.loads(manifest.read_text(encoding="utf-8")) != settings:
-        from conflictbench.core import UserError
-
         raise UserError(
             f"{out} holds demonstrations recorded with {manifest.read_text(encoding='utf-8').strip()}, not {settings}: "
             "choose another --out"
