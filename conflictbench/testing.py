@@ -206,3 +206,37 @@ def shipped_cases_file(path: Path, picks: Iterable[tuple[str, int, str, str]]) -
         lines.append(case_line(found) + "\n")
     path.write_text("".join(lines))
     return path
+
+
+#: Set to 1 to (re)write the golden files :func:`check_pinned_actions` compares with.
+RECORD_PINNED_ACTIONS = "CONFLICTBENCH_RECORD_ACTIONS"
+
+
+def pinned_observations(steps: int = 6) -> list:
+    """Two episodes of ``steps`` steps on streams 0 and 1 (other instructions, other sampling seeds), step by
+    step in turn, as two workers would send them: the fixed input :func:`check_pinned_actions` plays."""
+    texts = ("put the bowl on the plate", "open the top drawer and put the bowl inside")
+    return [camera_observation(step, texts[stream], stream=stream) for step in range(steps) for stream in (0, 1)]
+
+
+def check_pinned_actions(policy, golden: Path, fingerprint: str = "") -> None:
+    """Play :func:`pinned_observations` through ``policy`` (started; one ``act`` at a time, so no batch shape or
+    arrival order enters) and compare every action bit for bit with the file ``golden``. ``fingerprint`` names
+    what the actions come from (a tiny checkpoint's digest): a different one there means the fixture changed,
+    not the code. With ``CONFLICTBENCH_RECORD_ACTIONS=1`` in the environment the file is written instead."""
+    import os
+
+    import numpy as np
+
+    actions = [np.asarray(policy.act(observation)) for observation in pinned_observations()]
+    if os.environ.get(RECORD_PINNED_ACTIONS) == "1":
+        golden.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(golden, fingerprint=np.array(fingerprint), **{f"action{i}": a for i, a in enumerate(actions)})
+        return
+    pinned = np.load(golden)
+    assert str(pinned["fingerprint"]) == fingerprint, f"the fixture behind {golden.name} changed: re-record it"
+    assert len(pinned.files) - 1 == len(actions)
+    for i, action in enumerate(actions):
+        expected = pinned[f"action{i}"]
+        assert action.dtype == expected.dtype and action.shape == expected.shape, (i, action.shape, expected.shape)
+        assert action.tobytes() == expected.tobytes(), f"action {i} differs from {golden.name}:\n{action}\n{expected}"

@@ -1,0 +1,26 @@
+"""The tiny VLA-JEPA checkpoint, served as ``model.checkpoint=DIR`` serves it, plays the actions pinned in
+``golden/`` bit for bit: a refactor of the client, the transport, the server or the backend must not change one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from jepa_model_env import model_env, needs_model_env
+
+from conflictbench.testing import check_pinned_actions
+from conflictbench_vla_jepa.checkpoints import fingerprint
+from conflictbench_vla_jepa.client import VlaJepaConfig, load
+
+GOLDEN = Path(__file__).parent / "golden"
+
+
+@needs_model_env
+def test_the_tiny_checkpoint_plays_its_pinned_actions(tiny_checkpoint, monkeypatch):
+    for key, value in model_env(tiny_checkpoint).items():
+        monkeypatch.setenv(key, value)
+    policy = load("vla-jepa", VlaJepaConfig(checkpoint=str(tiny_checkpoint), device="cpu", max_batch=1))
+    try:
+        policy.start()
+        check_pinned_actions(policy, GOLDEN / "actions-vla-jepa.npz", fingerprint(tiny_checkpoint))
+    finally:
+        policy.close()
