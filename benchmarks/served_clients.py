@@ -141,7 +141,7 @@ def start_ours(model: str, scratch: Path):
             str(checkpoint), "--port", str(port), "--max-batch", "2", "--device", "cpu", "--threads", "1"]  # fmt: skip
     ready = None
     if model == "gr00t":
-        from conflictbench_gr00t.transport import answers_ping
+        from conflictbench.hosting.zeromq import answers_ping
 
         ready = lambda: answers_ping(url)  # noqa: E731
     server = ServerProcess(argv, name=f"{model}-tiny", health_url=f"http://127.0.0.1:{port}/healthz", ready=ready,

@@ -1,6 +1,7 @@
 """conflictbench: how VLA policies behave when the premise of their task is false.
 
-The public plugin API is re-exported here; see ``conflictbench.core.hookspecs`` for the hooks.
+The public plugin API is re-exported here: the contract (``conflictbench.core``; its hooks in
+``conflictbench.core.hookspecs``) and the client for models behind a server (``conflictbench.hosting``).
 """
 
 from importlib import metadata as _metadata
@@ -10,27 +11,29 @@ from .core import (
     ActionContext,
     ConflictCase,
     EpisodeRecord,
-    HostedConfig,
-    HostedPolicy,
-    HttpJsonTransport,
     InfrastructureError,
     Observation,
     Pair,
     PerEpisode,
-    PolicyClient,
     PrivilegedState,
-    ServedPolicy,
-    ServerProcess,
     ServerUnavailable,
-    ServingConfig,
-    Transport,
     UserError,
     default_format_prompt,
-    free_port,
     hookimpl,
-    model_environment,
     rng_for,
     sampling_seed,
+)
+from .hosting import (
+    HostedConfig,
+    HostedPolicy,
+    HttpJsonTransport,
+    PolicyClient,
+    ServedPolicy,
+    ServerProcess,
+    ServingConfig,
+    Transport,
+    free_port,
+    model_environment,
 )
 
 try:

@@ -165,8 +165,8 @@ def test_max_steps_default_to_the_models_own_budget_and_a_setting_overrides_ever
         ({"python": "/no/such/python"}, "no model environment at /no/such/python"),
         ({"python": "{unprepared}"}, "cannot run the echo server"),
         ({"device": "gpu"}, "model.device must be cpu, cuda, cuda:N or auto"),
-        ({"max_batch": 0}, "model.max_batch must be >= 1"),
-        ({"max_steps": -1}, "model.max_steps >= 0"),
+        ({"max_batch": 0}, "model.max_batch must be >= 1, got 0"),
+        ({"max_steps": -1}, "model.max_steps must be >= 0, got -1"),
     ],
 )
 def test_user_mistakes_are_user_errors_before_anything_starts(tmp_path, monkeypatch, model_env, settings, message):
@@ -222,3 +222,101 @@ def test_a_non_http_protocol_says_when_it_is_ready_with_its_own_check(tmp_path, 
         assert policy.act(observation(0))[0] == 0.5
     finally:
         policy.close()
+
+
+# -- a plugin that declares `served`: its server is conflictbench-serve's, found through the entry point ----------
+SERVED_MODULE = textwrap.dedent(
+    """
+    import http.server, json, pathlib
+    from conflictbench_serving.checkpoints import CheckpointError
+    from conflictbench_serving.command import ServedModel
+
+    def check(folder, policy, naming):
+        if not (folder / "weights.txt").is_file():
+            raise CheckpointError(f"{folder} is not an echo checkpoint (see {naming}{policy})")
+
+    def load(checkpoint, device):
+        return float((pathlib.Path(checkpoint) / "weights.txt").read_text())
+
+    def serve(weight, host, port, max_batch, on_ready):
+        class Handler(http.server.BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+            def log_message(self, *a):
+                pass
+            def _send(self, status, payload):
+                body = json.dumps(payload).encode()
+                self.send_response(status)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+            def do_GET(self):
+                self._send(200 if self.path == "/healthz" else 404, "OK")
+            def do_POST(self):
+                request = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+                self._send(200, [weight, max_batch, 0.01 * request["step"], 0, 0, 0, -1])
+
+        server = http.server.ThreadingHTTPServer((host, port), Handler)
+        on_ready(host, server.server_address[1])
+        server.serve_forever()
+
+    SERVED = ServedModel(environment="echo", policies=("echo",), protocol="JSON over HTTP", check=check,
+                         backend=load, server=serve, url_scheme="http")
+    """
+)
+#: conflictbench-serve imports torch before loading a model; this test's model needs none of it, and the
+#: simulator's environment has none: the two names the command asks of it.
+TORCH_STANDIN = "class cuda:\n    is_available = staticmethod(lambda: False)\n\n\ndef set_num_threads(n):\n    pass\n"
+
+
+@pytest.fixture
+def served_env(tmp_path, monkeypatch) -> Path:
+    """This interpreter with an installed plugin (a distribution with a ``conflictbench_serving`` entry point)."""
+    site = tmp_path / "served-site"
+    (site / "echo_served-1.0.dist-info").mkdir(parents=True)
+    (site / "echo_served.py").write_text(SERVED_MODULE)
+    (site / "torch.py").write_text(TORCH_STANDIN)
+    (site / "echo_served-1.0.dist-info" / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: echo-served\nVersion: 1.0\n"
+    )
+    (site / "echo_served-1.0.dist-info" / "entry_points.txt").write_text(
+        "[conflictbench_serving]\necho = echo_served:SERVED\n"
+    )
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.syspath_prepend(str(site))
+    return Path(sys.executable)
+
+
+def served_echo():
+    import echo_served
+
+    class ServedEcho(HostedPolicy):
+        served = echo_served.SERVED
+        transport = HttpJsonTransport
+        url_scheme = "http"
+        default_max_steps = {"libero_spatial": 7}
+        fingerprint = staticmethod(EchoPolicy.fingerprint)
+        encode, decode = EchoPolicy.encode, EchoPolicy.decode
+
+    return ServedEcho
+
+
+def test_a_policy_declaring_served_is_hosted_by_conflictbench_serve(tmp_path, served_env):
+    policy = served_echo().load("echo", EchoConfig(checkpoint=str(checkpoint(tmp_path / "ckpt", 0.25)),
+                                                   python=str(served_env), max_batch=2))  # fmt: skip
+    policy.start()
+    try:
+        assert policy.server.argv[1:4] == ["-m", "conflictbench_serving", "echo"]
+        np.testing.assert_allclose(policy.act(observation(3)), [0.25, 2, 0.03, 0, 0, 0, -1])
+        assert "conflictbench-serve: serving echo from" in policy.server.log_tail()
+    finally:
+        policy.close()
+
+
+def test_a_policy_declaring_served_checks_its_checkpoint_with_the_declared_check(tmp_path, served_env, monkeypatch):
+    served = served_echo()
+    with pytest.raises(UserError, match=r"nope is not an echo checkpoint \(see model=echo\)$"):
+        served.load("echo", EchoConfig(checkpoint=str(tmp_path / "nope"), python=str(served_env)))
+    without = os.environ["PYTHONPATH"].split(os.pathsep, 1)[1]  # the model environment lacks the plugin
+    monkeypatch.setenv("PYTHONPATH", without)
+    with pytest.raises(UserError, match=r"cannot run the echo server \(LookupError: no installed plugin serves 'echo'"):
+        served.load("echo", EchoConfig(checkpoint=str(checkpoint(tmp_path / "ckpt")), python=str(served_env)))

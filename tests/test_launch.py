@@ -10,7 +10,8 @@ import time
 
 import pytest
 
-from conflictbench.core import ServerProcess, ServerUnavailable, UserError, free_port
+from conflictbench.core import ServerUnavailable, UserError
+from conflictbench.hosting import ServerProcess, free_port
 
 HEALTH_SERVER = textwrap.dedent(
     """
@@ -85,7 +86,7 @@ def pid_of_the_server_of_a_run_that(tmp_path, ends_how: str) -> int:
     child = textwrap.dedent(
         f"""
         import os, signal, sys
-        from conflictbench.core import ServerProcess
+        from conflictbench.hosting import ServerProcess
         p = ServerProcess([sys.executable, "-c", {HEALTH_SERVER!r}, "0", "{port}"], name="test",
                           health_url="http://127.0.0.1:{port}/healthz", log_dir={str(tmp_path)!r}).start()
         print(p.process.pid, flush=True)

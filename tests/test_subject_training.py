@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import conflictbench
-from conflictbench.core import model_environment
+from conflictbench.hosting import model_environment
 from conflictbench.policies.subject.policy import SubjectConfig, SubjectPolicy
 
 TRAINING_PYTHON = model_environment("subject") / "bin" / "python"

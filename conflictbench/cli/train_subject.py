@@ -16,7 +16,8 @@ import sys
 import time
 from pathlib import Path
 
-from conflictbench.core import LIBERO_SUITES, UserError, model_environment
+from conflictbench.core import LIBERO_SUITES, UserError
+from conflictbench.hosting import model_environment
 
 FIRST_TRAINING_STATE = 5
 """States 0-4 are the evaluation's: never demonstrated."""

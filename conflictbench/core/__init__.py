@@ -1,4 +1,9 @@
-"""The contract every plugin sees. Imports nothing else of conflictbench, no simulator, no torch."""
+"""The contract every plugin sees: hook specs, the policy contract and its records, registration, prompts,
+errors, seeded sampling. Imports nothing else of conflictbench, no simulator, no torch.
+
+The client for models behind a server (transports, ``PolicyClient``, ``HostedPolicy``, ``ServerProcess``) is a
+layer above this one, :mod:`conflictbench.hosting`; its names, which lived here until 0.2, stay importable
+from here too (``conflictbench.hosting`` puts them back when ``conflictbench`` is imported)."""
 
 from .errors import (
     ConflictbenchError,
@@ -10,8 +15,6 @@ from .errors import (
     UserError,
 )
 from .hookspecs import hookimpl, hookspec
-from .hosting import MODEL_PROCESS_ENV, HostedConfig, HostedPolicy
-from .launch import ServerProcess, free_port, model_environment
 from .plugins import MetricSpec, Plugins, PolicySpec
 from .policy import DEFAULT_MAX_STEPS, PerEpisode, Policy, PolicyTraits, as_action_chunk
 from .prompts import P1_PREAMBLE, default_format_prompt
@@ -36,7 +39,6 @@ from .records import (
     SiteInfo,
 )
 from .sampling import rng_for, sampling_seed
-from .serving import HttpJsonTransport, PolicyClient, ServedPolicy, ServingConfig, Transport
 
 __all__ = [
     "ACTION_DIM",
@@ -46,7 +48,6 @@ __all__ = [
     "DEFAULT_MAX_STEPS",
     "EpisodeRecord",
     "FAMILIES",
-    "HttpJsonTransport",
     "INFRASTRUCTURE_ERROR_PREFIX",
     "InfrastructureError",
     "JointInfo",
@@ -62,7 +63,6 @@ __all__ = [
     "PluginError",
     "Plugins",
     "Policy",
-    "PolicyClient",
     "PolicyError",
     "PolicySpec",
     "PolicyTraits",
@@ -70,22 +70,13 @@ __all__ = [
     "SceneState",
     "SIMULATOR_ERROR_PREFIX",
     "SceneGeometry",
-    "ServedPolicy",
-    "HostedConfig",
-    "HostedPolicy",
-    "MODEL_PROCESS_ENV",
-    "ServerProcess",
     "ServerUnavailable",
-    "ServingConfig",
     "SimulatorUnavailable",
     "SiteInfo",
-    "Transport",
     "UserError",
     "as_action_chunk",
     "default_format_prompt",
-    "free_port",
     "hookimpl",
-    "model_environment",
     "hookspec",
     "rng_for",
     "sampling_seed",

@@ -1,28 +1,110 @@
-"""What every ``conflictbench-<model> serve`` command shares (model environment side).
+"""``conflictbench-serve``: host a local checkpoint of any installed model plugin (model environment side).
 
-    conflictbench-<model> serve --policy P --checkpoint DIR [--host 127.0.0.1] [--port N] [--device cpu]
-                                [--max-batch 8] [--threads N]
+    conflictbench-serve POLICY --checkpoint DIR [--host 127.0.0.1] [--port N] [--device cpu] [--max-batch 8]
+                        [--threads N]
+    conflictbench-serve --list
+
+A plugin declares what it serves with a :class:`ServedModel` under the entry-point group ``conflictbench_serving``
+(``pi0 = "conflictbench_pi0.serve:SERVED"``); the command finds it there, so one command serves every model and a
+plugin's own ``conflictbench-<name> serve --policy POLICY ...`` is the same code under its old name
+(:func:`plugin_main`, its console script and ``python -m conflictbench_<name> serve``). A run with
+``model.checkpoint=DIR`` starts ``python -m conflictbench_serving POLICY ...``.
 
 Every user mistake is one line on stderr and exit code 2, the last line the process writes (the client that
-starts the server shows that line as the error): bad numbers, a missing folder or one that is not the
-policy's checkpoint (checked before torch is imported, which takes seconds), a Python without the model
-stack (the simulator's environment, not the model's), a port that cannot be bound. Once the model is loaded
-the port is bound and one line says so; SIGTERM or SIGINT then stop it with exit 0.
+starts the server shows that line as the error): a policy no installed plugin serves, bad numbers, a missing
+folder or one that is not the policy's checkpoint (checked before torch is imported, which takes seconds), a
+Python without the model stack (the simulator's environment, not the model's), a port that cannot be bound. Once
+the model is loaded the port is bound and one line says so; SIGTERM or SIGINT then stop it with exit 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import signal
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 from .checkpoints import DEVICE, CheckpointError
 
 USER_ERROR = 2
+PROGRAM = "conflictbench-serve"
+ENTRY_POINT_GROUP = "conflictbench_serving"
+
+
+@dataclass(frozen=True)
+class ServedModel:
+    """What a plugin's models need to be served: declared once, found through the entry point."""
+
+    environment: str
+    """The plugin's model environment (``scripts/setup.sh --models NAME`` builds it)."""
+    policies: tuple[str, ...]
+    """The policy names it hosts (the command's ``POLICY``)."""
+    protocol: str
+    """The wire protocol, in words (for ``--help`` and ``--list``)."""
+    check: Callable[[Path, str, str], object]
+    """``check(folder, policy, naming)``: raise :class:`CheckpointError` unless the folder holds a checkpoint of
+    ``policy``; ``naming`` is how this command names a policy (``--policy ``), for a message that says which to
+    use. Called before torch is imported."""
+    backend: str | Callable[..., Any]
+    """``backend(checkpoint, device=...)`` loads the model (``"module:function"``, imported after the checks)."""
+    server: str | Callable[..., None]
+    """``server(backend, host, port, max_batch, on_ready=...)`` serves it until stopped (``"module:function"``)."""
+    port: int = 8000
+    """The port upstream's server listens on by default."""
+    url_scheme: str = "ws"
+    checkpoint_help: str = "a LeRobot pretrained-model folder"
+
+    @classmethod
+    def of(cls, package: str, **fields: Any) -> ServedModel:
+        """A plugin package's, laid out as every model plugin is: ``package.backend.load_backend``,
+        ``package.server.serve``, and the model environment named after it (``conflictbench_NAME``: ``NAME``)."""
+        defaults = {
+            "environment": package.removeprefix("conflictbench_"),
+            "backend": f"{package}.backend:load_backend",
+            "server": f"{package}.server:serve",
+        }
+        return cls(**{**defaults, **fields})
+
+
+def _resolve(target: str | Callable[..., Any]) -> Callable[..., Any]:
+    if callable(target):
+        return target
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def served_models() -> tuple[dict[str, ServedModel], dict[str, str]]:
+    """Every installed plugin's :class:`ServedModel` by the policy names it hosts, and the entry points that
+    failed to load (name: why)."""
+    models: dict[str, ServedModel] = {}
+    failures: dict[str, str] = {}
+    for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            model = entry.load()
+        except Exception as error:  # a broken plugin must not hide the others
+            failures[entry.name] = f"{type(error).__name__}: {error}"
+            continue
+        models.update({policy: model for policy in model.policies})
+    return models, failures
+
+
+def served_model(policy: str) -> ServedModel:
+    """The installed :class:`ServedModel` that hosts ``policy``; :class:`LookupError` (one line) if none does."""
+    models, failures = served_models()
+    if policy in models:
+        return models[policy]
+    broken = (
+        f"; plugins that failed to load: {', '.join(f'{k} ({v})' for k, v in failures.items())}" if failures else ""
+    )
+    raise LookupError(
+        f"no installed plugin serves {policy!r} (installed: {', '.join(sorted(models)) or 'none'}){broken}"
+    )
 
 
 class Parser(argparse.ArgumentParser):
@@ -32,28 +114,35 @@ class Parser(argparse.ArgumentParser):
         self.exit(USER_ERROR, f"{self.prog}: {message}\n")
 
 
-def build_parser(
-    program: str,
-    description: str,
-    policies: list[str],
-    protocol: str,
-    port: int = 8000,
-    checkpoint_help: str = "a LeRobot pretrained-model folder",
-) -> Parser:
-    """``PROGRAM serve ...`` with the shared options (``port``: the upstream server's usual one)."""
-    parser = Parser(prog=program, description=description)
-    commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
-    serve = commands.add_parser("serve", help=f"serve a local checkpoint over {protocol}")
-    serve.add_argument("--policy", required=True, choices=sorted(policies), help="what the checkpoint holds")
-    serve.add_argument("--checkpoint", required=True, type=Path, help=checkpoint_help)
-    serve.add_argument("--host", default="127.0.0.1", help="address to listen on (default: %(default)s)")
-    serve.add_argument("--port", type=int, default=port, help="0: any free port (default: %(default)s)")
-    serve.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto (default: %(default)s)")
-    serve.add_argument(
+def _add_options(parser: argparse.ArgumentParser, port: int | None, checkpoint_help: str) -> None:
+    parser.add_argument("--checkpoint", required=True, type=Path, help=checkpoint_help)
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default: %(default)s)")
+    port_help = "0: any free port (default: %(default)s)" if port else "0: any free port (default: the model's own)"
+    parser.add_argument("--port", type=int, default=port, help=port_help)
+    parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N or auto (default: %(default)s)")
+    parser.add_argument(
         "--max-batch", type=int, default=8,
         help="rows of every forward pass: the requests waiting, padded with copies (default: %(default)s)",
     )  # fmt: skip
-    serve.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+
+
+def build_parser() -> Parser:
+    """``conflictbench-serve POLICY --checkpoint DIR ...`` (``--list``: what the installed plugins serve)."""
+    parser = Parser(prog=PROGRAM, description="Host a local checkpoint of any installed conflictbench model plugin.")
+    parser.add_argument("policy", nargs="?", help="the policy the checkpoint holds (--list shows them)")
+    parser.add_argument("--list", action="store_true", help="list what the installed plugins serve, and exit")
+    _add_options(parser, None, "the checkpoint folder")
+    return parser
+
+
+def build_plugin_parser(program: str, model: ServedModel) -> Parser:
+    """A plugin's own ``PROGRAM serve --policy P ...``: the same options under the name it has always had."""
+    parser = Parser(prog=program, description=f"{', '.join(model.policies)} for conflictbench, model-environment side.")
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
+    serve = commands.add_parser("serve", help=f"serve a local checkpoint over {model.protocol}")
+    serve.add_argument("--policy", required=True, choices=sorted(model.policies), help="what the checkpoint holds")
+    _add_options(serve, model.port, model.checkpoint_help)
     return parser
 
 
@@ -61,17 +150,9 @@ def _stop_quietly(signum: int, frame: object) -> None:
     raise SystemExit(0)
 
 
-def serve_command(
-    program: str,
-    environment: str,
-    args: argparse.Namespace,
-    check: Callable[[Path, str], Any],
-    load: Callable[[Path, str], Any],
-    serve: Callable[[Any, argparse.Namespace, Callable[[str, int], None]], None],
-    url_scheme: str = "ws",
-) -> int:
-    """Check ``args``, ``check(checkpoint, policy)`` the folder (raise :class:`CheckpointError`), import torch,
-    ``load(checkpoint, device)`` the model, and ``serve(model, args, on_ready)`` until stopped. The exit code."""
+def serve_command(program: str, model: ServedModel, args: argparse.Namespace, naming: str = "--policy ") -> int:
+    """Check ``args`` and the folder (``model.check``), import torch, load the model and serve it until stopped.
+    The exit code."""
 
     def user_error(message: str) -> int:
         print(f"{program}: {message}", file=sys.stderr, flush=True)
@@ -84,7 +165,7 @@ def serve_command(
     if args.threads is not None and args.threads < 1:
         return user_error(f"--threads must be at least 1, got {args.threads}")
     try:
-        check(args.checkpoint, args.policy)
+        model.check(args.checkpoint, args.policy, naming)
     except CheckpointError as error:
         return user_error(str(error))
 
@@ -95,7 +176,7 @@ def serve_command(
     except ImportError as error:
         return user_error(
             f"cannot import the model stack ({error}): run this with the model environment's python "
-            f"(scripts/setup.sh --models {environment} builds it), not the simulator's"
+            f"(scripts/setup.sh --models {model.environment} builds it), not the simulator's"
         )
     if args.threads is not None:
         torch.set_num_threads(args.threads)
@@ -105,22 +186,24 @@ def serve_command(
     if device.startswith("cuda") and not torch.cuda.is_available():
         return user_error(f"--device {args.device}: this machine has no CUDA device torch can use (try --device cpu)")
     try:
-        model = load(args.checkpoint, device)
+        backend = _resolve(model.backend)(args.checkpoint, device=device)
     except CheckpointError as error:
         return user_error(str(error))
     except ImportError as error:
-        return user_error(f"cannot import the model stack ({error}): scripts/setup.sh --models {environment} builds it")
+        return user_error(
+            f"cannot import the model stack ({error}): scripts/setup.sh --models {model.environment} builds it"
+        )
 
     listening = False
 
     def announce(host: str, port: int) -> None:
         nonlocal listening
         listening = True
-        url = f"{url_scheme}://{host}:{port}"
+        url = f"{model.url_scheme}://{host}:{port}"
         print(f"{program}: serving {args.policy} from {args.checkpoint} on {url}", file=sys.stderr, flush=True)
 
     try:
-        serve(model, args, announce)
+        _resolve(model.server)(backend, args.host, args.port, args.max_batch, on_ready=announce)
     except (OSError, OverflowError) as error:
         if listening:
             raise
@@ -128,12 +211,55 @@ def serve_command(
     return 0
 
 
-def main(program: str, parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace], int], argv=None) -> int:
-    """Parse, set up logging (warnings, the plugin's own INFO lines), run; Ctrl-C while loading: exit 0."""
-    args = parser.parse_args(argv)
+def _run(program: str, model: ServedModel, run: Callable[[], int]) -> int:
+    """Set up logging (warnings, the plugin's own INFO lines) and run; Ctrl-C while loading: exit 0."""
     logging.basicConfig(level=logging.WARNING, format=f"{program}: %(levelname)s %(name)s: %(message)s")
-    logging.getLogger(program.replace("-", "_")).setLevel(logging.INFO)
+    if isinstance(model.backend, str):  # the plugin's package: its loggers are named after its modules
+        logging.getLogger(model.backend.partition(".")[0]).setLevel(logging.INFO)
     try:
-        return run(args)
+        return run()
     except KeyboardInterrupt:
         return 0
+
+
+def _listing() -> int:
+    models, failures = served_models()
+    for policy, model in sorted(models.items()):
+        print(f"{policy:<14} {model.environment:<10} {model.protocol}")
+    for name, why in failures.items():
+        print(f"{PROGRAM}: the plugin {name} failed to load: {why}", file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``conflictbench-serve``."""
+    if argv is None:
+        argv = sys.argv[1:]
+    if "--list" in argv:
+        return _listing()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.policy is None:
+        parser.error("the following arguments are required: POLICY (--list shows them)")
+    try:
+        model = served_model(args.policy)
+    except LookupError as error:
+        print(f"{PROGRAM}: {error}", file=sys.stderr)
+        return USER_ERROR
+    if args.port is None:
+        args.port = model.port
+    return _run(PROGRAM, model, lambda: serve_command(PROGRAM, model, args, naming=f"{PROGRAM} "))
+
+
+def plugin_main(program: str | None = None, argv: list[str] | None = None) -> int:
+    """A plugin's own command, ``conflictbench-NAME serve --policy P ...`` (kept beside ``conflictbench-serve P``):
+    the plugin whose ``conflictbench_serving`` entry point is ``NAME`` (``-`` for ``_``), by the program's name."""
+    program = program or Path(sys.argv[0]).name
+    name = program.removeprefix("conflictbench-").replace("-", "_")
+    found = [entry for entry in metadata.entry_points(group=ENTRY_POINT_GROUP) if entry.name == name]
+    if not found:
+        print(f"{program}: no installed plugin declares {name!r} in the {ENTRY_POINT_GROUP} group", file=sys.stderr)
+        return USER_ERROR
+    model = found[0].load()
+    args = build_plugin_parser(program, model).parse_args(argv)
+    return _run(program, model, lambda: serve_command(program, model, args))

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import http
-import signal
 import traceback
 from collections.abc import Awaitable, Callable
 
@@ -24,7 +23,11 @@ import websockets
 import websockets.asyncio.server as ws_server
 from websockets.frames import CloseCode
 
+from . import msgpack_numpy
 from .batching import Batcher, ServerStopping
+from .loop import serve_until_stopped
+
+__all__ = ["FatalRequest", "WebsocketPolicyServer", "batched", "serve_until_stopped"]
 
 Answer = Callable[[bytes | str, dict], Awaitable[bytes]]
 
@@ -35,6 +38,13 @@ class FatalRequest(Exception):
     def __init__(self, text: str, reason: str = "Invalid request") -> None:
         super().__init__(text)
         self.reason = reason
+
+
+def batched(backend, max_batch: int, fixed_shape: bool, name: str) -> tuple[bytes, Batcher]:
+    """The metadata frame (the backend's ``metadata`` with ``max_batch`` and ``fixed_shape``, msgpack-numpy) and
+    the batcher that runs ``backend.infer_batch``: the last two arguments of :class:`WebsocketPolicyServer`."""
+    metadata = msgpack_numpy.packb({**backend.metadata, "max_batch": max_batch, "fixed_shape": fixed_shape})
+    return metadata, Batcher(backend.infer_batch, max_batch, fixed_shape, name=name)
 
 
 class WebsocketPolicyServer:
@@ -120,16 +130,3 @@ def _health_check(connection: ws_server.ServerConnection, request: ws_server.Req
     if request.path == "/healthz":
         return connection.respond(http.HTTPStatus.OK, "OK\n")
     return None
-
-
-def serve_until_stopped(server: WebsocketPolicyServer, host: str, port: int, on_ready=None) -> None:
-    """Run ``server`` until SIGTERM or SIGINT, then return normally (call from the main thread)."""
-
-    async def main() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for signum in (signal.SIGTERM, signal.SIGINT):
-            loop.add_signal_handler(signum, stop.set)
-        await server.run(host, port, stop, on_ready)
-
-    asyncio.run(main())

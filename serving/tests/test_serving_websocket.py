@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import subprocess
 import sys
 import threading
 import urllib.request
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,14 +99,23 @@ def test_the_fingerprint_follows_content_not_path(tmp_path):
     assert same and fingerprint([tmp_path / "a" / "w.bin"]) != fingerprint([tmp_path / "b" / "w.bin"])
 
 
-def _serve_command(argv: list[str], check=None, load=None, serve=None) -> int:
-    parser = command.build_parser("cb-test", "test", ["toy"], "a test protocol")
-    args = parser.parse_args(argv)
+def _refuse(checkpoint, policy: str, naming: str) -> None:
+    raise CheckpointError(f"{checkpoint} is no {policy} checkpoint (named {naming}{policy})")
 
-    def refuse(checkpoint, policy):
-        raise CheckpointError(f"{checkpoint} is no {policy} checkpoint")
 
-    return command.serve_command("cb-test", "toy", args, check or refuse, load or (lambda c, d: None), serve or None)
+TOY = command.ServedModel(
+    environment="toy",
+    policies=("toy",),
+    protocol="a test protocol",
+    check=_refuse,
+    backend=lambda checkpoint, device: None,
+    server=lambda *args, **kwargs: None,
+)
+
+
+def _serve_command(argv: list[str]) -> int:
+    args = command.build_plugin_parser("cb-test", TOY).parse_args(argv)
+    return command.serve_command("cb-test", TOY, args)
 
 
 @pytest.mark.parametrize(
@@ -113,7 +124,7 @@ def _serve_command(argv: list[str], check=None, load=None, serve=None) -> int:
         (["--max-batch", "0"], "--max-batch must be at least 1, got 0"),
         (["--device", "tpu"], "--device must be cpu, cuda, cuda:N or auto, got 'tpu'"),
         (["--threads", "0"], "--threads must be at least 1, got 0"),
-        ([], "ckpt is no toy checkpoint"),
+        ([], "ckpt is no toy checkpoint (named --policy toy)"),
     ],
 )
 def test_serve_command_user_errors_are_one_line_and_exit_2(capsys, extra, fragment):
@@ -124,15 +135,77 @@ def test_serve_command_user_errors_are_one_line_and_exit_2(capsys, extra, fragme
 
 def test_argument_errors_are_one_line():
     done = subprocess.run(
-        [sys.executable, "-c", "from conflictbench_serving import command; "
-         "command.build_parser('cb-test', 'd', ['toy'], 'p').parse_args(['serve', '--policy', 'x'])"],
-        capture_output=True, text=True,
+        [sys.executable, "-c", "from conflictbench_serving import command; from test_serving_websocket import TOY; "
+         "command.build_plugin_parser('cb-test', TOY).parse_args(['serve', '--policy', 'x'])"],
+        capture_output=True, text=True, cwd=Path(__file__).parent,
     )  # fmt: skip
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and "invalid choice: 'x'" in done.stderr
 
 
+TOY_PLUGIN = """
+from conflictbench_serving.command import ServedModel
+from conflictbench_serving.checkpoints import CheckpointError
+
+def check(folder, policy, naming):
+    if not folder.is_dir():
+        raise CheckpointError(f"no checkpoint folder at {folder} (for {naming}{policy})")
+
+SERVED = ServedModel(environment="toy", policies=("toy", "toy-2"), protocol="toy's protocol", check=check,
+                     backend="toy_served:load", server="toy_served:serve")
+"""
+
+
+def _serve(tmp_path: Path, *argv: str) -> subprocess.CompletedProcess:
+    """``python -m conflictbench_serving *argv`` with a toy plugin installed as a real distribution (its entry point
+    in the ``conflictbench_serving`` group) and a broken one beside it."""
+    site = tmp_path / "site"
+    (site / "toy_served-1.0.dist-info").mkdir(parents=True, exist_ok=True)
+    (site / "toy_served.py").write_text(TOY_PLUGIN)
+    (site / "toy_served-1.0.dist-info" / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: toy-served\nVersion: 1.0\n"
+    )
+    (site / "toy_served-1.0.dist-info" / "entry_points.txt").write_text(
+        "[conflictbench_serving]\ntoy = toy_served:SERVED\nbroken = toy_served_missing:SERVED\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")]))}
+    return subprocess.run([sys.executable, "-m", "conflictbench_serving", *argv], capture_output=True, text=True,
+                          env=env, timeout=60)  # fmt: skip
+
+
+def test_conflictbench_serve_finds_what_a_plugin_serves_through_its_entry_point(tmp_path):
+    listed = _serve(tmp_path, "--list")
+    assert listed.returncode == 0
+    assert "toy            toy        toy's protocol" in listed.stdout.splitlines()
+    assert "toy-2          toy        toy's protocol" in listed.stdout.splitlines()
+    assert "the plugin broken failed to load: ModuleNotFoundError" in listed.stderr
+
+    # The plugin's own check runs, before torch is imported, naming the policy the way this command does.
+    done = _serve(tmp_path, "toy-2", "--checkpoint", str(tmp_path / "missing"))
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert (
+        done.stderr
+        == f"conflictbench-serve: no checkpoint folder at {tmp_path / 'missing'} (for conflictbench-serve toy-2)\n"
+    )
+
+
+SERVE_MISTAKES = {
+    "unknown policy": (["nope", "--checkpoint", "x"], "no installed plugin serves 'nope' (installed: "),
+    "no policy": (["--checkpoint", "x"], "the following arguments are required: POLICY"),
+    "no checkpoint": (["toy"], "the following arguments are required: --checkpoint"),
+}
+
+
+@pytest.mark.parametrize("mistake", SERVE_MISTAKES)
+def test_conflictbench_serve_mistakes_are_one_line(tmp_path, mistake):
+    argv, message = SERVE_MISTAKES[mistake]
+    done = _serve(tmp_path, *argv)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
+    if argv[0] == "nope":
+        assert "toy, toy-2" in done.stderr and "broken (ModuleNotFoundError" in done.stderr
+
+
 def test_it_imports_neither_conflictbench_nor_torch():
-    modules = "batching, checkpoints, command, msgpack_numpy, websocket"
+    modules = "batching, checkpoints, command, loop, msgpack_numpy, rest, websocket, zeromq"
     done = subprocess.run(
         [sys.executable, "-c", f"import sys; from conflictbench_serving import {modules}; "
          "print(sorted(m for m in sys.modules if m.split('.')[0] in ('conflictbench', 'torch')))"],

@@ -1,7 +1,7 @@
-"""``python -m conflictbench_gr00t serve ...``: the same as the ``conflictbench-gr00t`` console script."""
+"""``python -m conflictbench_gr00t serve ...``: ``conflictbench-gr00t serve``, as ``conflictbench-serve POLICY``."""
 
 import sys
 
-from conflictbench_gr00t.cli import main
+from conflictbench_serving.command import plugin_main
 
-sys.exit(main())
+sys.exit(plugin_main("conflictbench-gr00t"))

@@ -1,6 +1,6 @@
 """GR00T N1.7 as conflictbench sees it: GR00T's LIBERO client, talking to a GR00T policy server over ZeroMQ.
 
-``conflictbench model=gr00t model.checkpoint=DIR`` starts our server (``conflictbench-gr00t serve``) for a
+``conflictbench model=gr00t model.checkpoint=DIR`` starts our server (``conflictbench-serve gr00t``) for a
 LeRobot checkpoint in the model environment, waits until it answers a ping, plays, and stops it.
 ``conflictbench model=gr00t model.server=tcp://HOST:5555 model.checkpoint=NAME`` plays against a running
 server: NVIDIA's own (``gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag NEW_EMBODIMENT
@@ -19,12 +19,13 @@ import numpy as np
 
 from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, sampling_seed
 from conflictbench.core import LIBERO_SUITES
+from conflictbench.hosting.zeromq import ZmqTransport, answers_ping
 from conflictbench_serving.checkpoints import NOISE_SEED_LIMIT
 
-from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
+from .checkpoints import POLICY_TYPE, fingerprint
 from .processing import ACTION_STEPS, MAX_EPISODE_STEPS, WARMUP_STEPS, env_actions, gr00t_observation
 from .protocol import get_action_request
-from .transport import Gr00tTransport, answers_ping
+from .serve import SERVED
 
 
 @dataclass
@@ -32,6 +33,7 @@ class Gr00tConfig(HostedConfig):
     """Settings of ``gr00t`` (``model.<field>=value``; the shared ones are :class:`conflictbench.HostedConfig`'s)."""
 
     identity_exempt: ClassVar[tuple[str, ...]] = (*HostedConfig.identity_exempt, "api_token")
+    minimums: ClassVar = {**HostedConfig.minimums, "action_steps": 1}
 
     checkpoint: str = ""
     """A LeRobot GR00T checkpoint folder (a server is started for it); with ``server``, the name of what that
@@ -50,39 +52,23 @@ class Gr00tConfig(HostedConfig):
 class Gr00tPolicy(HostedPolicy):
     """GR00T's LIBERO client: upright 256-px images, the state split by name, the task text; 8 of each chunk."""
 
-    needs_images = True
     warmup_steps = WARMUP_STEPS
-    environment = "gr00t"
-    server_module = "conflictbench_gr00t"
-    transport = Gr00tTransport
+    served = SERVED
+    transport = ZmqTransport
     url_scheme = "tcp"
     policy_types = {"gr00t": POLICY_TYPE}
-    checkpoint_errors = (CheckpointError,)
     default_max_steps = {suite: MAX_EPISODE_STEPS for suite in LIBERO_SUITES}
+    fingerprint = staticmethod(fingerprint)
 
     def __init__(self, name: str, cfg: Gr00tConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.action_steps = cfg.action_steps
         super().__init__(name, cfg, checkpoint, python)
 
-    def make_transport(self, url: str) -> Gr00tTransport:
-        return Gr00tTransport(url, api_token=self.cfg.api_token or None)  # its ping carries the token too
+    def make_transport(self, url: str) -> ZmqTransport:
+        return ZmqTransport(url, api_token=self.cfg.api_token or None)  # its ping carries the token too
 
     def ready_check(self, url: str):
         return lambda: answers_ping(url)  # ZeroMQ has no HTTP health endpoint: a started server answers a ping
-
-    @classmethod
-    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        return check_checkpoint(folder)
-
-    @classmethod
-    def fingerprint(cls, folder: Path) -> str:
-        return fingerprint(folder)
-
-    @classmethod
-    def load(cls, name: str, cfg: Gr00tConfig) -> Gr00tPolicy:
-        if cfg.action_steps < 1:
-            raise UserError(f"model.action_steps must be >= 1, got {cfg.action_steps}")
-        return super().load(name, cfg)
 
     def encode(self, observation: Observation) -> dict[str, Any]:
         if observation.agentview_image is None or observation.wrist_image is None:

@@ -1,19 +1,14 @@
-"""NVIDIA Isaac-GR00T's inference protocol: ZeroMQ REQ/REP, msgpack, numpy arrays as ``np.save`` bytes.
+"""NVIDIA Isaac-GR00T's inference protocol for LIBERO: what a ``get_action`` request and its reply hold.
 
-The facts, from Isaac-GR00T's ``gr00t/policy/server_client.py`` (``PolicyServer``, ``PolicyClient``,
-``MsgSerializer``) and ``gr00t/policy/gr00t_policy.py`` (``Gr00tSimPolicyWrapper``, which
-``run_gr00t_server.py --use-sim-policy-wrapper`` serves to its LIBERO client):
+The framing (ZeroMQ REQ/REP, msgpack, numpy arrays as ``np.save`` bytes, ``{"endpoint", "data"}`` requests,
+``{"error": message}`` failures) is conflictbench-serving's :mod:`conflictbench_serving.zeromq` (its codec and
+names are re-exported here) and, client side, ``conflictbench.hosting.zeromq``. The facts, from Isaac-GR00T's
+``gr00t/policy/gr00t_policy.py`` (``Gr00tSimPolicyWrapper``, which ``run_gr00t_server.py
+--use-sim-policy-wrapper`` serves to its LIBERO client):
 
-- one request, one reply, each a msgpack map; an array is the map ``{"__ndarray_class__": True,
-  "as_npy": <the bytes np.save writes, allow_pickle=False>}`` (dtype and shape travel inside the .npy
-  header); arrays of object dtype cannot be sent;
-- a request is ``{"endpoint": NAME, "data": {...}}`` (``data`` left out for endpoints without input), plus
-  ``"api_token"`` when the server wants one; endpoints ``ping``, ``get_action``, ``reset``,
-  ``get_modality_config``, ``kill``;
 - ``get_action`` takes ``{"observation": obs, "options": options}`` and answers ``[action, info]``: the
   sim wrapper's flat layout, ``video.<camera>`` uint8 (B, T, H, W, C), ``state.<name>`` float32 (B, T, D),
-  the language key with a list of B strings, and back ``action.<name>`` float32 (B, T, D);
-- any failure answers ``{"error": message}`` (an unknown endpoint: ``"Unknown endpoint: NAME"``).
+  the language key with a list of B strings, and back ``action.<name>`` float32 (B, T, D).
 
 Our additions, which NVIDIA's server ignores: the per-request sampling seed inside ``options`` (its
 policies take ``options`` and leave it unused), and the endpoint ``conflictbench_metadata`` (what our server
@@ -23,14 +18,36 @@ endpoint error. This module imports neither conflictbench nor torch: the model e
 
 from __future__ import annotations
 
-import io
 from typing import Any
 
-import msgpack
 import numpy as np
 
 from conflictbench_serving.checkpoints import NOISE_SEED
 from conflictbench_serving.requests import describe, is_noise_seed
+from conflictbench_serving.zeromq import (
+    ERROR,
+    GET_ACTION,
+    METADATA,
+    PING,
+    InvalidRequest,
+    endpoint_request,
+    packb,
+    unpackb,
+)
+
+__all__ = [  # the framing's names, re-exported: this protocol's codec and endpoints
+    "ERROR",
+    "GET_ACTION",
+    "METADATA",
+    "PING",
+    "InvalidRequest",
+    "endpoint_request",
+    "packb",
+    "unpackb",
+    "get_action_request",
+    "request_seed",
+    "validate_observation",
+]
 
 #: The sim wrapper's flat observation keys for LIBERO (``gr00t/eval/sim/LIBERO/libero_env.py``).
 VIDEO_KEYS = ("video.image", "video.wrist_image")
@@ -43,48 +60,10 @@ ACTION_KEYS = ("action.x", "action.y", "action.z", "action.roll", "action.pitch"
 #: LIBERO renders 256 x 256 and GR00T's LIBERO client sends the images at that size.
 IMAGE_SIZE = 256
 
-GET_ACTION, PING, METADATA = "get_action", "ping", "conflictbench_metadata"
-#: Our one addition to a request's ``options``: the seed of this request's sampling noise, in [0, 2**63)
-#: (``NOISE_SEED``, conflictbench-serving's convention for every server).
-ERROR = "error"
-
-_ARRAY_TAG = "__ndarray_class__"
-
-
-class InvalidRequest(ValueError):
-    """A request that is not a GR00T LIBERO observation; the message is sent back as the error."""
-
-
-def _encode(value: Any) -> Any:
-    if isinstance(value, np.generic):  # a numpy scalar travels as the plain number it is
-        return value.item()
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind == "O":
-            raise TypeError("arrays of object dtype cannot be sent")
-        buffer = io.BytesIO()
-        np.save(buffer, value, allow_pickle=False)
-        return {_ARRAY_TAG: True, "as_npy": buffer.getvalue()}
-    return value
-
-
-def _decode(obj: dict) -> Any:
-    if _ARRAY_TAG in obj:
-        return np.load(io.BytesIO(obj["as_npy"]), allow_pickle=False)
-    return obj
-
-
-def packb(obj: Any) -> bytes:
-    """``obj`` (maps, lists, strings, numbers, numpy arrays) as one GR00T message."""
-    return msgpack.packb(obj, default=_encode)
-
-
-def unpackb(data: bytes) -> Any:
-    """The value in one GR00T message (arrays come back as writable arrays)."""
-    return msgpack.unpackb(data, object_hook=_decode)
-
 
 def get_action_request(observation: dict, seed: int | None = None, api_token: str | None = None) -> dict:
-    """The ``get_action`` request for ``observation``, with our sampling seed in ``options``."""
+    """The ``get_action`` request for ``observation``, with our sampling seed in ``options`` (``NOISE_SEED``, an
+    int in [0, 2**63): conflictbench-serving's convention for every server, which NVIDIA's ignores)."""
     request: dict[str, Any] = {
         "endpoint": GET_ACTION,
         "data": {"observation": observation, "options": None if seed is None else {NOISE_SEED: seed}},
@@ -92,11 +71,6 @@ def get_action_request(observation: dict, seed: int | None = None, api_token: st
     if api_token:
         request["api_token"] = api_token
     return request
-
-
-def endpoint_request(endpoint: str, api_token: str | None = None) -> dict:
-    """A request for an endpoint without input (``ping``, ``conflictbench_metadata``)."""
-    return {"endpoint": endpoint, **({"api_token": api_token} if api_token else {})}
 
 
 def validate_observation(observation: Any) -> int:

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from conflictbench import ServerProcess, free_port
-from conflictbench_gr00t.transport import answers_ping
+from conflictbench.hosting.zeromq import answers_ping
 
 STANDIN = Path(__file__).resolve().parent / "nvidia_standin_server.py"
 

@@ -75,3 +75,16 @@ def test_the_seed_in_options_is_read_and_checked():
     for bad in (-1, 2**63, True, 1.5):
         with pytest.raises(InvalidRequest):
             request_seed({NOISE_SEED: bad})
+
+
+def test_the_transport_and_codec_live_in_conflictbench_and_serving_and_stay_importable_here():
+    from conflictbench.hosting.zeromq import ZmqTransport, answers_ping
+    from conflictbench_gr00t import protocol, transport
+    from conflictbench_serving import zeromq
+
+    assert transport.Gr00tTransport is ZmqTransport and transport.answers_ping is answers_ping
+    assert (protocol.packb, protocol.unpackb, protocol.InvalidRequest) == (
+        zeromq.packb,
+        zeromq.unpackb,
+        zeromq.InvalidRequest,
+    )

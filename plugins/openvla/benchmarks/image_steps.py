@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from conflictbench_openvla import images
+from conflictbench.hosting import openvla_family as images
 
 GOLDEN = Path(__file__).resolve().parents[1] / "tests" / "golden" / "inputs.npz"
 

@@ -1,6 +1,6 @@
 """OpenVLA and OpenVLA-OFT as conflictbench sees them: their LIBERO clients, talking to a ``deploy.py`` server.
 
-``conflictbench model=openvla model.checkpoint=DIR`` starts our server (``conflictbench-openvla serve``, in the
+``conflictbench model=openvla model.checkpoint=DIR`` starts our server (``conflictbench-serve openvla``, in the
 model environment) for a checkpoint folder in Hugging Face format; ``model.server=http://HOST:8000
 model.checkpoint=NAME`` plays against a running one, OpenVLA's ``vla-scripts/deploy.py`` or ours;
 ``model=openvla-oft model.server=http://HOST:8777`` against OpenVLA-OFT's ``deploy.py`` (started with
@@ -27,17 +27,17 @@ fingerprint). Either is part of every episode's identity.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from conflictbench import HostedConfig, HostedPolicy, Observation, UserError
+from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnorm_key
 
-from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
-from .images import policy_image
-from .processing import MAX_STEPS, env_gripper, unnorm_key
+from .checkpoints import POLICY_TYPE, fingerprint
+from .processing import MAX_STEPS
 from .protocol import JsonNumpyTransport, oft_request, openvla_request, read_action, read_chunk
+from .serve import SERVED
 
 OFT_CHUNK = 8
 
@@ -62,6 +62,8 @@ class OpenVlaConfig(HostedConfig):
 class OftConfig(HostedConfig):
     """Settings of ``openvla-oft`` (``model.<field>=value``; shared ones: :class:`conflictbench.HostedConfig`'s)."""
 
+    minimums: ClassVar = {**HostedConfig.minimums, "chunk_length": 1}
+
     checkpoint: str = ""
     """With ``server``: the name of what that server hosts, with its ``--unnorm_key`` (deploy.py says
     neither), e.g. ``moojink/openvla-7b-oft-finetuned-libero-goal``."""
@@ -74,23 +76,12 @@ class OftConfig(HostedConfig):
 class _DeployClient(HostedPolicy):
     """What both clients share: deploy.py's transport, the family's step budget and gripper mapping."""
 
-    needs_images = True
-    environment = "openvla"
-    server_module = "conflictbench_openvla"
+    served = SERVED
     transport = JsonNumpyTransport
     url_scheme = "http"
     default_max_steps = MAX_STEPS
-
     policy_types = {"openvla": POLICY_TYPE, "openvla-oft": "openvla-oft"}  # our server hosts OpenVLA only
-    checkpoint_errors = (CheckpointError,)
-
-    @classmethod
-    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        return check_checkpoint(folder, name)
-
-    @classmethod
-    def fingerprint(cls, folder: Path) -> str:
-        return fingerprint(folder)
+    fingerprint = staticmethod(fingerprint)
 
 
 class OpenVlaPolicy(_DeployClient):
@@ -110,12 +101,6 @@ class OpenVlaPolicy(_DeployClient):
 
 class OftPolicy(_DeployClient):
     """OpenVLA-OFT's LIBERO client: both images resized (not cropped), the raw state; chunks executed open loop."""
-
-    @classmethod
-    def load(cls, name: str, cfg: OftConfig) -> OftPolicy:
-        if cfg.chunk_length < 1:
-            raise UserError(f"model.chunk_length must be >= 1, got {cfg.chunk_length}")
-        return super().load(name, cfg)
 
     def encode(self, observation: Observation) -> dict[str, Any]:
         if observation.agentview_image is None or observation.wrist_image is None:

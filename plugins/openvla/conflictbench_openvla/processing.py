@@ -1,8 +1,11 @@
 """What the OpenVLA family's LIBERO clients and models do around the network, step by step.
 
-Pinned by ``tests/test_openvla_processing.py``. The facts, from ``experiments/robot/libero/run_libero_eval.py``,
-``robot_utils.py`` and ``openvla_utils.py`` of openvla/openvla, moojink/openvla-oft and OpenDriveLab/UniVLA,
-and the models' ``modeling_prismatic.py`` (``docs/upstream/openvla_oft_univla.md`` has the lines):
+The client steps OpenVLA, OFT and UniVLA share (the gripper, the statistics key, q01/q99 un-normalization; their
+names stay importable here) live in :mod:`conflictbench.hosting.openvla_family`; this module keeps the rest (it
+runs in the model environment too, where there is no conflictbench). Pinned by ``tests/test_openvla_processing.py``.
+The facts, from ``experiments/robot/libero/run_libero_eval.py``, ``robot_utils.py`` and ``openvla_utils.py`` of
+openvla/openvla, moojink/openvla-oft and OpenDriveLab/UniVLA, and the models' ``modeling_prismatic.py``
+(``docs/upstream/openvla_oft_univla.md`` has the lines):
 
 - **gripper**: the model's g in [0, 1] (1 = open) becomes ``2 g - 1``, then its sign, then is negated (LIBERO's
   -1 = open); ``np.sign(0) = 0``, so g = 0.5 exactly leaves the gripper command at 0;
@@ -19,43 +22,16 @@ and the models' ``modeling_prismatic.py`` (``docs/upstream/openvla_oft_univla.md
 
 from __future__ import annotations
 
-from collections.abc import Collection
-
 import numpy as np
 
 MAX_STEPS = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
 ACTION_BINS = 256
 OFT_EPSILON = 1e-8
-#: ``model.unnorm_key`` values that name the episode's LIBERO suite rather than a literal key.
-SUITE_KEYS = {"suite": "{suite}", "suite_no_noops": "{suite}_no_noops"}
 
 
 def prompt(instruction: str) -> str:
     """The prompt OpenVLA's ``deploy.py`` and the OFT / UniVLA models build from the task text."""
     return f"In: What action should the robot take to {instruction.lower()}?\nOut:"
-
-
-def unnorm_key(setting: str, suite: str, known: Collection[str] | None = None) -> str:
-    """The statistics key for an episode of ``suite``: ``suite`` / ``suite_no_noops`` follow the suite; any
-    other setting is the key itself. Where the checkpoint's keys are ``known``, ``suite`` falls back to the
-    ``_no_noops`` key when only that one exists, as upstream's evaluations do."""
-    template = SUITE_KEYS.get(setting)
-    if template is None:
-        return setting
-    if not suite:
-        raise ValueError(f"unnorm_key={setting} needs the episode's LIBERO suite, and the observation has none")
-    key = template.format(suite=suite)
-    if known is not None and key not in known and f"{key}_no_noops" in known and setting == "suite":
-        return f"{key}_no_noops"
-    return key
-
-
-def env_gripper(actions: np.ndarray) -> np.ndarray:
-    """``normalize_gripper_action(binarize=True)`` then ``invert_gripper_action``, on a copy: the last
-    dimension g becomes ``-sign(2 g - 1)``."""
-    out = np.array(actions, dtype=np.float64)
-    out[..., -1] = -np.sign(2.0 * out[..., -1] - 1.0)
-    return out
 
 
 def bin_centers(bins: int = ACTION_BINS) -> np.ndarray:
@@ -70,14 +46,6 @@ def detokenize(token_ids: np.ndarray, vocab_size: int, bins: int = ACTION_BINS) 
     return bin_centers(bins)[index]
 
 
-def unnormalize(normalized: np.ndarray, stats: dict, epsilon: float = 0.0) -> np.ndarray:
-    """q01/q99 un-normalization where ``stats["mask"]`` keeps the dimension (all where it has no mask)."""
-    low, high = np.asarray(stats["q01"], dtype=np.float64), np.asarray(stats["q99"], dtype=np.float64)
-    mask = np.asarray(stats.get("mask", np.ones_like(low, dtype=bool)), dtype=bool)
-    normalized = np.asarray(normalized, dtype=np.float64)
-    return np.where(mask, 0.5 * (normalized + 1.0) * (high - low + epsilon) + low, normalized)
-
-
 def normalize_proprio(state: np.ndarray, stats: dict) -> np.ndarray:
     """OpenVLA-OFT's proprio normalization (BOUNDS_Q99): to [-1, 1] with q01/q99 where the mask keeps, clipped."""
     low, high = np.asarray(stats["q01"], dtype=np.float64), np.asarray(stats["q99"], dtype=np.float64)
@@ -85,3 +53,14 @@ def normalize_proprio(state: np.ndarray, stats: dict) -> np.ndarray:
     state = np.asarray(state, dtype=np.float64)
     normalized = np.where(mask, 2.0 * (state - low) / (high - low + OFT_EPSILON) - 1.0, state)
     return np.clip(normalized, -1.0, 1.0)
+
+
+_MOVED = ("SUITE_KEYS", "env_gripper", "unnorm_key", "unnormalize")
+
+
+def __getattr__(name: str):
+    if name in _MOVED:  # moved to the client layer; imported on use, as the model environment has no conflictbench
+        from conflictbench.hosting import openvla_family
+
+        return getattr(openvla_family, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

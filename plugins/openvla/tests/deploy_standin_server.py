@@ -35,7 +35,7 @@ from deploy_standin_model import PROPRIO, STATS, normalized_for, prompt_of, unno
 from fastapi import FastAPI  # noqa: E402
 from fastapi.responses import JSONResponse  # noqa: E402
 
-from conflictbench_openvla.images import center_crop, resize_for_policy  # noqa: E402
+from conflictbench.hosting.openvla_family import center_crop, resize_for_policy  # noqa: E402
 from conflictbench_openvla.processing import normalize_proprio  # noqa: E402
 
 

@@ -9,10 +9,9 @@ from deploy_standin_model import PROPRIO, STATS, normalized_for, prompt_of, unno
 
 from conflictbench import InfrastructureError, ServerUnavailable, UserError
 from conflictbench.core import PolicyTraits
+from conflictbench.hosting.openvla_family import center_crop, env_gripper, policy_image
 from conflictbench.testing import camera_observation
 from conflictbench_openvla.client import OftConfig, OpenVlaConfig, load
-from conflictbench_openvla.images import center_crop, policy_image
-from conflictbench_openvla.processing import env_gripper
 
 observation = camera_observation
 

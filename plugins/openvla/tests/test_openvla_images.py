@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conflictbench_openvla import images
+from conflictbench.hosting import openvla_family as images
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conflictbench.hosting import openvla_family as family
 from conflictbench_openvla import processing
 
 
@@ -20,7 +21,7 @@ def test_the_prompt_lower_cases_the_task_into_openvlas_template():
 )
 def test_the_gripper_is_signed_then_inverted_open_one_becomes_libero_minus_one(model_gripper, env_gripper):
     action = np.array([0.1, -0.2, 0.3, 0.01, 0.02, 0.03, model_gripper])
-    out = processing.env_gripper(action)
+    out = family.env_gripper(action)
     assert out[6] == env_gripper
     np.testing.assert_array_equal(out[:6], action[:6])
     assert action[6] == model_gripper  # the reply is not changed in place (json-numpy's arrays are read-only)
@@ -28,7 +29,7 @@ def test_the_gripper_is_signed_then_inverted_open_one_becomes_libero_minus_one(m
 
 def test_the_gripper_mapping_works_on_a_whole_chunk():
     chunk = np.array([[0.0] * 6 + [g] for g in (0.9, 0.2, 0.5)])
-    assert processing.env_gripper(chunk)[:, 6].tolist() == [-1.0, 1.0, 0.0]
+    assert family.env_gripper(chunk)[:, 6].tolist() == [-1.0, 1.0, 0.0]
 
 
 @pytest.mark.parametrize(
@@ -40,7 +41,7 @@ def test_the_gripper_mapping_works_on_a_whole_chunk():
     ],
 )
 def test_unnorm_key_follows_the_episodes_suite_or_is_given(setting, suite, key):
-    assert processing.unnorm_key(setting, suite) == key
+    assert family.unnorm_key(setting, suite) == key
 
 
 @pytest.mark.parametrize(
@@ -53,13 +54,13 @@ def test_unnorm_key_follows_the_episodes_suite_or_is_given(setting, suite, key):
     ],
 )
 def test_the_suite_key_falls_back_to_no_noops_where_the_checkpoint_has_only_that(known, key):
-    assert processing.unnorm_key("suite", "libero_goal", known) == key
-    assert processing.unnorm_key("suite_no_noops", "libero_goal", known) == "libero_goal_no_noops"
+    assert family.unnorm_key("suite", "libero_goal", known) == key
+    assert family.unnorm_key("suite_no_noops", "libero_goal", known) == "libero_goal_no_noops"
 
 
 def test_a_suite_key_without_a_suite_is_refused():
     with pytest.raises(ValueError, match="needs the episode's LIBERO suite"):
-        processing.unnorm_key("suite", "")
+        family.unnorm_key("suite", "")
 
 
 def test_256_bins_have_255_centres_from_minus_to_plus_254_over_255():
@@ -81,19 +82,19 @@ def test_a_token_is_the_bin_vocab_size_minus_id_minus_one_clipped(token_id, cent
 
 def test_unnormalization_maps_minus_one_and_one_to_q01_and_q99_and_leaves_masked_dimensions():
     stats = {"q01": [-0.5, 0.0, 1.0], "q99": [0.5, 2.0, 3.0], "mask": [True, True, False]}
-    out = processing.unnormalize(np.array([[-1.0, 1.0, 0.7], [0.0, 0.0, -0.2]]), stats)
+    out = family.unnormalize(np.array([[-1.0, 1.0, 0.7], [0.0, 0.0, -0.2]]), stats)
     np.testing.assert_allclose(out, [[-0.5, 2.0, 0.7], [0.0, 1.0, -0.2]])
 
 
 def test_statistics_without_a_mask_unnormalize_every_dimension():
-    out = processing.unnormalize(np.array([1.0, -1.0]), {"q01": [0.0, 0.0], "q99": [2.0, 4.0]})
+    out = family.unnormalize(np.array([1.0, -1.0]), {"q01": [0.0, 0.0], "q99": [2.0, 4.0]})
     np.testing.assert_allclose(out, [2.0, 0.0])
 
 
 def test_ofts_unnormalization_adds_its_epsilon_to_the_range():
     stats = {"q01": [0.0], "q99": [0.0]}  # a constant dimension: OpenVLA gives q01, OFT q01 + 1e-8 at a = 1
-    assert processing.unnormalize(np.array([1.0]), stats)[0] == 0.0
-    assert processing.unnormalize(np.array([1.0]), stats, processing.OFT_EPSILON)[0] == 1e-8
+    assert family.unnormalize(np.array([1.0]), stats)[0] == 0.0
+    assert family.unnormalize(np.array([1.0]), stats, processing.OFT_EPSILON)[0] == 1e-8
 
 
 def test_ofts_proprio_is_scaled_to_minus_one_one_and_clipped():

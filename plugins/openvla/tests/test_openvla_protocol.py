@@ -82,3 +82,13 @@ def test_a_reply_that_is_no_chunk_is_refused(reply):
 )
 def test_a_url_without_a_path_gets_deploys_route(given, used):
     assert JsonNumpyTransport(given).url == used
+
+
+def test_the_family_steps_and_transport_live_in_conflictbench_and_stay_importable_here():
+    from conflictbench.hosting import openvla_family, rest
+    from conflictbench_openvla import images, processing, protocol
+
+    assert protocol.JsonNumpyTransport is rest.JsonNumpyTransport
+    assert images.policy_image is openvla_family.policy_image and images.center_crop is openvla_family.center_crop
+    moved = ("env_gripper", "unnorm_key", "unnormalize", "SUITE_KEYS")
+    assert all(getattr(processing, name) is getattr(openvla_family, name) for name in moved)

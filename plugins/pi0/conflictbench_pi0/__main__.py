@@ -1,7 +1,7 @@
-"""``python -m conflictbench_pi0 serve ...``: the same as the ``conflictbench-pi0`` console script."""
+"""``python -m conflictbench_pi0 serve ...``: ``conflictbench-pi0 serve``, as ``conflictbench-serve POLICY``."""
 
 import sys
 
-from conflictbench_pi0.cli import main
+from conflictbench_serving.command import plugin_main
 
-sys.exit(main())
+sys.exit(plugin_main("conflictbench-pi0"))

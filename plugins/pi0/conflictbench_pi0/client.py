@@ -1,6 +1,6 @@
 """The π policies as conflictbench sees them: openpi's LIBERO client, talking to an openpi server.
 
-``conflictbench model=pi05 model.checkpoint=DIR`` starts our server (``conflictbench-pi0 serve``) in the
+``conflictbench model=pi05 model.checkpoint=DIR`` starts our server (``conflictbench-serve pi05``) in the
 model environment, waits until it answers, plays, and stops it; ``model.server=ws://HOST:PORT`` talks to a
 server that is already running (ours, or openpi's own ``scripts/serve_policy.py`` on a GPU machine).
 """
@@ -9,22 +9,25 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, sampling_seed
+from conflictbench.hosting.openpi import OpenpiTransport
 
-from .checkpoints import POLICY_TYPES, CheckpointError, check_checkpoint, fingerprint
+from .checkpoints import POLICY_TYPES, fingerprint
 from .processing import REPLAN_STEPS, camera_image
 from .protocol import ACTIONS, IMAGE, NOISE_SEED, NOISE_SEED_LIMIT, PROMPT, STATE, WRIST_IMAGE
-from .transport import OpenpiTransport
+from .serve import SERVED
 
 
 @dataclass
 class PiConfig(HostedConfig):
     """Settings of ``pi0``, ``pi0-fast`` and ``pi05`` (``model.<field>=value``; the shared ones are
     :class:`conflictbench.HostedConfig`'s: ``checkpoint``, ``server``, ``max_steps``, ``device``, ``max_batch``...)."""
+
+    minimums: ClassVar = {**HostedConfig.minimums, "replan_steps": 1}
 
     checkpoint: str = ""
     """A LeRobot π checkpoint folder (a server is started for it); with ``server``, the name of what that
@@ -45,31 +48,14 @@ class PiPolicy(HostedPolicy):
     play); with ``server`` the policy connects at once and reads what the server says it hosts.
     """
 
-    needs_images = True
-    environment = "pi0"
-    server_module = "conflictbench_pi0"
+    served = SERVED
     transport = OpenpiTransport
-    url_scheme = "ws"
     policy_types = POLICY_TYPES
-    checkpoint_errors = (CheckpointError,)
+    fingerprint = staticmethod(fingerprint)
 
     def __init__(self, name: str, cfg: PiConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.replan_steps = cfg.replan_steps
         super().__init__(name, cfg, checkpoint, python)
-
-    @classmethod
-    def load(cls, name: str, cfg: PiConfig) -> PiPolicy:
-        if cfg.replan_steps < 1:
-            raise UserError(f"model.replan_steps must be >= 1, got {cfg.replan_steps}")
-        return super().load(name, cfg)
-
-    @classmethod
-    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        return check_checkpoint(folder, name)
-
-    @classmethod
-    def fingerprint(cls, folder: Path) -> str:
-        return fingerprint(folder)
 
     def encode(self, observation: Observation) -> dict[str, Any]:
         if observation.agentview_image is None or observation.wrist_image is None:

@@ -24,8 +24,7 @@ import numpy as np
 
 from conflictbench_pi0 import protocol
 from conflictbench_pi0.protocol import InvalidRequest, validate_request
-from conflictbench_serving.batching import Batcher
-from conflictbench_serving.websocket import FatalRequest, WebsocketPolicyServer, serve_until_stopped
+from conflictbench_serving.websocket import FatalRequest, WebsocketPolicyServer, batched, serve_until_stopped
 
 
 class Backend(Protocol):
@@ -40,9 +39,7 @@ class BatchingPolicyServer(WebsocketPolicyServer):
     """Serves ``backend`` to any number of connections, one model call at a time, batching what waits."""
 
     def __init__(self, backend: Backend, max_batch: int = 32, fixed_shape: bool = False) -> None:
-        batcher = Batcher(backend.infer_batch, max_batch, fixed_shape, name="pi")
-        metadata = protocol.packb({**backend.metadata, "max_batch": max_batch, "fixed_shape": fixed_shape})
-        super().__init__(self._answer, metadata, batcher)
+        super().__init__(self._answer, *batched(backend, max_batch, fixed_shape, name="pi"))
         self.backend = backend
 
     async def _answer(self, frame: bytes | str, session: dict) -> bytes:

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conflictbench.core import InfrastructureError, Observation, ServerProcess, ServerUnavailable, UserError, free_port
+from conflictbench.core import InfrastructureError, Observation, ServerUnavailable, UserError
 from conflictbench.core.sampling import sampling_seed
+from conflictbench.hosting import ServerProcess, free_port
 from conflictbench_pi0.client import PiConfig, load
 from conflictbench_pi0.processing import camera_image
 

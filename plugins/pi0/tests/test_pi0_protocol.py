@@ -47,3 +47,10 @@ def test_a_non_contiguous_array_is_sent_in_c_order():
 def test_arrays_openpi_cannot_carry_are_refused(value):
     with pytest.raises(TypeError, match="cannot be sent"):
         packb({"x": value})
+
+
+def test_the_transport_lives_in_conflictbench_and_stays_importable_here():
+    from conflictbench.hosting.openpi import OpenpiTransport
+    from conflictbench_pi0.transport import OpenpiTransport as former
+
+    assert former is OpenpiTransport

@@ -1,7 +1,7 @@
-"""``python -m conflictbench_univla serve ...``: how a run starts the server in the model environment."""
+"""``python -m conflictbench_univla serve ...``: ``conflictbench-univla serve``, as ``conflictbench-serve POLICY``."""
 
 import sys
 
-from .cli import main
+from conflictbench_serving.command import plugin_main
 
-sys.exit(main())
+sys.exit(plugin_main("conflictbench-univla"))

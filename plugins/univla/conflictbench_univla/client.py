@@ -1,6 +1,6 @@
 """UniVLA as conflictbench sees it: UniVLA's LIBERO evaluation loop, with the model behind our REST server.
 
-``UNIVLA_CODE=/path/to/UniVLA conflictbench model=univla model.checkpoint=DIR`` starts ``conflictbench-univla serve``
+``UNIVLA_CODE=/path/to/UniVLA conflictbench model=univla model.checkpoint=DIR`` starts ``conflictbench-serve univla``
 in the model environment for a UniVLA checkpoint folder (UniVLA's code read from that checkout);
 ``model.server=http://HOST:PORT`` plays against a running one (upstream has no server: its evaluation runs the
 model in-process). The server answers each query's normalized chunk and
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,13 +26,13 @@ from conflictbench import (
     UserError,
     sampling_seed,
 )
-from conflictbench_openvla.images import policy_image
-from conflictbench_openvla.processing import env_gripper, unnorm_key, unnormalize
-from conflictbench_openvla.protocol import JsonNumpyTransport
+from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnorm_key, unnormalize
+from conflictbench.hosting.rest import JsonNumpyTransport
 
-from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, check_code, fingerprint
+from .checkpoints import POLICY_TYPE, fingerprint
 from .processing import UNIVLA_MAX_STEPS, TemporalEnsemble, history_text
 from .protocol import NOISE_SEED_LIMIT, act_request, read_reply
+from .serve import SERVED
 
 
 @dataclass
@@ -63,23 +62,12 @@ class _Episode:
 class UnivlaPolicy(HostedPolicy):
     """UniVLA's LIBERO client: the cropped agentview image, the task text and the latent history; one action a step."""
 
-    needs_images = True
-    environment = "univla"
-    server_module = "conflictbench_univla"
+    served = SERVED  # its check reads UniVLA's code from UNIVLA_CODE, as the started server will
     transport = JsonNumpyTransport
     url_scheme = "http"
     policy_types = {"univla": POLICY_TYPE}
-    checkpoint_errors = (CheckpointError,)
     default_max_steps = UNIVLA_MAX_STEPS
-
-    @classmethod
-    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        check_code()  # the started server reads UniVLA's code from the same UNIVLA_CODE
-        return check_checkpoint(folder)
-
-    @classmethod
-    def fingerprint(cls, folder: Path) -> str:
-        return fingerprint(folder)
+    fingerprint = staticmethod(fingerprint)
 
     def __init__(self, *args, **kwargs):
         self._episodes = PerEpisode(lambda: _Episode("", TemporalEnsemble(self.window)))

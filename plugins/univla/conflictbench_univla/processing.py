@@ -4,7 +4,7 @@ The facts, from OpenDriveLab/UniVLA ``experiments/robot/libero/run_libero_eval.p
 openvla_utils.py`` (``docs/upstream/openvla_oft_univla.md``, section 5, has the lines):
 
 - **image**: the agentview camera only, as OpenVLA's client prepares it (upright, JPEG round trip, Lanczos to 224,
-  centre crop of 0.9 of the area): ``conflictbench_openvla.images``;
+  centre crop of 0.9 of the area): ``conflictbench.hosting.openvla_family``;
 - **prompt**: OpenVLA's, and from an episode's second query on, ``History action`` and the previous query's four
   latent action tokens, concatenated (``<ACT_3><ACT_12><ACT_0><ACT_7>``; token id ``32001 + k`` is ``<ACT_k>``):
   ``In: What action should the robot take to {task lower-cased}? History action {tokens}\\nOut:``;

@@ -1,6 +1,6 @@
 """UniVLA's inference protocol, ours: upstream runs UniVLA in-process only and has no server.
 
-It follows OpenVLA's ``deploy.py`` (REST ``POST /act``, json-numpy bodies, ``conflictbench_openvla.protocol``'s
+It follows OpenVLA's ``deploy.py`` (REST ``POST /act``, json-numpy bodies, ``conflictbench.hosting.rest``'s
 transport) with what UniVLA's split needs. The server is stateless; the client keeps each episode's latent
 history and ensembling window:
 

@@ -11,9 +11,8 @@ from univla_standin_model import STATISTICS, chunk_for, latent_tokens, prompt_of
 
 from conflictbench import InfrastructureError, UserError, sampling_seed
 from conflictbench.core import PolicyTraits
+from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnormalize
 from conflictbench.testing import camera_observation
-from conflictbench_openvla.images import policy_image
-from conflictbench_openvla.processing import env_gripper, unnormalize
 from conflictbench_univla.client import UnivlaConfig, load
 from conflictbench_univla.processing import TemporalEnsemble, history_text
 

@@ -1,7 +1,7 @@
-"""``python -m conflictbench_vla_jepa serve ...``: the same as the ``conflictbench-vla-jepa`` console script."""
+"""``python -m conflictbench_vla_jepa serve ...``: ``conflictbench-vla-jepa serve`` (``conflictbench-serve POLICY``)."""
 
 import sys
 
-from conflictbench_vla_jepa.cli import main
+from conflictbench_serving.command import plugin_main
 
-sys.exit(main())
+sys.exit(plugin_main("conflictbench-vla-jepa"))

@@ -1,6 +1,6 @@
 """VLA-JEPA as conflictbench sees it: VLA-JEPA's LIBERO client, talking to a VLA-JEPA websocket policy server.
 
-``conflictbench model=vla-jepa model.checkpoint=DIR`` starts our server (``conflictbench-vla-jepa serve``) for a
+``conflictbench model=vla-jepa model.checkpoint=DIR`` starts our server (``conflictbench-serve vla-jepa``) for a
 LeRobot checkpoint in the model environment, waits until it answers, plays, and stops it.
 ``model.server=ws://HOST:PORT model.checkpoint=NAME model.stats=FILE`` plays against a running server
 (VLA-JEPA's ``deployment/model_server/server_policy.py --ckpt_path ...`` on a GPU machine, or ours). Replies
@@ -20,9 +20,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from conflictbench import HostedConfig, HostedPolicy, InfrastructureError, Observation, UserError, sampling_seed
-from conflictbench_pi0.transport import OpenpiTransport
+from conflictbench.hosting.openpi import OpenpiTransport
 
-from .checkpoints import POLICY_TYPE, CheckpointError, check_checkpoint, fingerprint
+from .checkpoints import POLICY_TYPE, fingerprint
 from .processing import (
     MAX_STEPS,
     ActionStatistics,
@@ -32,6 +32,7 @@ from .processing import (
     env_actions,
 )
 from .protocol import NOISE_SEED_LIMIT, ReplyError, infer_request, normalized_actions
+from .serve import SERVED
 
 
 @dataclass
@@ -40,6 +41,7 @@ class VlaJepaConfig(HostedConfig):
 
     # The statistics count by content (in the policy's identity), not by where the file lies.
     identity_exempt: ClassVar[tuple[str, ...]] = (*HostedConfig.identity_exempt, "stats")
+    minimums: ClassVar = {**HostedConfig.minimums, "chunk_length": 0}
 
     checkpoint: str = ""
     """A LeRobot VLA-JEPA checkpoint folder (a server is started for it); with ``server``, the name of what
@@ -65,14 +67,11 @@ class VlaJepaPolicy(HostedPolicy):
     says it hosts (its metadata; read when the policy connects, or when it starts the server).
     """
 
-    needs_images = True
-    environment = "vla_jepa"
-    server_module = "conflictbench_vla_jepa"
+    served = SERVED
     transport = OpenpiTransport
-    url_scheme = "ws"
     policy_types = {"vla-jepa": POLICY_TYPE}
-    checkpoint_errors = (CheckpointError,)
     default_max_steps = MAX_STEPS
+    fingerprint = staticmethod(fingerprint)
 
     def __init__(self, name: str, cfg: VlaJepaConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.statistics: ActionStatistics | None = None
@@ -89,20 +88,6 @@ class VlaJepaPolicy(HostedPolicy):
                 self.close()
                 raise
         self.identity = {**self.identity, **identity}
-
-    @classmethod
-    def load(cls, name: str, cfg: VlaJepaConfig) -> VlaJepaPolicy:
-        if cfg.chunk_length < 0:
-            raise UserError(f"model.chunk_length must be >= 0, got {cfg.chunk_length}")
-        return super().load(name, cfg)
-
-    @classmethod
-    def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
-        return check_checkpoint(folder)
-
-    @classmethod
-    def fingerprint(cls, folder: Path) -> str:
-        return fingerprint(folder)
 
     def start(self) -> None:
         super().start()

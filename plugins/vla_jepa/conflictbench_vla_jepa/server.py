@@ -24,8 +24,8 @@ from typing import Protocol
 
 import numpy as np
 
-from conflictbench_serving.batching import Batcher, ServerStopping
-from conflictbench_serving.websocket import FatalRequest, WebsocketPolicyServer, serve_until_stopped
+from conflictbench_serving.batching import ServerStopping
+from conflictbench_serving.websocket import FatalRequest, WebsocketPolicyServer, batched, serve_until_stopped
 
 from .protocol import InvalidRequest, Row, packb, reply, request_rows, unpackb
 
@@ -42,9 +42,7 @@ class JepaPolicyServer(WebsocketPolicyServer):
     """Serves ``backend`` to any number of connections, one model call at a time, batching what waits."""
 
     def __init__(self, backend: Backend, max_batch: int = 8, fixed_shape: bool = True) -> None:
-        batcher = Batcher(backend.infer_batch, max_batch, fixed_shape, name="vla-jepa")
-        metadata = packb({**backend.metadata, "max_batch": max_batch, "fixed_shape": fixed_shape})
-        super().__init__(self._answer, metadata, batcher)
+        super().__init__(self._answer, *batched(backend, max_batch, fixed_shape, name="vla-jepa"))
 
     async def _answer(self, frame: bytes | str, session: dict) -> bytes:
         try:

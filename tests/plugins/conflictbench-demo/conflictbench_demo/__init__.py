@@ -1,14 +1,65 @@
 """A third-party plugin, written against the public API only (``from conflictbench import ...``).
 
 It registers a policy with settings, a metric, a prompt format for its policy and an action
-post-processor, exactly as an external model package would.
+post-processor, exactly as an external model package would. It was written against conflictbench 0.2: the block
+below imports every name 0.2 offered a plugin (``conflictbench.__all__`` then) and the places model plugins
+imported them from, several of which have moved since (``conflictbench.core.serving`` is now
+``conflictbench.hosting.client``): were one gone, this plugin would fail to load.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from conflictbench import EpisodeRecord, hookimpl
+from conflictbench import (  # noqa: F401  (0.2's public API, whole)
+    BUILTIN_PLUGINS,
+    P1_PREAMBLE,
+    ActionContext,
+    ConflictCase,
+    EpisodeRecord,
+    HostedConfig,
+    HostedPolicy,
+    HttpJsonTransport,
+    InfrastructureError,
+    Observation,
+    Pair,
+    PerEpisode,
+    PolicyClient,
+    PrivilegedState,
+    ServedPolicy,
+    ServerProcess,
+    ServerUnavailable,
+    ServingConfig,
+    Transport,
+    UserError,
+    __version__,
+    default_format_prompt,
+    free_port,
+    hookimpl,
+    model_environment,
+    plugins,
+    rng_for,
+    sampling_seed,
+)
+from conflictbench.core import (  # noqa: F401  (what 0.2's model plugins took from core)
+    DEFAULT_MAX_STEPS,
+    LIBERO_SUITES,
+    MODEL_PROCESS_ENV,
+    PolicyTraits,
+)
+from conflictbench.core import ServerProcess as _ServerProcess  # noqa: F401
+from conflictbench.core import free_port as _free_port  # noqa: F401
+from conflictbench.core import model_environment as _model_environment  # noqa: F401
+from conflictbench.core.hosting import HostedConfig as _HostedConfig  # noqa: F401
+from conflictbench.core.hosting import HostedPolicy as _HostedPolicy  # noqa: F401
+from conflictbench.core.launch import ServerProcess as _LaunchedServerProcess  # noqa: F401
+from conflictbench.core.sampling import sampling_seed as _sampling_seed  # noqa: F401
+from conflictbench.core.serving import PolicyClient as _PolicyClient  # noqa: F401
+from conflictbench.core.serving import ServedPolicy as _ServedPolicy  # noqa: F401
+from conflictbench.core.serving import ServingConfig as _ServingConfig  # noqa: F401
+from conflictbench.core.transport import HttpJsonTransport as _HttpJsonTransport  # noqa: F401
+from conflictbench.core.transport import Transport as _Transport  # noqa: F401
+from conflictbench.core.transport import one_line  # noqa: F401
 
 
 @dataclass

@@ -2,7 +2,7 @@
 
 A model plugin brings its own (openpi's websocket, GR00T's ZeroMQ); the one built in is HTTP POST
 with a JSON body, the shape of the OpenVLA family's REST ``POST /act`` servers. The client in
-:mod:`.serving` makes one transport per stream and owns retries and reconnection.
+:mod:`.client` makes one transport per stream and owns retries and reconnection.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InfrastructureError, UserError
+from ..core.errors import InfrastructureError, UserError
 
 
 class Transport(ABC):

@@ -63,8 +63,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .errors import InfrastructureError, PolicyError, ServerUnavailable, UserError
-from .records import Observation
+from ..core.errors import InfrastructureError, PolicyError, ServerUnavailable, UserError
+from ..core.records import Observation
 from .transport import HttpJsonTransport, Transport, one_line
 
 #: Threads that carry concurrent requests (created on demand; one per stream in flight).

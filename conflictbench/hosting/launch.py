@@ -30,7 +30,7 @@ import urllib.request
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-from .errors import ServerUnavailable, UserError
+from ..core.errors import ServerUnavailable, UserError
 
 #: Exit code by which a server says the user's input (its checkpoint, its options) is wrong.
 USER_ERROR_EXIT_CODE = 2

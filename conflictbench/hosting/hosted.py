@@ -1,16 +1,20 @@
 """A served policy that hosts its own model: ``model.checkpoint=DIR`` starts a server, ``model.server=URL`` uses one.
 
 Every model plugin whose model runs in a model environment (see the README's "Model plugins") shares this
-lifecycle; the plugin supplies its protocol and processing (a :class:`~.serving.ServedPolicy`'s ``encode``
+lifecycle; the plugin supplies its protocol and processing (a :class:`~.client.ServedPolicy`'s ``encode``
 and ``decode``) and a few declarations:
 
-- ``environment``: the model environment ``scripts/setup.sh --models NAME`` builds (its Python runs the
-  server), and ``server_module``: the module whose ``serve`` command hosts a checkpoint there
-  (``python -m MODULE serve --policy P --checkpoint DIR --host H --port N --device D --max-batch B``);
+- ``served``: the plugin's ``ServedModel`` (``conflictbench_serving.command``), declared once for both halves:
+  the model environment ``scripts/setup.sh --models NAME`` builds (its Python runs the server), the fast
+  check, without the model stack, that a folder holds the policy's checkpoint (its message a :class:`UserError`
+  here), and what ``conflictbench-serve POLICY`` hosts (``python -m conflictbench_serving POLICY --checkpoint DIR
+  --host H --port N --device D --max-batch B``, found through the plugin's ``conflictbench_serving`` entry point);
 - ``transport`` (the protocol's :class:`~.transport.Transport`) and ``url_scheme`` (``ws``, ``tcp``, ...);
-- ``inspect_checkpoint(name, folder)``: a fast check, without the model stack, that the folder holds this
-  policy's checkpoint (raise :class:`UserError`, or one of ``checkpoint_errors``, which :meth:`HostedPolicy.load`
-  reports as one), and ``fingerprint(folder)``: a digest of its content.
+- ``fingerprint(folder)``: a digest of the checkpoint's content;
+- ``HostedConfig.minimums``: the least value of each numeric setting (a plugin's config adds its own).
+
+A plugin written before ``served`` existed declares ``environment``, ``server_module`` (whose ``serve --policy``
+command hosts a checkpoint) and ``inspect_checkpoint`` instead; both ways work.
 
 What it owns, the same for every model:
 
@@ -37,10 +41,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-from .errors import ServerUnavailable, UserError
+from ..core.errors import ServerUnavailable, UserError
+from ..core.policy import DEFAULT_MAX_STEPS
+from .client import PolicyClient, ServedPolicy, ServingConfig
 from .launch import ServerProcess, free_port, model_environment
-from .policy import DEFAULT_MAX_STEPS
-from .serving import PolicyClient, ServedPolicy, ServingConfig
 from .transport import Transport
 
 #: Set for every model process unless the user set it: bfloat16 kernels beyond AVX512 kill some CPUs' VMs
@@ -62,6 +66,8 @@ class HostedConfig(ServingConfig):
         "device",
         "startup_timeout_s",
     )
+    #: The least value of each numeric setting; a plugin's config adds its own (``{**HostedConfig.minimums, ...}``).
+    minimums: ClassVar[Mapping[str, int]] = {"max_batch": 1, "max_steps": 0}
 
     checkpoint: str = ""
     """A local checkpoint folder (a server is started for it); with ``server``, the name of what that server
@@ -91,10 +97,12 @@ def _valid_device(device: str) -> bool:
 class HostedPolicy(ServedPolicy):
     """A :class:`ServedPolicy` that starts, checks and stops its own server. Build it with :meth:`load`."""
 
-    environment: ClassVar[str]
-    """The model environment's name (``scripts/setup.sh --models NAME``, ``.venv/models/NAME``)."""
-    server_module: ClassVar[str]
-    """``python -m server_module serve ...`` hosts a checkpoint in that environment."""
+    served: ClassVar[Any] = None
+    """The plugin's ``conflictbench_serving.command.ServedModel``: environment, checkpoint check, what hosts it."""
+    environment: ClassVar[str] = ""
+    """Without ``served``: the model environment's name (``scripts/setup.sh --models NAME``, ``.venv/models/NAME``)."""
+    server_module: ClassVar[str] = ""
+    """Without ``served``: ``python -m server_module serve --policy P ...`` hosts a checkpoint in that environment."""
     transport: ClassVar[Callable[[str], Transport]]
     url_scheme: ClassVar[str] = "ws"
     policy_types: ClassVar[Mapping[str, str]] = {}
@@ -123,8 +131,17 @@ class HostedPolicy(ServedPolicy):
     @classmethod
     def inspect_checkpoint(cls, name: str, folder: Path) -> Path:
         """``folder``, checked (without the model stack) to hold a checkpoint of policy ``name``; raise
-        :class:`UserError` (or one of ``checkpoint_errors``) saying what is wrong otherwise."""
-        raise NotImplementedError
+        :class:`UserError` (or one of ``checkpoint_errors``) saying what is wrong otherwise. By default the
+        check ``served`` declares, naming a policy as a run does (``model=NAME``)."""
+        if cls.served is None:
+            raise NotImplementedError
+        from conflictbench_serving.checkpoints import CheckpointError  # a plugin declaring `served` has it
+
+        try:
+            cls.served.check(folder, name, "model=")
+        except CheckpointError as exc:
+            raise UserError(str(exc)) from None
+        return folder
 
     @classmethod
     def fingerprint(cls, folder: Path) -> str:
@@ -145,10 +162,9 @@ class HostedPolicy(ServedPolicy):
     def load(cls, name: str, cfg: HostedConfig) -> HostedPolicy:
         """The policy for ``model=name``: connected to ``cfg.server``, or ready to start a server for
         ``cfg.checkpoint``. User mistakes raise :class:`UserError`."""
-        if cfg.max_steps < 0 or cfg.max_batch < 1:
-            raise UserError(
-                f"model.max_batch must be >= 1 and model.max_steps >= 0, got {cfg.max_batch} and {cfg.max_steps}"
-            )
+        for field, least in cfg.minimums.items():
+            if getattr(cfg, field) < least:
+                raise UserError(f"model.{field} must be >= {least}, got {getattr(cfg, field)}")
         if not _valid_device(cfg.device):
             raise UserError(f"model.device must be cpu, cuda, cuda:N or auto, got {cfg.device!r}")
         if cfg.server:
@@ -167,29 +183,47 @@ class HostedPolicy(ServedPolicy):
             checkpoint = cls.inspect_checkpoint(name, Path(cfg.checkpoint).expanduser()).resolve()
         except cls.checkpoint_errors as exc:
             raise UserError(str(exc)) from None
-        python = cls.model_python(cfg)  # a missing model environment is reported now, before the plan is played
+        python = cls.model_python(cfg, name)  # a missing model environment is reported now, before the plan is played
         return cls(name, cfg, checkpoint, python)
 
     @classmethod
-    def model_python(cls, cfg: HostedConfig) -> Path:
-        """The interpreter that runs the server: ``model.python``, or the model environment set-up made."""
-        python = Path(cfg.python).expanduser() if cfg.python else model_environment(cls.environment) / "bin" / "python"
-        setup = f"`scripts/setup.sh --models {cls.environment}`"
+    def model_environment_name(cls) -> str:
+        """The model environment's name (``scripts/setup.sh --models NAME``)."""
+        return cls.served.environment if cls.served is not None else cls.environment
+
+    def server_command(self) -> list[str]:
+        """What hosts this policy's checkpoint, after the interpreter: ``conflictbench-serve POLICY``'s module, or
+        a plugin's own ``server_module serve --policy POLICY``."""
+        if self.served is not None:
+            return ["-m", "conflictbench_serving", self.name]
+        return ["-m", self.server_module, "serve", "--policy", self.name]
+
+    @classmethod
+    def model_python(cls, cfg: HostedConfig, name: str = "") -> Path:
+        """The interpreter that runs the server: ``model.python``, or the model environment set-up made; checked
+        to host policy ``name`` (its plugin installed there)."""
+        environment = cls.model_environment_name()
+        python = Path(cfg.python).expanduser() if cfg.python else model_environment(environment) / "bin" / "python"
+        setup = f"`scripts/setup.sh --models {environment}`"
         if not python.exists():
             raise UserError(
                 f"no model environment at {python}: build it with {setup}, "
                 "or point model.python= at a Python with the plugin's server extra"
             )
-        probe = subprocess.run([str(python), "-c", f"import {cls.server_module}"], capture_output=True, text=True)
-        if probe.returncode != 0:
-            last = (probe.stderr.strip().splitlines() or ["?"])[-1]
-            raise UserError(f"{python} cannot run the {cls.environment} server ({last}): build it with {setup}")
+        if cls.served is not None:
+            probe = f"from conflictbench_serving.command import served_model; served_model({name!r})"
+        else:
+            probe = f"import {cls.server_module}"
+        done = subprocess.run([str(python), "-c", probe], capture_output=True, text=True)
+        if done.returncode != 0:
+            last = (done.stderr.strip().splitlines() or ["?"])[-1]
+            raise UserError(f"{python} cannot run the {environment} server ({last}): build it with {setup}")
         return python
 
     def start(self) -> None:
         if self.checkpoint is None or self.client is not None:
             return
-        self.server, url = self._start_server(self.python or self.model_python(self.cfg))
+        self.server, url = self._start_server(self.python or self.model_python(self.cfg, self.name))
         try:
             self.metadata = self._connect(dataclasses.replace(self.cfg, server=url))
         except BaseException:
@@ -202,13 +236,13 @@ class HostedPolicy(ServedPolicy):
     def _start_server(self, python: Path) -> tuple[ServerProcess, str]:
         port = free_port()
         url = f"{self.url_scheme}://127.0.0.1:{port}"
-        argv = [str(python), "-m", self.server_module, "serve", "--policy", self.name, "--checkpoint"]
-        argv += [str(self.checkpoint), "--host", "127.0.0.1", "--port", str(port), "--device", self.cfg.device]
+        argv = [str(python), *self.server_command(), "--checkpoint", str(self.checkpoint)]
+        argv += ["--host", "127.0.0.1", "--port", str(port), "--device", self.cfg.device]
         argv += ["--max-batch", str(self.cfg.max_batch)]
         env = {key: value for key, value in MODEL_PROCESS_ENV.items() if key not in os.environ}
         server = ServerProcess(
             argv,
-            name=self.environment,
+            name=self.model_environment_name(),
             health_url=f"http://127.0.0.1:{port}/healthz",
             ready=self.ready_check(url),
             env=env,

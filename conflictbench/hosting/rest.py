@@ -1,0 +1,74 @@
+"""``deploy.py``'s REST protocol, client side: HTTP ``POST /act`` with json-numpy bodies (OpenVLA, OpenVLA-OFT, UniVLA).
+
+The framing, from openvla/openvla's and moojink/openvla-oft's ``vla-scripts/deploy.py``: FastAPI, one route
+``POST /act``; ``json_numpy.patch()`` makes every JSON body json-numpy (an array is ``{"__numpy__": base64 of its
+C-order bytes, "dtype": "<f8", "shape": [7]}``); any failure in the handler answers the JSON string ``"error"``
+with HTTP 200 (its traceback stays in the server's log); a body FastAPI cannot read, HTTP 422. Our servers
+(``conflictbench_serving.rest``) add ``GET /metadata`` and ``GET /healthz``. What a request and a reply hold is
+the model's (its plugin's ``protocol``).
+
+Needs ``json-numpy`` (a plugin speaking it depends on it).
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import urllib.parse
+from typing import Any
+
+import json_numpy
+
+from ..core.errors import InfrastructureError
+from .transport import HttpJsonTransport
+
+ROUTE = "/act"
+METADATA_ROUTE = "/metadata"
+ERROR_REPLY = "error"
+
+
+class JsonNumpyTransport(HttpJsonTransport):
+    """HTTP POST of json-numpy bodies to ``/act`` (a URL without a path gets it); ``"error"`` replies raise.
+
+    On connecting it asks ``GET /metadata`` (beside ``/act``): our server says what it hosts there; upstream's
+    ``deploy.py`` has no such route (404), and ``metadata`` stays empty.
+    """
+
+    def __init__(self, url: str):
+        parts = urllib.parse.urlsplit(url)
+        if parts.path in ("", "/"):
+            parts = parts._replace(path=ROUTE)
+        super().__init__(urllib.parse.urlunsplit(parts))
+        self._metadata_path = parts.path.rsplit("/", 1)[0] + METADATA_ROUTE
+        self.metadata: dict[str, Any] = {}
+
+    def connect(self, timeout: float) -> None:
+        super().connect(timeout)
+        self.metadata = {}
+        try:
+            self._conn.request("GET", self._metadata_path)
+            response = self._conn.getresponse()
+            data = response.read()
+        except http.client.HTTPException as exc:
+            raise ConnectionError(f"{type(exc).__name__}: {exc}") from exc
+        if response.status == 200:
+            try:
+                metadata = json.loads(data)
+            except ValueError:
+                metadata = None
+            self.metadata = metadata if isinstance(metadata, dict) else {}
+
+    def dumps(self, request: Any) -> str:
+        return json_numpy.dumps(request)
+
+    def loads(self, text: bytes) -> Any:
+        try:
+            reply = json_numpy.loads(text)
+        except (KeyError, TypeError) as exc:  # a "__numpy__" object without dtype or shape, an unknown dtype
+            raise ValueError(f"a json-numpy array that cannot be read ({type(exc).__name__}: {exc})") from None
+        if isinstance(reply, str) and reply == ERROR_REPLY:
+            raise InfrastructureError(
+                f'{self.url} answered "error": the server caught an exception on this request (its log has the '
+                "traceback; deploy.py answers every failure so, e.g. an unnorm_key the checkpoint lacks)"
+            )
+        return reply

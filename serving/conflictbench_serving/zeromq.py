@@ -1,0 +1,171 @@
+"""NVIDIA Isaac-GR00T's ZeroMQ protocol, server side: its messages, and a batching server on a ROUTER socket.
+
+The facts, from Isaac-GR00T's ``gr00t/policy/server_client.py`` (``PolicyServer``, ``PolicyClient``,
+``MsgSerializer``):
+
+- one request, one reply, each a msgpack map; an array is the map ``{"__ndarray_class__": True, "as_npy": <the
+  bytes np.save writes, allow_pickle=False>}`` (dtype and shape travel inside the .npy header); arrays of object
+  dtype cannot be sent (:func:`packb`, :func:`unpackb`);
+- a request is ``{"endpoint": NAME, "data": {...}}`` (``data`` left out for endpoints without input), plus
+  ``"api_token"`` when the server wants one; endpoints ``ping``, ``get_action``, ``reset``,
+  ``get_modality_config``, ``kill``;
+- any failure answers ``{"error": message}`` (an unknown endpoint: ``"Unknown endpoint: NAME"``).
+
+NVIDIA's ``PolicyServer`` binds a REP socket and answers one request at a time. :class:`ZmqPolicyServer` binds a
+ROUTER socket, which the same REQ clients talk to unchanged, so requests of many clients (one per simulator
+worker) are read as they come; a subclass answers ``get_action`` (what an observation holds is the model's) and
+hands its rows to a :class:`~.batching.Batcher`. It answers ``ping``, ``reset`` and ``get_modality_config`` as
+NVIDIA's does, checks the API token, refuses ``kill`` (the process that started the server stops it) and adds
+``conflictbench_metadata`` (what is hosted), which NVIDIA's server answers with its unknown-endpoint error.
+The client half is ``conflictbench.hosting.zeromq``.
+
+Needs ``pyzmq`` (the ``zeromq`` extra). Imports neither conflictbench nor torch.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+import numpy as np
+import zmq
+import zmq.asyncio
+
+from .batching import Batcher, ServerStopping
+
+logger = logging.getLogger(__name__)
+
+GET_ACTION, PING, METADATA = "get_action", "ping", "conflictbench_metadata"
+ERROR = "error"
+
+_ARRAY_TAG = "__ndarray_class__"
+
+
+class InvalidRequest(ValueError):
+    """A request the protocol or the model cannot take; the message is sent back as the error."""
+
+
+def _encode(value: Any) -> Any:
+    if isinstance(value, np.generic):  # a numpy scalar travels as the plain number it is
+        return value.item()
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind == "O":
+            raise TypeError("arrays of object dtype cannot be sent")
+        buffer = io.BytesIO()
+        np.save(buffer, value, allow_pickle=False)
+        return {_ARRAY_TAG: True, "as_npy": buffer.getvalue()}
+    return value
+
+
+def _decode(obj: dict) -> Any:
+    if _ARRAY_TAG in obj:
+        return np.load(io.BytesIO(obj["as_npy"]), allow_pickle=False)
+    return obj
+
+
+def packb(obj: Any) -> bytes:
+    """``obj`` (maps, lists, strings, numbers, numpy arrays) as one message."""
+    return msgpack.packb(obj, default=_encode)
+
+
+def unpackb(data: bytes) -> Any:
+    """The value in one message (arrays come back as writable arrays)."""
+    return msgpack.unpackb(data, object_hook=_decode)
+
+
+def endpoint_request(endpoint: str, api_token: str | None = None) -> dict:
+    """A request for an endpoint without input (``ping``, ``conflictbench_metadata``)."""
+    return {"endpoint": endpoint, **({"api_token": api_token} if api_token else {})}
+
+
+class ZmqPolicyServer:
+    """Serves one model to any number of REQ clients over a ROUTER socket; subclasses answer ``get_action``."""
+
+    def __init__(self, batcher: Batcher, metadata: dict, api_token: str | None = None) -> None:
+        self.batcher = batcher
+        self.metadata = {**metadata, "max_batch": batcher.max_batch, "fixed_shape": batcher.fixed_shape}
+        self.api_token = api_token
+
+    async def get_action(self, data: dict) -> Any:
+        """The reply to a ``get_action`` request's ``data`` (raise :class:`InvalidRequest` for a malformed one)."""
+        raise NotImplementedError
+
+    async def answer(self, message: bytes) -> Any:
+        """The reply to one message (never raises for a client's mistake or a failed model call)."""
+        try:
+            request = unpackb(message)
+            if not isinstance(request, dict):
+                raise InvalidRequest(f"a request must be a map, got {type(request).__name__}")
+            if self.api_token is not None and request.get("api_token") != self.api_token:
+                return {ERROR: "Unauthorized: Invalid API token"}
+            endpoint, data = request.get("endpoint", GET_ACTION), request.get("data") or {}
+            if endpoint == PING:
+                return {"status": "ok", "message": "Server is running"}
+            if endpoint == METADATA:
+                return self.metadata
+            if endpoint in ("reset", "get_modality_config"):
+                return {}
+            if endpoint != GET_ACTION:
+                raise InvalidRequest(f"Unknown endpoint: {endpoint}")
+            if not isinstance(data, dict):
+                raise InvalidRequest(f"'data' must be a map, got {type(data).__name__}")
+            return await self.get_action(data)
+        except ServerStopping:
+            raise
+        except Exception as error:  # NVIDIA's server answers every failure as {"error": ...} and goes on
+            text = str(error) if isinstance(error, InvalidRequest) else f"{type(error).__name__}: {error}"
+            return {ERROR: text}
+
+    async def run(self, host: str, port: int, stop: asyncio.Event, on_ready: Callable[[str, int], None] | None = None):
+        """Serve on ``tcp://host:port`` (``port`` 0: any free one) until ``stop`` is set."""
+        context = zmq.asyncio.Context()
+        socket = context.socket(zmq.ROUTER)
+        socket.setsockopt(zmq.LINGER, 0)
+        batcher = asyncio.create_task(self.batcher.run(), name="batcher")
+        handlers: set[asyncio.Task] = set()
+        try:
+            try:
+                if port == 0:
+                    port = socket.bind_to_random_port(f"tcp://{host}")
+                else:
+                    socket.bind(f"tcp://{host}:{port}")
+            except zmq.ZMQError as error:  # the serve command reports an OSError as "cannot listen on ..."
+                raise OSError(error.errno, error.strerror) from None
+            if on_ready is not None:
+                on_ready(host, port)
+            receiving = asyncio.ensure_future(socket.recv_multipart())
+            stopping = asyncio.ensure_future(stop.wait())
+            while True:
+                await asyncio.wait({receiving, stopping}, return_when=asyncio.FIRST_COMPLETED)
+                if stopping.done():
+                    receiving.cancel()
+                    break
+                frames = receiving.result()
+                receiving = asyncio.ensure_future(socket.recv_multipart())
+                handler = asyncio.create_task(self._reply(socket, frames))
+                handlers.add(handler)
+                handler.add_done_callback(handlers.discard)
+        finally:
+            batcher.cancel()
+            await asyncio.gather(batcher, *handlers, return_exceptions=True)
+            self.batcher.shutdown()
+            socket.close()
+            context.term()
+
+    async def _reply(self, socket: zmq.asyncio.Socket, frames: list[bytes]) -> None:
+        *envelope, message = frames  # a REQ client's identity and empty delimiter, then its message
+        try:
+            reply = packb(await self.answer(message))
+        except ServerStopping:
+            return
+        except Exception as error:  # a reply that cannot be built is still an answer: the client must not wait
+            logger.error("cannot answer a request: %s", error)
+            reply = packb({ERROR: f"{type(error).__name__}: {error}"})
+        try:
+            await socket.send_multipart([*envelope, reply])
+        except zmq.ZMQError as error:  # the socket is closing: the client reconnects and asks again
+            logger.warning("cannot send a reply: %s", error)

@@ -1,0 +1,68 @@
+"""The public API a plugin is written against: every name stays where plugins found it, and the layers stay apart
+(``conflictbench.core`` the contract, ``conflictbench.hosting`` the client above it)."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+from testing_support import DEMO_PLUGIN
+
+import conflictbench
+import conflictbench.hosting
+
+#: ``conflictbench.__all__`` in 0.2, the names an outside plugin may have been written against.
+V0_2_PUBLIC_API = (
+    "ActionContext", "ConflictCase", "EpisodeRecord", "Observation", "Pair", "PrivilegedState", "hookimpl",
+    "P1_PREAMBLE", "default_format_prompt", "PerEpisode", "rng_for", "sampling_seed", "HttpJsonTransport",
+    "InfrastructureError", "PolicyClient", "ServedPolicy", "HostedConfig", "HostedPolicy", "ServerUnavailable",
+    "ServingConfig", "Transport", "UserError", "ServerProcess", "free_port", "model_environment",
+    "BUILTIN_PLUGINS", "plugins", "__version__",
+)  # fmt: skip
+#: ``conflictbench.core``'s modules moved to the client layer in 0.3, by their new names.
+MOVED_MODULES = {"serving": "client", "transport": "transport", "hosting": "hosted", "launch": "launch"}
+
+
+def test_every_name_of_0_2_is_still_public_and_every_public_name_exists():
+    assert set(V0_2_PUBLIC_API) <= set(conflictbench.__all__)
+    assert [name for name in conflictbench.__all__ if not hasattr(conflictbench, name)] == []
+    assert [name for name in conflictbench.hosting.__all__ if not hasattr(conflictbench.hosting, name)] == []
+
+
+def test_an_outside_plugin_written_against_0_2_imports_from_the_old_places():
+    """The demo plugin imports the whole of 0.2's API and the moved names from ``conflictbench.core`` and its
+    modules, as 0.2's model plugins did; in a fresh interpreter, so nothing imported before helps it."""
+    probe = (
+        "import conflictbench_demo, conflictbench, conflictbench.core as core, conflictbench.hosting as hosting, sys\n"
+        "assert core.HostedPolicy is hosting.HostedPolicy and core.ServerProcess is hosting.ServerProcess\n"
+        f"for old, new in {MOVED_MODULES!r}.items():\n"
+        "    assert sys.modules['conflictbench.core.' + old] is sys.modules['conflictbench.hosting.' + new], old\n"
+        "    assert getattr(core, old) is sys.modules['conflictbench.hosting.' + new], old\n"
+        "print('ok')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=DEMO_PLUGIN)
+    assert done.returncode == 0 and done.stdout == "ok\n", done.stderr[-2000:]
+
+
+def test_the_client_layer_imports_only_core_of_ours_and_nothing_heavy():
+    """``conflictbench.hosting`` sits on core alone (no simulator, store or runner), so a plugin's client pulls in
+    no more than it needs; its protocol modules import their wire library and ``conflictbench_serving`` only."""
+    hosting = Path(conflictbench.hosting.__file__).parent
+    for path in hosting.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 2:  # from ..core.x import; from .. import core
+                names = [node.module] if node.module else [alias.name for alias in node.names]
+                assert all(name.split(".")[0] == "core" for name in names), f"{path.name} imports ..{names}"
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                top = node.module.split(".")[0]
+                assert top not in {"libero", "robosuite", "mujoco", "torch", "pandas", "hydra"}, path.name
+                assert not node.module.startswith("conflictbench.") or node.module.startswith("conflictbench.core")
+    done = subprocess.run(
+        [sys.executable, "-c", "import sys, conflictbench.hosting; "
+         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'libero', 'mujoco', 'pandas', 'hydra')"
+         " or m.startswith(('conflictbench.sim', 'conflictbench.store', 'conflictbench.cli'))))"],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    assert done.stdout.strip() == "[]"
