@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from groot_model_env import TESTS, model_env, needs_model_env, run_in_model_env
+from groot_model_env import GR00T, TESTS, model_env, needs_model_env, run_in_model_env
 
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import camera_observation, episode_counts, run_cli
@@ -19,8 +19,7 @@ from conflictbench_gr00t.client import Gr00tConfig, load
 
 @needs_model_env
 def test_served_actions_are_lerobots_own_sampling_and_processing(tiny_groot_checkpoint, tmp_path, monkeypatch):
-    for key, value in model_env(tiny_groot_checkpoint).items():
-        monkeypatch.setenv(key, value)
+    GR00T.use(monkeypatch, tiny_groot_checkpoint)
     policy = load("gr00t", Gr00tConfig(checkpoint=str(tiny_groot_checkpoint), max_batch=2, device="cpu"))
     try:
         policy.start()
@@ -51,6 +50,7 @@ def test_served_actions_are_lerobots_own_sampling_and_processing(tiny_groot_chec
     assert not np.allclose(served[0], served[1])
 
 
+@pytest.mark.e2e
 @needs_model_env
 @pytest.mark.sim
 def test_a_run_with_a_checkpoint_starts_the_server_and_plays_real_episodes(tiny_groot_checkpoint, tmp_path: Path):

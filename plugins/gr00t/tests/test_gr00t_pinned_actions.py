@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from groot_model_env import model_env, needs_model_env
+from groot_model_env import GR00T, needs_model_env
 
 from conflictbench.testing import check_pinned_actions
 from conflictbench_gr00t.checkpoints import fingerprint
@@ -16,8 +16,7 @@ GOLDEN = Path(__file__).parent / "golden"
 
 @needs_model_env
 def test_the_tiny_checkpoint_plays_its_pinned_actions(tiny_groot_checkpoint, monkeypatch):
-    for key, value in model_env(tiny_groot_checkpoint).items():
-        monkeypatch.setenv(key, value)
+    GR00T.use(monkeypatch, tiny_groot_checkpoint)
     policy = load("gr00t", Gr00tConfig(checkpoint=str(tiny_groot_checkpoint), device="cpu", max_batch=1))
     try:
         policy.start()

@@ -12,14 +12,15 @@ from pathlib import Path
 import json_numpy
 import numpy as np
 import pytest
-from openvla_model_env import TESTS, model_env, needs_model_env, run_in_model_env, start_server
+from openvla_model_env import OPENVLA, TESTS, model_env, needs_model_env, run_in_model_env, start_server
 
 from conflictbench import InfrastructureError, UserError
+from conflictbench.hosting.openvla_family import env_gripper, unnormalize
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import camera_observation, episode_counts, run_cli
 from conflictbench_openvla.checkpoints import fingerprint
 from conflictbench_openvla.client import OftConfig, OpenVlaConfig, load
-from conflictbench_openvla.processing import detokenize, env_gripper, unnormalize
+from conflictbench_openvla.processing import detokenize
 
 
 def direct(checkpoint: Path, requests: list[dict], tmp_path: Path) -> dict[str, np.ndarray]:
@@ -32,8 +33,7 @@ def direct(checkpoint: Path, requests: list[dict], tmp_path: Path) -> dict[str, 
 
 @needs_model_env
 def test_served_actions_are_the_checkpoints_own_predict_action(tiny_checkpoint, tmp_path, monkeypatch):
-    for key, value in model_env(tiny_checkpoint).items():
-        monkeypatch.setenv(key, value)
+    OPENVLA.use(monkeypatch, tiny_checkpoint)
     policy = load("openvla", OpenVlaConfig(checkpoint=str(tiny_checkpoint), device="cpu"))
     try:
         policy.start()
@@ -58,8 +58,7 @@ def test_served_actions_are_the_checkpoints_own_predict_action(tiny_checkpoint, 
 
 @needs_model_env
 def test_a_key_the_checkpoint_lacks_fails_that_request_naming_the_keys_it_has(tiny_checkpoint, monkeypatch):
-    for key, value in model_env(tiny_checkpoint).items():
-        monkeypatch.setenv(key, value)
+    OPENVLA.use(monkeypatch, tiny_checkpoint)
     policy = load("openvla", OpenVlaConfig(checkpoint=str(tiny_checkpoint), device="cpu", unnorm_key="suite_no_noops"))
     try:
         policy.start()
@@ -101,6 +100,7 @@ def test_a_double_encoded_request_is_answered_double_encoded_as_deploy_py_does(t
         server.stop()
 
 
+@pytest.mark.e2e
 @needs_model_env
 def test_model_checkpoint_dir_plays_real_episodes(tiny_checkpoint, tmp_path):
     out = run_cli(tmp_path, "model=openvla", f"model.checkpoint={tiny_checkpoint}", "model.device=cpu",

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from deploy_standin import start_standin
-from openvla_model_env import model_env, needs_model_env
+from openvla_model_env import OPENVLA, needs_model_env
 
 from conflictbench.testing import check_pinned_actions
 from conflictbench_openvla.checkpoints import fingerprint
@@ -18,8 +18,7 @@ GOLDEN = Path(__file__).parent / "golden"
 
 @needs_model_env
 def test_the_tiny_openvla_checkpoint_plays_its_pinned_actions(tiny_checkpoint, monkeypatch):
-    for key, value in model_env(tiny_checkpoint).items():
-        monkeypatch.setenv(key, value)
+    OPENVLA.use(monkeypatch, tiny_checkpoint)
     policy = load("openvla", OpenVlaConfig(checkpoint=str(tiny_checkpoint), device="cpu", max_batch=1))
     try:
         policy.start()

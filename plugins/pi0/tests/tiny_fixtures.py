@@ -10,28 +10,24 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import time
 from collections.abc import Mapping
 from pathlib import Path
 
 import pytest
 
+from conflictbench.testing import BASE_ENV, ModelEnvironment
+
 PLUGIN_ROOT = Path(__file__).resolve().parents[1]
 TINY_DIR = Path(__file__).resolve().parent / "tiny"
 PATCHES = TINY_DIR / "patches"
-MODEL_PYTHON = Path(sys.prefix) / "models" / "pi0" / "bin" / "python"
+PI0 = ModelEnvironment("pi0", Path(__file__).resolve().parent)
+MODEL_PYTHON = PI0.python
 TINY_POLICIES = ("pi0", "pi05", "pi0-fast")
 #: A build imports torch and LeRobot (~10 s alone); three at once on a busy 2-core machine take longer.
 BUILD_TIMEOUT_S = 600
 
-model_env_missing = not MODEL_PYTHON.exists()
-MODEL_ENV_REASON = f"no pi0 model environment at {MODEL_PYTHON} (scripts/setup.sh --models pi0)"
-
-
-def needs_model_env(test):
-    """Marks a test that runs model-environment processes, and skips it where that environment is missing."""
-    return pytest.mark.model_env(pytest.mark.skipif(model_env_missing, reason=MODEL_ENV_REASON)(test))
+model_env_missing, MODEL_ENV_REASON, needs_model_env = PI0.missing, PI0.reason, PI0.needs
 
 
 #: Seconds the last session's tiny builds took (all three, in parallel), for reports.
@@ -71,13 +67,9 @@ def tiny_env(tmp_path_factory) -> dict[str, str]:
     if model_env_missing:
         pytest.skip(MODEL_ENV_REASON)
     return {
+        **BASE_ENV,  # offline, the bfloat16 guard, one CPU thread
         "PYTHONPATH": os.pathsep.join([str(PATCHES), str(PLUGIN_ROOT)]),
         "HF_HOME": str(tmp_path_factory.mktemp("tiny-hf-home")),
-        "HF_HUB_OFFLINE": "1",
-        "ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16",  # any bfloat16 matmul on these CPUs dies with SIGILL
-        "OMP_NUM_THREADS": "1",
-        "MKL_NUM_THREADS": "1",
-        "TOKENIZERS_PARALLELISM": "false",
     }
 
 

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from univla_model_env import TESTS, model_env, needs_model_env, run_in_model_env
+from univla_model_env import TESTS, UNIVLA, model_env, needs_model_env, run_in_model_env
 
 from conflictbench import UserError
+from conflictbench.hosting.openvla_family import env_gripper, unnormalize
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import camera_observation, episode_counts, run_cli
-from conflictbench_openvla.processing import env_gripper, unnormalize
 from conflictbench_univla.checkpoints import fingerprint
 from conflictbench_univla.client import UnivlaConfig, load
 from conflictbench_univla.processing import TemporalEnsemble, history_text, prompt
@@ -35,8 +35,7 @@ def direct(checkpoint: Path, requests: list[dict], tmp_path: Path) -> dict[str, 
 def test_each_query_is_the_checkpoints_own_seeded_sample_and_the_loop_is_univlas(
     tiny_checkpoint, tmp_path, monkeypatch
 ):
-    for key, value in model_env().items():
-        monkeypatch.setenv(key, value)
+    UNIVLA.use(monkeypatch)
     policy = load("univla", UnivlaConfig(checkpoint=str(tiny_checkpoint), device="cpu"))
     observations = [camera_observation(step, "Put the bowl on the plate") for step in range(4)]
     try:
@@ -61,6 +60,7 @@ def test_each_query_is_the_checkpoints_own_seeded_sample_and_the_loop_is_univlas
     assert len({tuple(row) for row in np.array(served)[:, :3]}) == len(served)
 
 
+@pytest.mark.e2e
 @needs_model_env
 def test_model_checkpoint_dir_plays_real_episodes(tiny_checkpoint, tmp_path):
     out = run_cli(tmp_path, "model=univla", f"model.checkpoint={tiny_checkpoint}", "model.device=cpu",

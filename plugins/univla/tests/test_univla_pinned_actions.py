@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from univla_model_env import model_env, needs_model_env
+from univla_model_env import UNIVLA, needs_model_env
 
 from conflictbench.testing import check_pinned_actions
 from conflictbench_univla.checkpoints import fingerprint
@@ -17,8 +17,7 @@ GOLDEN = Path(__file__).parent / "golden"
 
 @needs_model_env
 def test_the_tiny_checkpoint_plays_its_pinned_actions(tiny_checkpoint, monkeypatch):
-    for key, value in model_env().items():
-        monkeypatch.setenv(key, value)
+    UNIVLA.use(monkeypatch)
     policy = load("univla", UnivlaConfig(checkpoint=str(tiny_checkpoint), device="cpu", max_batch=1))
     try:
         policy.start()

@@ -1,51 +1,13 @@
-"""The VLA-JEPA model environment in tests: a tiny random-weight checkpoint built once per session, and the
-environment its processes need (the checkpoint's own hub cache for its tiny backbone, offline, the bfloat16
-guard, one CPU thread). Tests that use them skip where the environment is missing."""
+"""The VLA-JEPA model environment in tests: a tiny random-weight checkpoint built once per session (its tiny
+backbone's hub id resolves in the checkpoint's own hub cache, which every process loading it gets)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
-import pytest
+from conflictbench.testing import ModelEnvironment
 
 TESTS = Path(__file__).resolve().parent
-MODEL_PYTHON = Path(sys.prefix) / "models" / "vla_jepa" / "bin" / "python"
-REASON = f"no vla_jepa model environment at {MODEL_PYTHON} (scripts/setup.sh --models vla_jepa)"
-
-
-def needs_model_env(test):
-    """Marks a test that runs model-environment processes, and skips it where that environment is missing."""
-    return pytest.mark.model_env(pytest.mark.skipif(not MODEL_PYTHON.exists(), reason=REASON)(test))
-
-
-def model_env(checkpoint: Path) -> dict[str, str]:
-    """os.environ plus what a process loading ``checkpoint`` needs."""
-    return {
-        **os.environ,
-        "HF_HUB_CACHE": str(checkpoint / "hub"),  # the tiny backbone's hub id resolves there (tiny_jepa.py)
-        "HF_HUB_OFFLINE": "1",
-        "ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16",  # LeRobot runs the backbone under CPU bfloat16 autocast
-        "OMP_NUM_THREADS": "1",
-        "TOKENIZERS_PARALLELISM": "false",
-        "PYTHONPATH": str(TESTS),
-    }
-
-
-def run_in_model_env(argv: list[str], checkpoint: Path, timeout: float = 600) -> str:
-    done = subprocess.run([str(MODEL_PYTHON), *argv], env=model_env(checkpoint), capture_output=True, text=True,
-                          timeout=timeout)  # fmt: skip
-    if done.returncode != 0:
-        pytest.fail(f"{argv[0]} exited {done.returncode}:\n{done.stderr[-3000:]}", pytrace=False)
-    return done.stdout
-
-
-@pytest.fixture(scope="session")
-def tiny_checkpoint(tmp_path_factory) -> Path:
-    if not MODEL_PYTHON.exists():
-        pytest.skip(REASON)
-    folder = tmp_path_factory.mktemp("tiny-vla-jepa") / "checkpoint"
-    run_in_model_env([str(TESTS / "tiny_jepa.py"), str(folder)], folder)
-    return folder
+VLA_JEPA = ModelEnvironment("vla_jepa", TESTS, extra=lambda checkpoint: {"HF_HUB_CACHE": str(checkpoint / "hub")})
+needs_model_env, model_env, run_in_model_env, MODEL_PYTHON = VLA_JEPA.needs, VLA_JEPA.env, VLA_JEPA.run, VLA_JEPA.python
+tiny_checkpoint = VLA_JEPA.checkpoint_fixture("tiny_jepa.py")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from jepa_model_env import TESTS, model_env, needs_model_env, run_in_model_env
+from jepa_model_env import TESTS, VLA_JEPA, model_env, needs_model_env, run_in_model_env
 
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import camera_observation, episode_counts, run_cli
@@ -36,8 +36,7 @@ def direct(checkpoint: Path, payloads: list[dict], tmp_path: Path) -> dict[str, 
 
 @needs_model_env
 def test_served_actions_are_lerobots_own_sampling_and_postprocessing(tiny_checkpoint, tmp_path, monkeypatch):
-    for key, value in model_env(tiny_checkpoint).items():
-        monkeypatch.setenv(key, value)
+    VLA_JEPA.use(monkeypatch, tiny_checkpoint)
     policy = load("vla-jepa", VlaJepaConfig(checkpoint=str(tiny_checkpoint), max_batch=MAX_BATCH, device="cpu"))
     try:
         policy.start()
@@ -61,6 +60,7 @@ def test_served_actions_are_lerobots_own_sampling_and_postprocessing(tiny_checkp
     assert not np.allclose(served[0], served[1])
 
 
+@pytest.mark.e2e
 @needs_model_env
 @pytest.mark.sim
 def test_a_run_with_a_checkpoint_starts_the_server_and_plays_real_episodes(tiny_checkpoint, tmp_path):

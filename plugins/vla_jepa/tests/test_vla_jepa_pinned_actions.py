@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jepa_model_env import model_env, needs_model_env
+from jepa_model_env import VLA_JEPA, needs_model_env
 
 from conflictbench.testing import check_pinned_actions
 from conflictbench_vla_jepa.checkpoints import fingerprint
@@ -16,8 +16,7 @@ GOLDEN = Path(__file__).parent / "golden"
 
 @needs_model_env
 def test_the_tiny_checkpoint_plays_its_pinned_actions(tiny_checkpoint, monkeypatch):
-    for key, value in model_env(tiny_checkpoint).items():
-        monkeypatch.setenv(key, value)
+    VLA_JEPA.use(monkeypatch, tiny_checkpoint)
     policy = load("vla-jepa", VlaJepaConfig(checkpoint=str(tiny_checkpoint), device="cpu", max_batch=1))
     try:
         policy.start()

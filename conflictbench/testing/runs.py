@@ -1,17 +1,6 @@
-"""Helpers for a model plugin's own tests: real runs of the ``conflictbench`` command on a small selection.
+"""Real runs of the ``conflictbench`` command on a small selection (:data:`ONE_CASE`), and stand-in servers.
 
-The selection (:data:`ONE_CASE`) is one physical-feasibility L1 case of libero_spatial and its reference
-episode, at the first initial state: two real LIBERO episodes, about half a minute each on a CPU. ::
-
-    from conflictbench.testing import episode_counts, planned_conflict_instruction, run_cli
-
-    out = run_cli(tmp_path, "model=mymodel", "model.server=...", "model.max_steps=16")
-    assert out.returncode == 0 and episode_counts(out.stderr) == (2, 0, 0)
-
-and two checks every served model's plugin can run against its own servers:
-:func:`check_failed_episode_is_replayed` and :func:`check_killed_server_run_resumes`.
-
-Needs the simulator (the ``sim`` extra); mark such tests ``@pytest.mark.sim``.
+Needs the simulator (the ``sim`` extra) but for :func:`start_script_server`; mark such tests ``sim`` and ``e2e``.
 """
 
 from __future__ import annotations
@@ -59,9 +48,9 @@ def episode_counts(stderr: str) -> tuple[int, int, int]:
 
 def planned_conflict_instruction() -> str:
     """The conflict instruction :data:`ONE_CASE` plays (a server can be told to fail on exactly that episode)."""
-    from .sim.plan import build_plan
-    from .tasks.libero.base_tasks import all_base_tasks
-    from .tasks.suite.file import load_suite
+    from ..sim.plan import build_plan
+    from ..tasks.libero.base_tasks import all_base_tasks
+    from ..tasks.suite.file import load_suite
 
     tasks = {t.key: t.language for t in all_base_tasks(("libero_spatial",))}
     plan = build_plan(
@@ -88,8 +77,8 @@ def check_failed_episode_is_replayed(
     """A server failing on the one-case run's conflict episode (``start_failing``, e.g. told to fail on
     :func:`planned_conflict_instruction`): that episode is stored as an infrastructure failure naming
     ``error_text``, left out and listed for replay; the same command against ``start_healthy`` plays it again."""
-    from .core import INFRASTRUCTURE_ERROR_PREFIX
-    from .store import EpisodeStore
+    from ..core import INFRASTRUCTURE_ERROR_PREFIX
+    from ..store import EpisodeStore
 
     server, url = start_failing()
     try:
@@ -118,7 +107,7 @@ def check_killed_server_run_resumes(tmp_path: Path, start: StartServer, run: Run
     plays exactly the rest, leaving the stored episodes as they were."""
     import numpy as np
 
-    from .store import EpisodeStore
+    from ..store import EpisodeStore
 
     settings = ["run.init_states=2", "run.workers=1", "model.connect_retries=1", "model.backoff_s=0.2"]
     episodes = tmp_path / "results" / "episodes"
@@ -154,32 +143,12 @@ def check_killed_server_run_resumes(tmp_path: Path, start: StartServer, run: Run
     assert len(after) == 4 and all(np.array_equal(after[e], stored[e]) for e in stored)
 
 
-def camera_observation(
-    step: int = 0, instruction: str = "put the bowl on the plate", stream: int = 0, suite: str = "libero_goal"
-):
-    """An observation as a worker sends it to a policy that looks: two random 256-px renders (fixed by ``step``),
-    a plausible 8-D state whose gripper fingers differ, episode ``episode-{stream}`` of ``suite`` on stream
-    ``stream``."""
-    import numpy as np
-
-    from .core import Observation
-
-    rng = np.random.default_rng(step)
-    state = np.array([0.1, 0.2, 1.0, 3.1, 0.1, -0.2, 0.04, -0.03])
-    return Observation(
-        step=step, instruction=instruction, eef_pos=state[:3], eef_quat=np.array([0, 0, 0, 1.0]),
-        gripper_qpos=state[6:], state=state, stream=stream, episode_id=f"episode-{stream}", suite=suite,
-        agentview_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
-        wrist_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
-    )  # fmt: skip
-
-
 def start_script_server(script: Path, *args: str, scheme: str, log_dir: Path, name: str | None = None):
     """``python script PORT *args`` (a test's stand-in of an upstream server) on a free port, started once it
     accepts connections; ``(server, "scheme://127.0.0.1:PORT")``. Stop it with ``server.stop()``."""
     import socket
 
-    from .core import ServerProcess, free_port
+    from ..hosting import ServerProcess, free_port
 
     port = free_port()
 
@@ -197,7 +166,7 @@ def start_script_server(script: Path, *args: str, scheme: str, log_dir: Path, na
 def shipped_cases_file(path: Path, picks: Iterable[tuple[str, int, str, str]]) -> Path:
     """A small suite file for a test run: for each ``(libero suite, task id, family, level)`` the first such
     case of the shipped suite (valid by construction: a run refuses a file whose cases break the rules)."""
-    from .tasks.suite.file import case_line, load_suite
+    from ..tasks.suite.file import case_line, load_suite
 
     cases = load_suite().cases
     lines = []
@@ -206,37 +175,3 @@ def shipped_cases_file(path: Path, picks: Iterable[tuple[str, int, str, str]]) -
         lines.append(case_line(found) + "\n")
     path.write_text("".join(lines))
     return path
-
-
-#: Set to 1 to (re)write the golden files :func:`check_pinned_actions` compares with.
-RECORD_PINNED_ACTIONS = "CONFLICTBENCH_RECORD_ACTIONS"
-
-
-def pinned_observations(steps: int = 6) -> list:
-    """Two episodes of ``steps`` steps on streams 0 and 1 (other instructions, other sampling seeds), step by
-    step in turn, as two workers would send them: the fixed input :func:`check_pinned_actions` plays."""
-    texts = ("put the bowl on the plate", "open the top drawer and put the bowl inside")
-    return [camera_observation(step, texts[stream], stream=stream) for step in range(steps) for stream in (0, 1)]
-
-
-def check_pinned_actions(policy, golden: Path, fingerprint: str = "") -> None:
-    """Play :func:`pinned_observations` through ``policy`` (started; one ``act`` at a time, so no batch shape or
-    arrival order enters) and compare every action bit for bit with the file ``golden``. ``fingerprint`` names
-    what the actions come from (a tiny checkpoint's digest): a different one there means the fixture changed,
-    not the code. With ``CONFLICTBENCH_RECORD_ACTIONS=1`` in the environment the file is written instead."""
-    import os
-
-    import numpy as np
-
-    actions = [np.asarray(policy.act(observation)) for observation in pinned_observations()]
-    if os.environ.get(RECORD_PINNED_ACTIONS) == "1":
-        golden.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(golden, fingerprint=np.array(fingerprint), **{f"action{i}": a for i, a in enumerate(actions)})
-        return
-    pinned = np.load(golden)
-    assert str(pinned["fingerprint"]) == fingerprint, f"the fixture behind {golden.name} changed: re-record it"
-    assert len(pinned.files) - 1 == len(actions)
-    for i, action in enumerate(actions):
-        expected = pinned[f"action{i}"]
-        assert action.dtype == expected.dtype and action.shape == expected.shape, (i, action.shape, expected.shape)
-        assert action.tobytes() == expected.tobytes(), f"action {i} differs from {golden.name}:\n{action}\n{expected}"
