@@ -156,11 +156,12 @@ class PolicyServer:
         with urlopen(f"http://127.0.0.1:{self.port}/stats", timeout=5) as response:
             return json.loads(response.read())
 
-    def stop(self) -> None:
+    def stop(self, grace_s: float = 5.0) -> None:
+        """SIGTERM, then SIGKILL after ``grace_s`` (0: SIGKILL at once, a crash)."""
         if self.process.poll() is None:
-            self.process.terminate()
+            self.process.terminate() if grace_s > 0 else self.process.kill()
             try:
-                self.process.wait(timeout=5)
+                self.process.wait(timeout=max(grace_s, 1))
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()

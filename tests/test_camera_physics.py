@@ -24,7 +24,7 @@ from testing_support import reference_spec
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, Plugins
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # whole episodes with cameras against the native clients' path
 OBJECT_TASK = ("libero_object", 1, 4)  # the episode the defect was filed on (issue #11, defect 10)
 
 

@@ -10,7 +10,7 @@ import pytest
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import run_cli
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.cluster]  # sweeps through the submitit and Ray launchers
 pytest.importorskip("hydra_plugins.hydra_submitit_launcher", reason="the cluster extra: pip install -e '.[cluster]'")
 
 

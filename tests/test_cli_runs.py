@@ -77,6 +77,7 @@ def test_a_pip_installed_plugin_runs_end_to_end_and_its_metric_is_reported(cli, 
     assert np.isclose(np.abs(conflict.raw_actions[:, 0]).max(), 0.8, atol=0.05)  # model.amplitude reached it
 
 
+@pytest.mark.e2e
 def test_a_sweep_shares_one_store_and_never_replays_a_reference(cli, tmp_path, suite_file):
     out = cli("-m", "model=demo-wave", "suite=spatial,physical", "level=L3", f"suite.file={suite_file}")
     assert out.returncode == 0, out.stderr[-3000:]
@@ -106,6 +107,7 @@ def _start(cli_args, cwd: Path, demo_site: Path) -> subprocess.Popen:
     )
 
 
+@pytest.mark.e2e
 def test_sigkill_loses_no_finished_episode_and_the_rerun_duplicates_none(cli, tmp_path, demo_plugin_site, suite_file):
     store = EpisodeStore(tmp_path / "results")
     proc = _start(small_run(suite_file), tmp_path, demo_plugin_site)
@@ -130,6 +132,7 @@ def test_sigkill_loses_no_finished_episode_and_the_rerun_duplicates_none(cli, tm
     assert not list((tmp_path / "results" / "claims").glob("*.claim"))
 
 
+@pytest.mark.e2e
 def test_two_jobs_on_one_store_play_every_episode_exactly_once(tmp_path, demo_plugin_site, suite_file):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()

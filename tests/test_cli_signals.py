@@ -14,6 +14,7 @@ import pytest
 pytestmark = pytest.mark.sim
 
 
+@pytest.mark.e2e
 def test_sigterm_ends_a_run_cleanly_and_the_same_command_resumes(tmp_path):
     args = [sys.executable, "-m", "conflictbench.cli", "model=noop", "suite=physical", "level=L1",
             "run.init_states=2", "run.libero_suites=[libero_spatial]", "run.workers=1", "run.progress=false",

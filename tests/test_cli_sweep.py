@@ -6,7 +6,7 @@ import pytest
 
 from conflictbench.testing import run_cli
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # sweeps of real episodes through the command
 
 
 def test_a_sweep_reports_its_jobs_apart_and_then_together(tmp_path):

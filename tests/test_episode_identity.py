@@ -14,7 +14,7 @@ from conflictbench.core import Plugins
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real runs with two versions of a plugin
 
 
 def install_demo(version: str, target: Path) -> Path:

@@ -10,7 +10,7 @@ import conflictbench
 from conflictbench import hookimpl
 from conflictbench.core.plugins import Plugins
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # runs played twice
 SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
 
 

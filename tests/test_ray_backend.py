@@ -25,7 +25,7 @@ from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import episode_counts, run_cli
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.cluster]  # Ray actors on this machine
 if not os.environ.get("CI"):  # CI installs the cluster extra: there a missing Ray fails
     pytest.importorskip("ray", reason="the cluster extra: pip install -e '.[cluster]'")
 

@@ -17,7 +17,7 @@ from conflictbench.core import LIBERO_SUITES, Plugins
 from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # runs with one and two workers
 
 BATCHED = {"on": False}
 """Whether the next Sampler built exposes act_batch (a switch outside its config, which is part of

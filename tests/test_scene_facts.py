@@ -147,6 +147,7 @@ def test_missing_facts_file_says_how_to_build_it(tmp_path):
 SAMPLE = [(("libero_spatial", 4), (0, 17, 49)), (("libero_10", 6), (3, 30))]
 
 
+@pytest.mark.e2e
 @pytest.mark.sim
 @pytest.mark.parametrize("key,states", SAMPLE, ids=[f"{k[0]}-{k[1]}" for k, _ in SAMPLE])
 def test_a_sample_of_shipped_facts_matches_a_fresh_simulator(key, states):

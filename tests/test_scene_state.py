@@ -67,6 +67,7 @@ def test_a_policy_sees_where_things_are_and_nothing_of_its_task(tmp_path):
     assert all(np.all(np.isfinite(p)) for p in scene.site_positions.values())
 
 
+@pytest.mark.e2e
 def test_the_scene_state_agrees_with_the_privileged_state(tmp_path):
     first = observations(tmp_path, privileged=True)[0]
     scene, truth = first.scene, first.privileged

@@ -13,7 +13,7 @@ from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.suite.file import load_suite
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # the expert's whole episodes
 
 SAMPLE = {"libero_spatial": 8, "libero_object": 5, "libero_goal": 6, "libero_10": 9}
 """One base task per LIBERO suite: quick ones, and libero_10's mug into the microwave (carried by

@@ -10,6 +10,7 @@ import importlib.util
 import io
 import os
 import re
+import shutil
 import socket
 import subprocess
 import sys
@@ -27,6 +28,12 @@ from conflictbench.report import report_store
 from conflictbench.report.summary import pair_up
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.libero.base_tasks import base_task
+from conflictbench.testing import (
+    check_failed_episode_is_replayed,
+    check_killed_server_run_resumes,
+    planned_conflict_instruction,
+    run_cli,
+)
 
 pytestmark = pytest.mark.sim
 
@@ -106,6 +113,7 @@ def test_no_server_stops_the_run_before_any_simulator_starts(tmp_path, served_pl
     assert "Traceback" not in out.stderr and not (tmp_path / "results" / "episodes").exists()
 
 
+@pytest.mark.e2e
 def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(
     tmp_path, servers, served_plugin_site
 ):
@@ -186,6 +194,30 @@ def test_an_episode_the_server_fails_is_stored_left_out_and_played_again(play, s
     assert store.replay_ids() == set() and [r.error for r in store.records()] == [None, None]
     pairs, counts = pair_up(store.records())
     assert len(pairs) == 1 and counts.unserved == []
+
+
+@pytest.mark.e2e
+def test_the_end_to_end_checks_a_plugin_runs_on_its_server_hold_for_a_served_plugin(tmp_path, served_plugin_site):
+    """conflictbench.testing's two checks, called as a model plugin calls them, with the served test plugin and its
+    server: an episode the server fails is stored, left out and played again; a server killed mid-run stops the run
+    in one line and the same command resumes it. (The model plugins' own tests check how each transport maps a
+    server's error and a lost server, at unit level: this is the one end-to-end run of both.)"""
+    path = os.pathsep.join(filter(None, [str(served_plugin_site), os.environ.get("PYTHONPATH")]))
+    env = {**os.environ, "PYTHONPATH": path}
+
+    def start(*options: str) -> tuple[PolicyServer, str]:
+        server = PolicyServer(*options)
+        return server, server.url
+
+    def run(url: str, *more: str) -> subprocess.CompletedProcess:
+        return run_cli(tmp_path, "model=served-test", f"model.server={url}", *more, env=env)
+
+    failing = planned_conflict_instruction()
+    check_failed_episode_is_replayed(
+        tmp_path, lambda: start("--fail-instruction", failing), start, run, error_text="HTTP 500"
+    )
+    shutil.rmtree(tmp_path / "results")
+    check_killed_server_run_resumes(tmp_path, start, run)
 
 
 def test_every_worker_keeps_its_request_in_flight_while_the_others_wait_for_theirs(play, servers):

@@ -106,6 +106,7 @@ def probe_plugins():
     return Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
 
 
+@pytest.mark.e2e
 def test_one_real_episode_in_every_libero_suite(play, probe_plugins):
     Probe.instances.clear()
     result, store = play("probe", [reference_spec(suite, 0) for suite in LIBERO_SUITES], plugin_set=probe_plugins)
@@ -196,6 +197,7 @@ def test_chunks_run_open_loop_and_the_policy_is_queried_between_them(play, probe
     np.testing.assert_allclose(rec.raw_actions[:, 0], expected_x)
 
 
+@pytest.mark.e2e
 def test_images_are_exactly_what_libero_renders(play, probe_plugins, tmp_path):
     Probe.instances.clear()
     _, store = play(
@@ -239,6 +241,7 @@ def test_images_are_exactly_what_libero_renders(play, probe_plugins, tmp_path):
         np.testing.assert_array_equal(obs.wrist_image, native["wrist"][i])
 
 
+@pytest.mark.e2e
 def test_privileged_observations_carry_goal_case_and_scene_state(play, probe_plugins):
     case = next(c for c in load_suite().cases if (c.suite, c.task_id) == ("libero_goal", 3))
     Probe.instances.clear()

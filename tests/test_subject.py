@@ -144,6 +144,7 @@ def test_bad_settings_are_one_line(tmp_path):
     assert shipped_weights().is_file()
 
 
+@pytest.mark.e2e
 @pytest.mark.sim
 def test_in_one_scene_the_words_decide_where_the_arm_goes(play, tmp_path):
     """libero_goal task 2 (the wine bottle on the cabinet) played with its own words and with task 6's (the cream

@@ -144,6 +144,7 @@ def test_usage_mistakes_exit_2(capsys, argv, message):
     assert code == 2 and message in err
 
 
+@pytest.mark.e2e
 @pytest.mark.sim  # LIBERO's base tasks
 def test_build_is_deterministic_and_matches_the_shipped_file(capsys):
     code, _, err = run(capsys, "build", "--check")
@@ -151,6 +152,7 @@ def test_build_is_deterministic_and_matches_the_shipped_file(capsys):
     assert "identical to a fresh build" in err
 
 
+@pytest.mark.e2e
 @pytest.mark.sim  # LIBERO's base tasks
 def test_build_with_another_seed_differs(tmp_path, capsys):
     out = tmp_path / "s1.jsonl"

@@ -16,7 +16,7 @@ from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, LIBERO_SUITES, Plugi
 from conflictbench.sim.runner import Runner, RunResult
 from conflictbench.store import EpisodeStore
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # runs whose workers are killed
 
 
 def specs():  # built when a test runs: collecting this module must not need the simulator

@@ -9,15 +9,10 @@ import pytest
 from gr00t_standin import start_standin
 
 from conflictbench.store import EpisodeStore
-from conflictbench.testing import (
-    check_failed_episode_is_replayed,
-    check_killed_server_run_resumes,
-    planned_conflict_instruction,
-)
 from conflictbench.testing import episode_counts as counts
 from conflictbench.testing import run_cli as run_one_case
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 16  # two queries of eight actions
 
 
@@ -47,19 +42,3 @@ def test_episodes_play_eight_actions_of_each_chunk_from_the_first_step(tmp_path)
         assert raw[:, 6].tolist() == ([1.0, -1.0, 0.0] * 3)[:8] * 2  # the gripper mapped from the dataset's [0, 1]
     reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
     assert reference.raw_actions[0, 4] != conflict.raw_actions[0, 4]  # the server got each episode's own text
-
-
-def test_a_malformed_reply_is_an_infrastructure_failure_left_out_and_played_again(tmp_path):
-    check_failed_episode_is_replayed(
-        tmp_path,
-        start_failing=lambda: start_standin(tmp_path, "--fail-on", planned_conflict_instruction()),
-        start_healthy=lambda: start_standin(tmp_path),
-        run=lambda url, *more: run_cli(tmp_path, url, *more),
-        error_text="action.gripper",
-    )
-
-
-def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(tmp_path):
-    # a ping to a vanished ZeroMQ server waits out connect_timeout_s: keep the reconnection short
-    run = lambda url, *more: run_cli(tmp_path, url, "model.connect_timeout_s=2", *more)  # noqa: E731
-    check_killed_server_run_resumes(tmp_path, start=lambda: start_standin(tmp_path), run=run)

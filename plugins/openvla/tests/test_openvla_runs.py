@@ -11,14 +11,11 @@ from deploy_standin_model import STATS
 
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import (
-    check_failed_episode_is_replayed,
-    check_killed_server_run_resumes,
     episode_counts,
-    planned_conflict_instruction,
     run_cli,
 )
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 16  # two OFT chunks of eight
 
 
@@ -66,21 +63,3 @@ def test_oft_episodes_execute_each_chunk_open_loop(tmp_path):
             np.testing.assert_allclose(chunk - chunk[0], np.outer(np.arange(8), chunk[1] - chunk[0]), atol=1e-9)
         assert not np.allclose(raw[8, :2], raw[0, :2] + 8 * (raw[1, :2] - raw[0, :2]))  # a new query at step 8
     assert reference.raw_actions[0, 3] != conflict.raw_actions[0, 3]
-
-
-def test_a_server_error_is_an_infrastructure_failure_left_out_and_played_again(tmp_path):
-    check_failed_episode_is_replayed(
-        tmp_path,
-        start_failing=lambda: start_standin(tmp_path, "openvla", "--fail-on", planned_conflict_instruction()),
-        start_healthy=lambda: start_standin(tmp_path, "openvla"),
-        run=lambda url, *more: run(tmp_path, "openvla", url, *more),
-        error_text='answered "error"',
-    )
-
-
-def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(tmp_path):
-    check_killed_server_run_resumes(
-        tmp_path,
-        start=lambda: start_standin(tmp_path, "oft"),
-        run=lambda url, *more: run(tmp_path, "openvla-oft", url, *more),
-    )

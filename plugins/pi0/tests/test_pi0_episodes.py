@@ -7,9 +7,9 @@ import pytest
 from test_pi0_client import start_openpi_server
 
 from conflictbench.store import EpisodeStore
-from conflictbench.testing import check_failed_episode_is_replayed, planned_conflict_instruction, run_cli
+from conflictbench.testing import run_cli
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 12
 
 
@@ -34,14 +34,3 @@ def test_episodes_play_against_openpis_server_executing_five_actions_of_each_chu
         assert not np.allclose(raw[5], raw[0] * 6)  # step 5 came from a new chunk, not row 5 of the old one
     reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
     assert reference.raw_actions[0, 4] != conflict.raw_actions[0, 4]  # the prompt the server got differs
-
-
-def test_an_error_frame_is_stored_as_an_infrastructure_failure_left_out_and_played_again(tmp_path):
-    settings = ["model=pi05", "model.checkpoint=stand-in", f"model.max_steps={STEPS}"]
-    check_failed_episode_is_replayed(
-        tmp_path,
-        start_failing=lambda: start_openpi_server(tmp_path, "--fail-on", planned_conflict_instruction()),
-        start_healthy=lambda: start_openpi_server(tmp_path),
-        run=lambda url, *more: run_cli(tmp_path, *settings, f"model.server={url}", *more),
-        error_text="the model failed on purpose",
-    )

@@ -11,13 +11,12 @@ import pytest
 from server_fixtures import model_process_env, server_argv
 from tiny_fixtures import MODEL_PYTHON, TINY_DIR, needs_model_env
 
-from conflictbench.core import ServerProcess, free_port
+from conflictbench.hosting import ServerProcess, free_port
 from conflictbench.store import EpisodeStore
-from conflictbench.testing import check_killed_server_run_resumes
 from conflictbench.testing import episode_counts as counts
 from conflictbench.testing import run_cli as run_cli_on_one_case
 
-pytestmark = [pytest.mark.sim]
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 15  # three queries of five actions per episode
 
 
@@ -90,21 +89,6 @@ def test_one_or_two_workers_play_the_same_actions_and_another_batch_shape_is_ano
     # One-row calls are another batch shape, so other episodes: max_batch is part of the identity (and so of
     # the noise seeds). For the same request the two shapes differ by float32 rounding (test_pi0_server_e2e).
     assert not set(actions_by_episode(tmp_path / "unbatched")) & set(runs[0])
-
-
-@needs_model_env
-def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(
-    tmp_path, tiny_checkpoints, tiny_env
-):
-    checkpoint, port = tiny_checkpoints["pi05"], free_port()  # the new server comes back at the same URL
-
-    def start() -> tuple[ServerProcess, str]:
-        return our_server(checkpoint, tiny_env, port), f"ws://127.0.0.1:{port}"
-
-    def run(url: str, *more: str):
-        return run_cli(tmp_path, tiny_env, f"model.server={url}", "model.checkpoint=tiny-pi05", *more)
-
-    check_killed_server_run_resumes(tmp_path, start=start, run=run)
 
 
 @needs_model_env

@@ -11,13 +11,11 @@ from univla_standin_model import STATISTICS
 
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import (
-    check_failed_episode_is_replayed,
     episode_counts,
-    planned_conflict_instruction,
     run_cli,
 )
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 14  # past one window of 12
 
 
@@ -44,13 +42,3 @@ def test_episodes_query_every_step_with_their_history_and_the_suites_statistics(
         assert set(raw[:, 6]) <= {-1.0, 1.0}
         assert len({tuple(row) for row in raw[:, :3]}) == STEPS  # a new ensembled action every step
     assert not np.array_equal(records[0].raw_actions[0], records[1].raw_actions[0])
-
-
-def test_a_server_error_is_an_infrastructure_failure_left_out_and_played_again(tmp_path):
-    check_failed_episode_is_replayed(
-        tmp_path,
-        start_failing=lambda: start_standin(tmp_path, "--fail-on", planned_conflict_instruction()),
-        start_healthy=lambda: start_standin(tmp_path),
-        run=lambda url, *more: run(tmp_path, url, *more),
-        error_text="the model failed on purpose",
-    )

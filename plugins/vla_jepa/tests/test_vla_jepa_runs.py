@@ -10,14 +10,11 @@ from jepa_standin import start_standin, write_run
 
 from conflictbench.store import EpisodeStore
 from conflictbench.testing import (
-    check_failed_episode_is_replayed,
-    check_killed_server_run_resumes,
     episode_counts,
-    planned_conflict_instruction,
     run_cli,
 )
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 16  # two chunks of eight (future_action_window_size 7)
 
 
@@ -47,19 +44,3 @@ def test_episodes_play_whole_chunks_un_normalized_by_the_client(tmp_path):
         assert raw[:, 6].tolist() == [1.0, -1.0] * 8  # stand-in gripper 0.2, 0.9 -> closed, open
     reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
     assert reference.raw_actions[0, 4] != conflict.raw_actions[0, 4]  # each episode's own text reached the server
-
-
-def test_a_server_error_is_an_infrastructure_failure_left_out_and_played_again(tmp_path):
-    check_failed_episode_is_replayed(
-        tmp_path,
-        start_failing=lambda: start_standin(tmp_path, "--fail-on", planned_conflict_instruction()),
-        start_healthy=lambda: start_standin(tmp_path),
-        run=lambda url, *more: run(tmp_path, url, *more),
-        error_text="the model failed on purpose",
-    )
-
-
-def test_a_server_killed_mid_run_stops_it_naming_the_url_and_the_same_command_resumes(tmp_path):
-    check_killed_server_run_resumes(
-        tmp_path, start=lambda: start_standin(tmp_path), run=lambda url, *more: run(tmp_path, url, *more)
-    )
