@@ -1,41 +1,53 @@
 #!/usr/bin/env bash
-# One-step install of conflictbench into ./.venv: system rendering libraries, a Python 3.11/3.12
-# virtual environment, the package with the pinned LIBERO simulator, the test tools, the model
-# plugins' clients (plugins/*), and each model plugin's model environment: a Python 3.12 environment
-# at .venv/models/<plugin> holding the model's backend (LeRobot for pi0) and the plugin's server.
-# Safe to run again: it only does what is missing or changed.
+# Set-up of conflictbench in ./.venv. Safe to run again: it only does what is missing or changed.
 #
-#   PYTHON=python3.12 scripts/setup.sh    choose the interpreter (default: python3.11, else python3.12)
-#   VENV=/path/to/venv scripts/setup.sh   choose where the environment goes (default: .venv)
-#   scripts/setup.sh --models pi0         build only these model environments (default: all; "none")
-#   MODEL_PYTHON=python3.12 scripts/setup.sh   the model environments' interpreter (default: a 3.12)
+#   scripts/setup.sh                      the main job: conflictbench with the pinned LIBERO simulator and the Mesa
+#                                         EGL libraries (what `.venv/bin/conflictbench` plays the default policy with)
+#   scripts/setup.sh --models pi0,gr00t   also these model plugins: each one's client here, and its model
+#                                         environment, a Python 3.12 at .venv/models/NAME holding the model's backend
+#                                         (LeRobot, transformers, torch) and the plugin's server; `all` for every one
+#   scripts/setup.sh --cluster            also the cluster extra (Ray, Hydra's submitit launcher)
+#   scripts/setup.sh --tests              everything the tests need: the main job, the test tools and Chromium, the
+#                                         cluster extra, every plugin's client and model environment (unless
+#                                         --models says otherwise) and the learned subject's training environment
+#   PYTHON=python3.12 scripts/setup.sh    the interpreter (default: python3.11, else python3.12)
+#   VENV=/path/to/venv scripts/setup.sh   where the environment goes (default: .venv)
+#   MODEL_PYTHON=python3.12 scripts/setup.sh --models pi0   the model environments' interpreter (default: a 3.12)
 set -euo pipefail
 
-MODELS=all
+MODELS=""
+MODELS_GIVEN=0
+TESTS=0
+CLUSTER=0
 while (($#)); do
   case "$1" in
-    --models) MODELS=${2:?--models needs a list, e.g. --models pi0 (or all, none)}; shift 2 ;;
-    --models=*) MODELS=${1#--models=}; shift ;;
-    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    --models) MODELS=${2:?--models needs a list, e.g. --models pi0,gr00t (or all, none)}; MODELS_GIVEN=1; shift 2 ;;
+    --models=*) MODELS=${1#--models=}; MODELS_GIVEN=1; shift ;;
+    --tests) TESTS=1; shift ;;
+    --cluster) CLUSTER=1; shift ;;
+    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
     *) echo "[setup] unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
+((TESTS && !MODELS_GIVEN)) && MODELS=all
+((TESTS)) && CLUSTER=1
 
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
-APT_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri chromium)
 
 say() { printf '[setup] %s\n' "$*" >&2; }
 
 # 1. Mesa's EGL for headless rendering (camera-based policies and the viewer's videos; the rest run without GL),
-#    and Chromium, in which the tests open the viewer's pages.
+#    and, for the tests, Chromium, in which they open the viewer's pages.
+APT_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri)
+((TESTS)) && APT_PACKAGES+=(chromium)
 missing=()
 for pkg in "${APT_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
 done
 if ((${#missing[@]})); then
   if ! command -v apt-get >/dev/null; then
-    say "please install the EGL/Mesa libraries and Chromium for your system (Debian names: ${missing[*]})"
+    say "please install these libraries for your system (Debian names: ${missing[*]})"
   else
     SUDO=""
     [ "$(id -u)" -ne 0 ] && SUDO="sudo"
@@ -62,50 +74,72 @@ case "$version" in
   *) say "conflictbench needs Python 3.11 or 3.12; $PYTHON is $version (set PYTHON=...)"; exit 1 ;;
 esac
 
-# 3. The environment and the package (editable), with the simulator and test extras.
+# 3. The environment and the package (editable) with the simulator; the test and cluster extras where asked.
+#    The stamp holds the extras installed: asking for more installs again.
 if [ ! -x "$VENV/bin/python" ]; then
   say "creating $VENV with $PYTHON ($version)"
   "$PYTHON" -m venv "$VENV"
 fi
+extras=sim
+((CLUSTER)) && extras+=,cluster
+((TESTS)) && extras+=,test
 stamp="$VENV/.conflictbench-installed"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  say "installing conflictbench with the LIBERO simulator (first time: about two minutes)"
+installed=$(cat "$stamp" 2>/dev/null || true)
+wanted=$(echo "$extras,$installed" | tr , '\n' | sed '/^$/d' | sort -u | paste -sd, -)
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$wanted" != "$installed" ]; then
+  say "installing conflictbench [$wanted] (the first time: about two minutes)"
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q -e ".[sim,test,cluster]"
-  touch "$stamp"
+  "$VENV/bin/python" -m pip install -q -e ".[$wanted]"
+  echo "$wanted" >"$stamp"
 fi
-# 4. The model plugins' clients, with the upstream counterparts their tests talk to; first the server half
-#    they share (serving/: not on PyPI, so pip must find it installed before a plugin asks for it).
-stamp="$VENV/.conflictbench-serving"
-if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ]; then
-  "$VENV/bin/python" -m pip install -q -e serving
-  touch "$stamp"
-fi
-for plugin in plugins/*/; do
-  name=$(basename "$plugin")
-  stamp="$VENV/.conflictbench-plugin-$name"
-  if [ ! -f "$stamp" ] || [ "$plugin/pyproject.toml" -nt "$stamp" ]; then
-    say "installing the $name plugin's client"
-    "$VENV/bin/python" -m pip install -q -e "$plugin[test]"
-    touch "$stamp"
-  fi
-done
 
-# 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack
-#    cannot share). Each gets the shared server half (serving/), its plugin without dependencies (no
-#    conflictbench, no simulator), exactly the plugin's `server` extra (a plugin of ours named there from its
-#    folder, without dependencies), and its `server-test` extra
-#    without dependencies (upstream servers the tests compare with). About 5 GB and 90 s each on the first build
-#    (torch); files identical across environments are then hard-linked, so all of them take about 9 GB.
+# 4. Model plugins: all of them for the tests (their clients' tests need no model environment), else those
+#    --models names. First the server half they share (serving/: not on PyPI, so pip must find it installed
+#    before a plugin asks for it); the tests also install each plugin's `test` extra (upstream counterparts).
 has_server() {  # a plugin whose pyproject has a `server` extra has a model environment to build
   grep -q '^server = \[' "plugins/$1/pyproject.toml" 2>/dev/null
 }
+SUBJECT=0  # the subject's training environment: with every model environment, or by name
 case "$MODELS" in
   none) MODELS="" ;;
-  all) MODELS=$(for p in plugins/*/; do if has_server "$(basename "$p")"; then basename "$p"; fi; done) ;;
-  *) MODELS=${MODELS//,/ } ;;
+  all) MODELS=$(for p in plugins/*/; do if has_server "$(basename "$p")"; then basename "$p"; fi; done); SUBJECT=1 ;;
+  *) MODELS=$(echo "${MODELS//,/ }" | tr ' ' '\n' | sed '/^$/d' | sort -u | paste -sd ' ') ;;
 esac
-if [ -n "$MODELS" ]; then
+if [[ " $MODELS " == *" subject "* ]]; then
+  SUBJECT=1
+  MODELS=$(echo "$MODELS" | tr ' ' '\n' | grep -vx subject | paste -sd ' ' || true)
+fi
+for name in $MODELS; do
+  [ -f "plugins/$name/pyproject.toml" ] || { say "no model plugin plugins/$name (have: $(ls plugins | paste -sd ' '))"; exit 2; }
+  has_server "$name" || { say "the $name plugin has no server of its own (no model environment to build)"; exit 2; }
+done
+clients=$MODELS
+((TESTS)) && clients=$(ls plugins)
+if [ -n "$clients" ]; then
+  stamp="$VENV/.conflictbench-serving"
+  if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ]; then
+    "$VENV/bin/python" -m pip install -q -e serving
+    touch "$stamp"
+  fi
+fi
+for name in $clients; do
+  plugin=plugins/$name
+  extra=""
+  ((TESTS)) && extra="[test]"
+  stamp="$VENV/.conflictbench-plugin-$name"
+  if [ ! -f "$stamp" ] || [ "$plugin/pyproject.toml" -nt "$stamp" ] || [ "$(cat "$stamp")" != "$extra" ]; then
+    say "installing the $name plugin's client"
+    "$VENV/bin/python" -m pip install -q -e "$plugin$extra"
+    echo "$extra" >"$stamp"
+  fi
+done
+
+# 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack cannot
+#    share). Each gets the shared server half (serving/), its plugin without dependencies (no conflictbench, no
+#    simulator), exactly the plugin's `server` extra, and its `server-test` extra without dependencies (upstream
+#    servers the tests compare with). About 5 GB and 90 s each on the first build (torch); files identical across
+#    environments are then hard-linked, so all of them take about 9 GB.
+if [ -n "$MODELS" ] || ((SUBJECT)); then
   if [ -z "${MODEL_PYTHON:-}" ]; then
     for candidate in python3.12 $(pyenv root 2>/dev/null)/versions/3.12*/bin/python3.12; do
       if "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' 2>/dev/null; then
@@ -125,51 +159,34 @@ if [ -n "$MODELS" ]; then
 fi
 for name in $MODELS; do
   plugin=plugins/$name
-  [ -f "$plugin/pyproject.toml" ] || { say "no model plugin $plugin (have: $(ls plugins))"; exit 2; }
-  has_server "$name" || { say "the $name plugin has no server of its own (no model environment to build)"; exit 2; }
   env_dir="$VENV/models/$name"
   stamp="$env_dir/.conflictbench-installed"
-  # What the environment is built from: serving/, the plugin, and any plugin of ours its server extra names.
-  sources=(serving/pyproject.toml "$plugin/pyproject.toml")
-  for other in plugins/*/; do
-    other_name=conflictbench-$(basename "$other" | tr _ -)
-    sed -n '/^server = \[/,/^\]/p' "$plugin/pyproject.toml" | grep -q "\"$other_name[<>=!~ \"]" &&
-      sources+=("$other/pyproject.toml")
-  done
-  fresh=1
-  for source in "${sources[@]}"; do
-    [ -f "$stamp" ] && [ ! "$source" -nt "$stamp" ] || fresh=0
-  done
-  ((fresh)) && continue
+  if [ -f "$stamp" ] && [ ! serving/pyproject.toml -nt "$stamp" ] && [ ! "$plugin/pyproject.toml" -nt "$stamp" ]; then
+    continue
+  fi
   say "building the $name model environment in $env_dir with $MODEL_PYTHON (first time: a few minutes)"
   [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
   "$env_dir/bin/python" -m pip install -q --upgrade pip
   "$env_dir/bin/python" -m pip install -q -e serving
   mapfile -t requirements < <("$env_dir/bin/python" - "$plugin/pyproject.toml" <<'EOF'
-import re, sys, tomllib
-project = tomllib.load(open(sys.argv[1], "rb"))["project"]
-extra = project.get("optional-dependencies", {})
-# Another plugin of ours named in the server extra (not on PyPI) is installed from its folder, first.
-local = [r for r in extra.get("server", []) if re.match(r"conflictbench-(?!serving\b)", r)]
-print("--no-deps", *("plugins/" + re.split(r"[<>=!~;\[ ]", r)[0][len("conflictbench-"):].replace("-", "_") for r in local))
-print("\n".join(r for r in extra.get("server", []) if r not in local))
-print("--no-deps", *extra.get("server-test", []))  # counterparts for the tests, without their pins
+import sys, tomllib
+extra = tomllib.load(open(sys.argv[1], "rb"))["project"].get("optional-dependencies", {})
+print(" ".join(extra.get("server-test", [])))  # counterparts for the tests, installed without their pins
+print("\n".join(extra.get("server", [])))
 EOF
 )
-  read -ra locals <<<"${requirements[0]}"
-  editable=()
-  for local_plugin in "${locals[@]:1}"; do editable+=(-e "$local_plugin"); done
-  ((${#editable[@]} == 0)) || "$env_dir/bin/python" -m pip install -q --no-deps "${editable[@]}"
-  ((${#requirements[@]} < 3)) || "$env_dir/bin/python" -m pip install -q "${requirements[@]:1:${#requirements[@]}-2}"
-  read -ra counterparts <<<"${requirements[-1]}"
-  [ "${#counterparts[@]}" -le 1 ] || "$env_dir/bin/python" -m pip install -q "${counterparts[@]}"
+  ((${#requirements[@]} < 2)) || "$env_dir/bin/python" -m pip install -q "${requirements[@]:1}"
+  read -ra counterparts <<<"${requirements[0]}"
+  ((${#counterparts[@]} == 0)) || "$env_dir/bin/python" -m pip install -q --no-deps "${counterparts[@]}"
   "$env_dir/bin/python" -m pip install -q --no-deps -e "$plugin"
   "$VENV/bin/python" scripts/link_identical.py "$VENV/models"  # the same torch in each: keep its files once
   touch "$stamp"
 done
+
 # 6. The learned subject's training environment (`conflictbench train-subject`): Python 3.12 with LeRobot's
-#    dataset stack and PyTorch, pinned in the file below. Built with the model environments (not with --models none).
-if [ -n "$MODELS" ]; then
+#    dataset stack and PyTorch, pinned in the file below. Built with every model environment (--models all, the
+#    tests), or alone by `--models subject`; playing `model=subject` needs none of it.
+if ((SUBJECT)); then
   requirements=conflictbench/policies/subject/training-requirements.txt
   env_dir="$VENV/models/subject"
   stamp="$env_dir/.conflictbench-installed"
@@ -182,5 +199,4 @@ if [ -n "$MODELS" ]; then
     touch "$stamp"
   fi
 fi
-[ ! -d "$VENV/models" ] || "$VENV/bin/python" scripts/link_identical.py "$VENV/models"  # environments built before
 say "ready: $VENV/bin/conflictbench"

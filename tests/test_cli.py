@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -179,3 +180,33 @@ def test_hydras_flags_go_first_with_their_values(argv, expected):
     from conflictbench.cli.run import hydra_argv
 
     assert hydra_argv(argv) == expected
+
+
+def test_a_model_of_this_project_whose_plugin_is_missing_names_the_command_that_installs_it():
+    from conflictbench.cli.overrides import check_group_overrides
+    from conflictbench.core import Plugins, UserError
+
+    without_plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False)
+    expected = (
+        r"^model=pi0-fast comes with the pi0 model plugin, which is not installed here: scripts/setup.sh --models pi0 "
+    )
+    with pytest.raises(UserError, match=expected):
+        check_group_overrides(["model=pi0-fast"], without_plugins)
+    with pytest.raises(UserError, match=r"^unknown model 'nope'; valid choices: "):
+        check_group_overrides(["model=nope"], without_plugins)
+
+
+def test_the_list_of_this_projects_plugins_is_what_they_register():
+    from conflictbench.cli.overrides import PROJECT_PLUGINS
+
+    folders = {p.name for p in (Path(__file__).parents[1] / "plugins").iterdir() if (p / "pyproject.toml").exists()}
+    registered = {
+        name: spec.plugin.removeprefix("conflictbench-").replace("-", "_")
+        for name, spec in conflictbench.plugins().policies().items()
+        if spec.plugin.removeprefix("conflictbench-").replace("-", "_") in folders
+    }
+    assert set(PROJECT_PLUGINS.values()) <= folders
+    if not registered:
+        pytest.skip("no model plugin of this project is installed here")
+    installed = set(registered.values())  # each installed plugin registers exactly the policies listed for it
+    assert registered == {name: folder for name, folder in PROJECT_PLUGINS.items() if folder in installed}

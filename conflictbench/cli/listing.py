@@ -6,7 +6,7 @@ from collections import Counter
 from collections.abc import Sequence
 
 from conflictbench.cli.args import Parser
-from conflictbench.cli.run import group_choices
+from conflictbench.cli.overrides import group_choices
 from conflictbench.core import FAMILIES, LEVELS, PROMPT_CONDITIONS
 from conflictbench.core.plugins import Plugins
 

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import os
 import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -25,11 +23,14 @@ from conflictbench.core import (
     SimulatorUnavailable,
     UserError,
 )
-from conflictbench.core.plugins import Plugins, unknown_choice
+from conflictbench.core.plugins import Plugins
 from conflictbench.sim import BACKENDS
 
+from .overrides import GROUPS, check_group_overrides, check_model_fields, default_model, group_choices
+
+__all__ = ["GROUPS", "check_group_overrides", "check_model_fields", "command", "default_model", "group_choices"]
+
 CONFIG_PACKAGE = "pkg://conflictbench.conf"
-GROUPS = ("model", "suite", "level", "prompt", "run")
 INIT_STATES_PER_TASK = 50
 
 
@@ -103,63 +104,6 @@ def run_options(run: DictConfig) -> RunOptions:
         progress=bool(run.progress),
         report=bool(run.report),
     )
-
-
-def group_choices(group: str, plugins: Plugins) -> list[str]:
-    """The options of a config group: registered policies for ``model``, YAML files otherwise."""
-    if group == "model":
-        return sorted(plugins.policies())
-    folder = resources.files("conflictbench.conf") / group
-    return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
-
-
-def default_model() -> str:
-    """The ``model`` of ``conf/config.yaml``'s defaults."""
-    defaults = OmegaConf.load(str(resources.files("conflictbench.conf") / "config.yaml")).defaults
-    return next(str(entry["model"]) for entry in defaults if isinstance(entry, DictConfig) and "model" in entry)
-
-
-def check_model_fields(argv: Sequence[str], plugins: Plugins) -> None:
-    """Reject ``model.<field>=...`` for a field the chosen policies lack (one line naming theirs), before Hydra
-    answers with its multi-line "To append to your config use +model...". Where the model is not a plain choice
-    on this line (a sweep function, another config, a sweeper's params), Hydra checks; ``+model.x=`` too."""
-    models = [default_model()]
-    for arg in argv:
-        key, _, value = arg.partition("=")
-        if arg.startswith(("-c", "--config", "hydra.sweeper")) or key.startswith("model@"):
-            return
-        if key == "model":
-            if not value or any(ch in value for ch in "()[]{}*$"):
-                return
-            models = [item.strip() for item in value.split(",")]
-    for arg in argv:
-        key = arg.partition("=")[0]
-        if arg.startswith(("-", "+", "~")) or not key.startswith("model.") or "=" not in arg:
-            continue
-        field = key.split(".")[1]
-        for model in models:
-            spec = plugins.policies().get(model)
-            if spec is None:
-                continue  # an unknown model: check_group_overrides says so
-            names = [f.name for f in dataclasses.fields(spec.config)] if dataclasses.is_dataclass(spec.config) else []
-            if field not in names:
-                settings = ", ".join(names) if names else "none"
-                raise UserError(f"{key}: {model} has no setting {field!r} (its settings: {settings})")
-
-
-def check_group_overrides(argv: Sequence[str], plugins: Plugins) -> None:
-    """Reject ``group=unknown`` before Hydra composes anything (one line, exit code 2)."""
-    for arg in argv:
-        if arg.startswith("-") or "=" not in arg:
-            continue
-        key, value = arg.lstrip("+~").split("=", 1)
-        if key not in GROUPS or any(ch in value for ch in "()[]{}*$"):
-            continue  # a field override or a sweep function: Hydra checks those
-        choices = group_choices(key, plugins)
-        for item in value.split(","):
-            if item.strip() not in choices:
-                failures = plugins.load_failures if key == "model" else None
-                raise UserError(unknown_choice(key, item.strip(), choices, failures))
 
 
 def register_model_configs(plugins: Plugins) -> None:

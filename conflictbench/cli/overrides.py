@@ -1,0 +1,96 @@
+"""The checks of a command line's overrides that come before Hydra composes anything (one line, exit code 2)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from importlib import resources
+
+from omegaconf import DictConfig, OmegaConf
+
+from conflictbench.core import UserError
+from conflictbench.core.plugins import Plugins, unknown_choice
+
+GROUPS = ("model", "suite", "level", "prompt", "run")
+
+#: The model plugins of this project (``plugins/<folder>``) by the policies each registers: a run that names one
+#: whose plugin is not installed says which command installs it (tests/test_cli.py keeps this list true).
+PROJECT_PLUGINS = {
+    "pi0": "pi0",
+    "pi05": "pi0",
+    "pi0-fast": "pi0",
+    "gr00t": "gr00t",
+    "vla-jepa": "vla_jepa",
+    "openvla": "openvla",
+    "openvla-oft": "openvla",
+    "univla": "univla",
+}
+
+
+def group_choices(group: str, plugins: Plugins) -> list[str]:
+    """The options of a config group: registered policies for ``model``, YAML files otherwise."""
+    if group == "model":
+        return sorted(plugins.policies())
+    folder = resources.files("conflictbench.conf") / group
+    return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def default_model() -> str:
+    """The ``model`` of ``conf/config.yaml``'s defaults."""
+    defaults = OmegaConf.load(str(resources.files("conflictbench.conf") / "config.yaml")).defaults
+    return next(str(entry["model"]) for entry in defaults if isinstance(entry, DictConfig) and "model" in entry)
+
+
+def check_model_fields(argv: Sequence[str], plugins: Plugins) -> None:
+    """Reject ``model.<field>=...`` for a field the chosen policies lack (one line naming theirs), before Hydra
+    answers with its multi-line "To append to your config use +model...". Where the model is not a plain choice
+    on this line (a sweep function, another config, a sweeper's params), Hydra checks; ``+model.x=`` too."""
+    models = [default_model()]
+    for arg in argv:
+        key, _, value = arg.partition("=")
+        if arg.startswith(("-c", "--config", "hydra.sweeper")) or key.startswith("model@"):
+            return
+        if key == "model":
+            if not value or any(ch in value for ch in "()[]{}*$"):
+                return
+            models = [item.strip() for item in value.split(",")]
+    for arg in argv:
+        key = arg.partition("=")[0]
+        if arg.startswith(("-", "+", "~")) or not key.startswith("model.") or "=" not in arg:
+            continue
+        field = key.split(".")[1]
+        for model in models:
+            spec = plugins.policies().get(model)
+            if spec is None:
+                continue  # an unknown model: check_group_overrides says so
+            names = [f.name for f in dataclasses.fields(spec.config)] if dataclasses.is_dataclass(spec.config) else []
+            if field not in names:
+                settings = ", ".join(names) if names else "none"
+                raise UserError(f"{key}: {model} has no setting {field!r} (its settings: {settings})")
+
+
+def check_group_overrides(argv: Sequence[str], plugins: Plugins) -> None:
+    """Reject ``group=unknown`` before Hydra composes anything (one line, exit code 2)."""
+    for arg in argv:
+        if arg.startswith("-") or "=" not in arg:
+            continue
+        key, value = arg.lstrip("+~").split("=", 1)
+        if key not in GROUPS or any(ch in value for ch in "()[]{}*$"):
+            continue  # a field override or a sweep function: Hydra checks those
+        choices = group_choices(key, plugins)
+        for item in value.split(","):
+            if item.strip() not in choices:
+                failures = plugins.load_failures if key == "model" else None
+                if key == "model" and item.strip() in PROJECT_PLUGINS:
+                    raise UserError(not_installed(item.strip()))
+                raise UserError(unknown_choice(key, item.strip(), choices, failures))
+
+
+def not_installed(model: str) -> str:
+    """The one-line message for a model of this project whose plugin is not installed."""
+    folder = PROJECT_PLUGINS[model]
+    return (
+        f"model={model} comes with the {folder} model plugin, which is not installed here: "
+        f"scripts/setup.sh --models {folder} installs it with its model environment "
+        f"(or pip install ./serving ./plugins/{folder}, see plugins/{folder}/README.md)"
+    )
