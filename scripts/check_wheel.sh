@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
-# The package as a user gets it, not the checkout. Build a wheel from a clean copy of the sources and
-# check that it holds every file of the package and of the config tree; install it (not editable)
-# into a fresh virtual environment with the test tools but without the simulator, and run
-# `pytest -m "not sim"` against it (the README's promise); then add the simulator and, from an empty
-# directory, run `conflictbench list` and a real run of the default model (one reference and one
-# conflict episode of libero_spatial, about 25 s). pip's cache makes the installs quick.
+# The package as a user gets it, not the checkout: what only the wheel can get wrong. Build a wheel from a clean
+# copy of the sources and check that it holds every file of the package and of the config tree; install it (not
+# editable) into a fresh virtual environment with the test tools but without the simulator, and run the tests that
+# read what the wheel must carry or find what it must declare (the config tree, the viewer's assets, the subject's
+# weights, the console script, plugin discovery, the public API's import paths), not the whole selection again;
+# then add the simulator and, from an empty directory, run `conflictbench list`, a real run of the default model
+# (one reference and one conflict episode of libero_spatial, about 25 s) and the viewer on it; last, each model
+# plugin installed alone (not editable) beside it, as `pip install . ./serving ./plugins/NAME` would. pip's cache
+# makes the installs quick.
 #
 #   scripts/check_wheel.sh          PYTHON=... picks the interpreter (default: .venv's)
 set -euo pipefail
@@ -53,8 +56,10 @@ say "installing the wheel with the test tools, without the simulator"
 if "$py" -c 'import libero' 2>/dev/null; then
   say "the simulator got installed without the sim extra"; exit 1
 fi
-say "pytest -m 'not sim' against the installed wheel, no simulator"
-"$py" -m pytest -c "$repo/pyproject.toml" --rootdir "$repo" -m "not sim" -q "$repo/tests"
+say "the packaging tests against the installed wheel, no simulator"
+packaging=(test_config.py test_cli.py test_cli_imports.py test_core_plugins.py test_public_api.py test_view_site.py
+           test_subject.py)
+"$py" -m pytest -c "$repo/pyproject.toml" --rootdir "$repo" -m "not sim" -q "${packaging[@]/#/$repo/tests/}"
 
 # 4. The simulator added: the command lists what it has and plays real episodes with the default model (the
 #    learned subject, from the weights inside the wheel).
@@ -73,4 +78,33 @@ grep -q "2 played, 0 already stored, 0 played by another job, 0 with errors" "$w
 cat "$work/view.log" >&2
 grep -q "1 pair page, 2 videos rendered" "$work/view.log" && [ -s results/view/assets/viewer.js ] \
   || { say "the viewer did not write its site with both videos"; exit 1; }
-say "ok: the installed wheel passes the tests without a simulator, lists its plugins, plays real episodes and shows them"
+
+# 6. Each model plugin as a user installs it (not editable), alone beside the wheel and the server half: a plugin
+#    needs conflictbench and conflictbench-serving, never another plugin (pip brings none, and it loads alone).
+say "each model plugin alone, not editable"
+"$py" -m pip install -q "$work/src/serving"
+for plugin in "$work"/src/plugins/*/; do
+  dist=$(sed -n 's/^name = "\(.*\)"$/\1/p' "$plugin/pyproject.toml" | head -n 1)
+  "$py" -m pip install -q "$plugin"
+  "$py" - "$dist" <<'PY'
+import importlib.metadata as metadata
+import sys
+
+import conflictbench
+
+dist = sys.argv[1]
+ours = sorted(d.name for d in metadata.distributions() if d.name.startswith("conflictbench-"))
+if ours != sorted({"conflictbench-serving", dist}):
+    sys.exit(f"[check_wheel] installing {dist} alone brought {ours}")
+plugins = conflictbench.plugins()
+if plugins.load_failures:
+    sys.exit(f"[check_wheel] {dist} alone fails to load: {plugins.load_failures}")
+mine = [name for name, spec in plugins.policies().items() if spec.plugin == dist]
+if not mine:
+    sys.exit(f"[check_wheel] {dist} alone registers no policy")
+print(f"[check_wheel] {dist} alone: {', '.join(mine)}", file=sys.stderr)
+PY
+  "$py" -m pip uninstall -q -y "$dist"
+done
+say "ok: the installed wheel passes the tests without a simulator, lists its plugins, plays real episodes and shows" \
+  "them, and each model plugin installs and loads alone"

@@ -66,3 +66,29 @@ def test_the_client_layer_imports_only_core_of_ours_and_nothing_heavy():
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     assert done.stdout.strip() == "[]"
+
+
+def test_no_model_plugin_imports_or_requires_another():
+    """Each plugin stands on conflictbench and conflictbench-serving alone (``scripts/check_wheel.sh`` installs each
+    one alone): no module of it, its tests included, imports another plugin's package, and its pyproject names none."""
+    plugins = Path(__file__).resolve().parents[1] / "plugins"
+    packages = {folder: next(folder.glob("conflictbench_*/__init__.py")).parent.name for folder in plugins.iterdir()
+                if (folder / "pyproject.toml").is_file()}  # fmt: skip
+    dists = {
+        f"conflictbench-{package.removeprefix('conflictbench_').replace('_', '-')}" for package in packages.values()
+    }
+    assert len(packages) >= 5
+    for folder, own in packages.items():
+        others = set(packages.values()) - {own}
+        for path in folder.rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    names = [alias.name for alias in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    names = [node.module]
+                else:
+                    continue
+                assert not {name.split(".")[0] for name in names} & others, f"{path} imports {names}"
+        requirements = (folder / "pyproject.toml").read_text()
+        own_dist = f"conflictbench-{own.removeprefix('conflictbench_').replace('_', '-')}"
+        assert [d for d in dists - {own_dist} if f'"{d}' in requirements] == [], folder.name
