@@ -21,6 +21,8 @@ from conflictbench.tasks.suite.file import load_suite
 from conflictbench.view import Selection, build_site
 from conflictbench.view.videos import FRAME_EVERY, video_meta
 
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # stored episodes replayed with cameras, videos encoded
+
 STEPS = 16
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMIUM_ARGS = (  # headless as root, and no calls home (this machine's network is closed)
