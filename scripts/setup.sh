@@ -5,7 +5,8 @@
 #                                         EGL libraries (what `.venv/bin/conflictbench` plays the default policy with)
 #   scripts/setup.sh --models pi0,gr00t   also these model plugins: each one's client here, and its model
 #                                         environment, a Python 3.12 at .venv/models/NAME holding the model's backend
-#                                         (LeRobot, transformers, torch) and the plugin's server; `all` for every one
+#                                         (LeRobot, transformers, torch) and the plugin's server; `all` for every one;
+#                                         `subject`: the learned subject's training environment
 #   scripts/setup.sh --cluster            also the cluster extra (Ray, Hydra's submitit launcher)
 #   scripts/setup.sh --tests              everything the tests need: the main job, the test tools and Chromium, the
 #                                         cluster extra, every plugin's client and model environment (unless
