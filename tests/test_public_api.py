@@ -6,8 +6,12 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+import tomllib
+from itertools import chain
 from pathlib import Path
 
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
 from testing_support import DEMO_PLUGIN
 
 import conflictbench
@@ -70,16 +74,17 @@ def test_the_client_layer_imports_only_core_of_ours_and_nothing_heavy():
 
 def test_no_model_plugin_imports_or_requires_another():
     """Each plugin stands on conflictbench and conflictbench-serving alone (``scripts/check_wheel.sh`` installs each
-    one alone): no module of it, its tests included, imports another plugin's package, and its pyproject names none."""
-    plugins = Path(__file__).resolve().parents[1] / "plugins"
-    packages = {folder: next(folder.glob("conflictbench_*/__init__.py")).parent.name for folder in plugins.iterdir()
-                if (folder / "pyproject.toml").is_file()}  # fmt: skip
-    dists = {
-        f"conflictbench-{package.removeprefix('conflictbench_').replace('_', '-')}" for package in packages.values()
+    one alone): no module of it, its tests included, imports another plugin's package, and no requirement of it,
+    extras included, names another plugin's distribution."""
+    projects = {
+        folder: tomllib.loads((folder / "pyproject.toml").read_text())["project"]
+        for folder in (Path(__file__).resolve().parents[1] / "plugins").iterdir()
+        if (folder / "pyproject.toml").is_file()
     }
-    assert len(packages) >= 5
-    for folder, own in packages.items():
-        others = set(packages.values()) - {own}
+    packages = {folder: next(folder.glob("conflictbench_*/__init__.py")).parent.name for folder in projects}
+    assert len(projects) >= 5
+    for folder, project in projects.items():
+        other_packages = set(packages.values()) - {packages[folder]}
         for path in folder.rglob("*.py"):
             for node in ast.walk(ast.parse(path.read_text())):
                 if isinstance(node, ast.Import):
@@ -88,7 +93,7 @@ def test_no_model_plugin_imports_or_requires_another():
                     names = [node.module]
                 else:
                     continue
-                assert not {name.split(".")[0] for name in names} & others, f"{path} imports {names}"
-        requirements = (folder / "pyproject.toml").read_text()
-        own_dist = f"conflictbench-{own.removeprefix('conflictbench_').replace('_', '-')}"
-        assert [d for d in dists - {own_dist} if f'"{d}' in requirements] == [], folder.name
+                assert not {name.split(".")[0] for name in names} & other_packages, f"{path} imports {names}"
+        other_dists = {canonicalize_name(p["name"]) for p in projects.values()} - {canonicalize_name(project["name"])}
+        requirements = [*project.get("dependencies", []), *chain(*project.get("optional-dependencies", {}).values())]
+        assert [r for r in requirements if canonicalize_name(Requirement(r).name) in other_dists] == [], folder.name
