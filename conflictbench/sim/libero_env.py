@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from conflictbench.core import SimulatorUnavailable
+from conflictbench.sim import compiled_models
 from conflictbench.tasks.libero.base_tasks import prepare_libero_import
 
 EGL_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri"
@@ -65,6 +66,7 @@ def make_env(bddl_path: str, settings: EnvSettings, cameras: tuple[str, ...] = C
         from libero.libero.envs.env_wrapper import ControlEnv
     except OSError as exc:  # a missing shared library of the GL stack
         raise SimulatorUnavailable(f"cannot load the simulator's GL stack ({exc}); install: {EGL_PACKAGES}") from None
+    compiled_models.install()  # each scene compiled once, not at every reset
     env = ControlEnv(
         bddl_file_name=bddl_path,
         has_renderer=False,
