@@ -161,13 +161,8 @@ if [ -n "$MODELS" ] || ((SUBJECT)); then
     exit 1
   fi
 fi
-for name in $MODELS; do
-  plugin=plugins/$name
-  env_dir="$VENV/models/$name"
-  stamp="$env_dir/.conflictbench-installed"
-  if [ -f "$stamp" ] && [ ! serving/pyproject.toml -nt "$stamp" ] && [ ! "$plugin/pyproject.toml" -nt "$stamp" ]; then
-    continue
-  fi
+build_model_env() {  # build_model_env NAME: the plugin's model environment
+  local name=$1 plugin=plugins/$1 env_dir="$VENV/models/$1" requirements counterparts
   say "building the $name model environment in $env_dir with $MODEL_PYTHON (first time: a few minutes)"
   [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
   "$env_dir/bin/python" -m pip install -q --upgrade pip
@@ -183,24 +178,45 @@ EOF
   read -ra counterparts <<<"${requirements[0]}"
   ((${#counterparts[@]} == 0)) || "$env_dir/bin/python" -m pip install -q --no-compile --no-deps "${counterparts[@]}"
   "$env_dir/bin/python" -m pip install -q --no-deps -e "$plugin"
-  "$VENV/bin/python" scripts/link_identical.py "$VENV/models"  # the same torch in each: keep its files once
-  touch "$stamp"
-done
+  touch "$env_dir/.conflictbench-installed"
+}
 
 # 6. The learned subject's training environment (`conflictbench train-subject`): Python 3.12 with LeRobot's
 #    dataset stack and PyTorch, pinned in the file below. Built with every model environment (--models all, the
 #    tests), or alone by `--models subject`; playing `model=subject` needs none of it.
-if ((SUBJECT)); then
-  requirements=conflictbench/policies/subject/training-requirements.txt
-  env_dir="$VENV/models/subject"
-  stamp="$env_dir/.conflictbench-installed"
-  if [ ! -f "$stamp" ] || [ "$requirements" -nt "$stamp" ]; then
-    say "building the subject's training environment in $env_dir with $MODEL_PYTHON"
-    [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
-    "$env_dir/bin/python" -m pip install -q --upgrade pip
-    "$env_dir/bin/python" -m pip install -q --no-compile -r "$requirements"
-    "$VENV/bin/python" scripts/link_identical.py "$VENV/models"
-    touch "$stamp"
+SUBJECT_REQUIREMENTS=conflictbench/policies/subject/training-requirements.txt
+build_subject_env() {
+  local env_dir="$VENV/models/subject"
+  say "building the subject's training environment in $env_dir with $MODEL_PYTHON"
+  [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
+  "$env_dir/bin/python" -m pip install -q --upgrade pip
+  "$env_dir/bin/python" -m pip install -q --no-compile -r "$SUBJECT_REQUIREMENTS"
+  touch "$env_dir/.conflictbench-installed"
+}
+
+# Those missing or older than their sources, two at a time: installing is mostly unpacking and writing (about
+# 90 s of a core each), so two share the machine well. Then files identical across environments are hard-linked
+# (the same torch in each: keep its files once) before the next two, which bounds the disk used on the way.
+builds=()
+for name in $MODELS; do
+  stamp="$VENV/models/$name/.conflictbench-installed"
+  if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ] || [ "plugins/$name/pyproject.toml" -nt "$stamp" ]; then
+    builds+=("build_model_env $name")
   fi
+done
+stamp="$VENV/models/subject/.conflictbench-installed"
+if ((SUBJECT)) && { [ ! -f "$stamp" ] || [ "$SUBJECT_REQUIREMENTS" -nt "$stamp" ]; }; then
+  builds+=(build_subject_env)
 fi
+for ((i = 0; i < ${#builds[@]}; i += 2)); do
+  pids=()
+  for build in "${builds[@]:i:2}"; do
+    $build &
+    pids+=($!)
+  done
+  for pid in "${pids[@]}"; do
+    wait "$pid" || { say "a model environment failed to build (see above)"; wait; exit 1; }
+  done
+  "$VENV/bin/python" scripts/link_identical.py "$VENV/models"
+done
 say "ready: $VENV/bin/conflictbench"
