@@ -169,6 +169,52 @@ def test_register_callbacks_attribute_each_plugin():
     assert plugins.policy("mine").make_config({"depth": 4}).depth == 4
 
 
+def fake_distribution(site: Path, name: str, entry_points: str, version: str = "1.0") -> None:
+    """An installed distribution as importlib.metadata sees it: a dist-info with its entry points."""
+    info = site / f"{name.replace('-', '_')}-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+    (info / "entry_points.txt").write_text(f"[conflictbench]\n{entry_points}\n")
+
+
+SHARED_HELPER = """
+from conflictbench import hookimpl
+
+class Registers:
+    def __init__(self, policy):
+        self.policy = policy
+
+    @hookimpl
+    def conflictbench_register_policies(self, register):
+        register(self.policy, load=lambda cfg: None)
+"""
+
+
+def test_two_plugins_sharing_a_helper_are_each_named_as_the_source_of_their_own_registrations(tmp_path, monkeypatch):
+    (tmp_path / "shared_registers.py").write_text(SHARED_HELPER)
+    for name in ("alpha", "beta"):
+        module = f"from shared_registers import Registers\nplugin = Registers({name!r})\n"
+        (tmp_path / f"{name}_plugin.py").write_text(module)
+        fake_distribution(tmp_path, f"{name}-plugin", f"{name} = {name}_plugin:plugin")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    plugins = conflictbench.plugins()
+    assert (plugins.policy("alpha").plugin, plugins.policy("beta").plugin) == ("alpha-plugin", "beta-plugin")
+
+
+def test_a_register_callback_kept_and_called_later_is_refused():
+    kept = []
+
+    class Late:
+        @hookimpl
+        def conflictbench_register_metrics(self, register):
+            kept.append(register)
+
+    plugins = make(Late())
+    assert "late" not in plugins.metrics() and len(kept) == 1
+    with pytest.raises(PluginError, match="after its implementation returned"):
+        kept[0]("late", compute=lambda pair: 1.0)
+
+
 def test_a_plugin_that_fails_to_import_is_reported_not_fatal(tmp_path, monkeypatch):
     dist = tmp_path / "broken_plugin-1.0.dist-info"
     dist.mkdir()

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import difflib
 import importlib
-import sys
 from collections.abc import Callable, Iterable, Sequence
 from importlib import metadata
 from typing import Any
@@ -125,32 +124,36 @@ class Plugins:
 
     # -- registries ------------------------------------------------------------------------
     def _collect(self, hook_name: str, kind: str, build: Callable[..., Any]) -> dict[str, Any]:
-        """Fill one registry, once, with one call of the register hook through pluggy.
+        """Fill one registry, once: each plugin's implementation called through pluggy on its own, with a
+        ``register`` callback bound to that plugin (so two plugins sharing a helper are still told apart).
 
-        ``register`` finds which plugin calls it from the call stack: the innermost frame running
-        one of the hook's implementations. ``build(where, source, name, ...)`` checks the call's
-        arguments and makes the spec."""
+        Plugins are called in registration order (built-ins, in-process extras, entry points), so a
+        registry lists each plugin's names in the order it gave them. ``build(where, source, name, ...)``
+        checks the call's arguments and makes the spec."""
         if hook_name in self._registries:
             return self._registries[hook_name]
         hook = getattr(self.pm.hook, hook_name)
-        owners: dict[Any, list[str]] = {}
-        for impl in hook.get_hookimpls():
-            function = getattr(impl.function, "__func__", impl.function)
-            owners.setdefault(getattr(function, "__code__", None), []).append(impl.plugin_name)
+        implementers = {impl.plugin_name for impl in hook.get_hookimpls() if not (impl.hookwrapper or impl.wrapper)}
         found: dict[str, Any] = {}
-        registered_by: dict[str, str] = {}
+        for plugin_name in [name for name in self._sources if name in implementers]:
+            others = [self.pm.get_plugin(name) for name in implementers if name != plugin_name]
+            register = self._register_callback(hook_name, kind, plugin_name, build, found)
+            self.pm.subset_hook_caller(hook_name, remove_plugins=others)(register=register)
+            register.closed = True  # type: ignore[attr-defined]
+        self._registries[hook_name] = found
+        return found
 
-        def calling_plugin() -> str:
-            frame = sys._getframe(2)
-            while frame is not None:
-                if frame.f_code in owners:
-                    return " or ".join(owners[frame.f_code])
-                frame = frame.f_back
-            raise PluginError(f"register() of {hook_name} was called outside an implementation of that hook")
+    def _register_callback(
+        self, hook_name: str, kind: str, plugin_name: str, build: Callable[..., Any], found: dict[str, Any]
+    ) -> Callable[..., None]:
+        source = self.source(plugin_name)
 
         def register(name: str, *args: Any, **kwargs: Any) -> None:
-            plugin_name = calling_plugin()
-            source = self.source(plugin_name)
+            if register.closed:  # type: ignore[attr-defined]
+                raise PluginError(
+                    f"plugin {plugin_name} ({source.distribution}) called register() of {hook_name} after its "
+                    "implementation returned; register everything while the hook runs"
+                )
             check_name(kind, name, plugin_name)
             if name in found:
                 raise PluginError(f"{kind} {name!r} registered twice ({found[name].plugin} and {source.distribution})")
@@ -159,15 +162,9 @@ class Plugins:
                 found[name] = build(where, source, name, *args, **kwargs)
             except TypeError as exc:  # wrong arguments to register()
                 raise PluginError(f"{where}: {exc}") from None
-            registered_by[name] = plugin_name
 
-        hook(register=register)
-        # pluggy calls the most recently registered plugin first; list in registration order instead
-        # (built-ins, in-process extras, entry points), each plugin's names in the order it gave them.
-        rank = {plugin: i for i, plugin in enumerate(self._sources)}
-        ordered = sorted(found, key=lambda n: rank.get(registered_by[n].split(" or ")[0], len(rank)))
-        self._registries[hook_name] = {name: found[name] for name in ordered}
-        return self._registries[hook_name]
+        register.closed = False  # type: ignore[attr-defined]
+        return register
 
     def policies(self) -> dict[str, PolicySpec]:
         return self._collect("conflictbench_register_policies", "policy", policy_spec)
