@@ -45,10 +45,19 @@ except _metadata.PackageNotFoundError:  # running from a source tree that was ne
 BUILTIN_PLUGINS = ("conflictbench.policies", "conflictbench.metrics", "conflictbench.tasks")
 
 
+#: Installed plugins to leave unimported, comma-separated entry-point or distribution names (the command
+#: line's ``--disable-plugins`` sets it, so that the processes a run starts leave them out too).
+DISABLE_PLUGINS_VARIABLE = "CONFLICTBENCH_DISABLE_PLUGINS"
+
+
 def plugins(**kwargs):
-    """A plugin manager with the built-ins and every installed third-party plugin."""
+    """A plugin manager with the built-ins and every installed third-party plugin not disabled
+    (``disabled=[...]``, by default those ``CONFLICTBENCH_DISABLE_PLUGINS`` names)."""
+    import os
+
     from .core.plugins import Plugins
 
+    kwargs.setdefault("disabled", os.environ.get(DISABLE_PLUGINS_VARIABLE, "").split(","))
     return Plugins(BUILTIN_PLUGINS, **kwargs)
 
 

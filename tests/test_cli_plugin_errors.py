@@ -89,3 +89,30 @@ def test_a_plugin_installed_twice_in_two_versions_is_refused(tmp_path: Path):
     done = conflictbench(site, "list")
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert "conflictbench-typo is installed more than once (1.0, 1.1)" in done.stderr
+
+
+def test_a_disabled_plugin_is_never_imported_and_list_shows_it_disabled(tmp_path: Path):
+    broken = install(tmp_path, MODULE)  # its misspelled hook would stop every command
+    done = conflictbench(broken, "--disable-plugins", "typo", "list")
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    start = lines.index("plugins disabled (--disable-plugins, CONFLICTBENCH_DISABLE_PLUGINS; not imported):")
+    assert lines[start + 1].split() == ["typo", "conflictbench-typo", "1.0"]
+    assert "typo-policy" not in done.stdout
+
+
+def test_the_variable_disables_a_global_hook_by_its_distribution_name_and_a_wrong_name_is_one_line(
+    tmp_path: Path, monkeypatch
+):
+    site = install(tmp_path, CLIP)
+    monkeypatch.setenv("CONFLICTBENCH_DISABLE_PLUGINS", "Conflictbench_Typo")
+    done = conflictbench(site, "list")
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("global hooks"))
+    assert lines[start + 1].strip() == "(none installed)"
+    monkeypatch.setenv("CONFLICTBENCH_DISABLE_PLUGINS", "clip")
+    done = conflictbench(site, "list")
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "cannot disable clip: no installed plugin has that entry-point or distribution name" in done.stderr
+    assert "conflictbench-typo" in done.stderr

@@ -255,3 +255,39 @@ def test_a_register_call_with_wrong_arguments_names_the_plugin():
 
     with pytest.raises(PluginError, match=r"metric 'm2' from .*Sloppy.*positional argument"):
         make(Sloppy()).metrics()
+
+
+def test_a_disabled_plugin_is_not_imported_and_leaves_the_identity(tmp_path, monkeypatch):
+    (tmp_path / "clipping_plugin.py").write_text(
+        "import numpy as np\nfrom conflictbench import hookimpl\nIMPORTED = True\n\n"
+        "@hookimpl\ndef conflictbench_postprocess_action(action, context):\n    return np.clip(action, -0.5, 0.5)\n"
+    )
+    fake_distribution(tmp_path, "clipping-plugin", "clipping = clipping_plugin")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    on = conflictbench.plugins(disabled=[])
+    assert "clipping-plugin==1.0" in on.provenance("noop")
+    import sys
+
+    sys.modules.pop("clipping_plugin", None)
+    for name in ("clipping", "Clipping_Plugin"):  # an entry point's name, or its distribution's as PyPI compares
+        off = conflictbench.plugins(disabled=[name])
+        assert "clipping_plugin" not in sys.modules
+        assert off.disabled["clipping"].distribution == "clipping-plugin"
+        assert off.global_hook_plugins() == {} and "clipping-plugin==1.0" not in off.provenance("noop")
+    monkeypatch.setenv("CONFLICTBENCH_DISABLE_PLUGINS", "clipping")
+    assert "clipping" in conflictbench.plugins().disabled
+    with pytest.raises(UserError, match="cannot disable clippin: no installed plugin .*installed plugins: .*clipping"):
+        conflictbench.plugins(disabled=["clippin"])
+
+
+def test_a_jobs_pickled_plugins_keep_the_disabled_ones(tmp_path, monkeypatch):
+    import pickle
+
+    from conflictbench.cli.run import PluginsHere
+
+    fake_distribution(tmp_path, "clipping-plugin", "clipping = clipping_plugin_never_imported")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    here = PluginsHere(conflictbench.plugins(disabled=["clipping"]))
+    elsewhere = pickle.loads(pickle.dumps(here))  # a launcher's node, without our environment variable
+    assert elsewhere.plugins is None and list(elsewhere.get().disabled) == ["clipping"]
+    assert elsewhere.get().load_failures == {}

@@ -43,6 +43,8 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench merge OUT SHARD...    one store from stores written on different machines
        conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
        conflictbench train-subject [--out DIR]   train the learned default policy from scratch (--help)
+       conflictbench --disable-plugins A,B ...   leave these installed plugins out (not imported); also
+                                           CONFLICTBENCH_DISABLE_PLUGINS=A,B
        conflictbench --config-help         the configuration, its groups and their options
        conflictbench --hydra-help          Hydra's own options
 """
@@ -50,6 +52,31 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
 
 def _interrupted(signum: int, frame: object) -> None:
     raise KeyboardInterrupt  # SIGTERM (a batch scheduler's time limit, `kill`) and SIGHUP end a run as Ctrl-C does
+
+
+def _take_disabled_plugins(argv: list[str]) -> list[str]:
+    """Remove ``--disable-plugins A,B`` (anywhere, any number of times) and add the names to
+    ``CONFLICTBENCH_DISABLE_PLUGINS``: read before any plugin loads, and inherited by every process the run
+    starts (a sweep's jobs, a launcher's workers)."""
+    import os
+
+    from conflictbench import DISABLE_PLUGINS_VARIABLE
+
+    names, rest, args = [], [], iter(argv)
+    for arg in args:
+        if arg == "--disable-plugins":
+            value = next(args, None)
+            if value is None or value.startswith("-") or "=" in value:
+                raise UserError("--disable-plugins needs the plugins' names, e.g. --disable-plugins demo,other")
+            names.append(value)
+        elif arg.startswith("--disable-plugins="):
+            names.append(arg.split("=", 1)[1])
+        else:
+            rest.append(arg)
+    if names:
+        earlier = os.environ.get(DISABLE_PLUGINS_VARIABLE, "")
+        os.environ[DISABLE_PLUGINS_VARIABLE] = ",".join(n for n in (earlier, *names) if n)
+    return rest
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -63,6 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         import conflictbench
 
+        argv = _take_disabled_plugins(argv)
         plugins = conflictbench.plugins()
         module, rest = (VERBS[argv[0]], argv[1:]) if argv[:1] and argv[0] in VERBS else ("run", argv)
         return importlib.import_module(f"{__name__}.{module}").command(rest, plugins)

@@ -42,6 +42,10 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         print("  (none installed)")
     for pin, names in sorted(hooks.items()):
         print(f"  {pin:<30} {', '.join(names)}")
+    if plugins.disabled:
+        print("plugins disabled (--disable-plugins, CONFLICTBENCH_DISABLE_PLUGINS; not imported):")
+        for name, source in sorted(plugins.disabled.items()):
+            print(f"  {name:<20} {source.distribution} {source.version}")
     if plugins.load_failures:
         print("plugins that failed to load:")
         for name, why in plugins.load_failures.items():

@@ -205,16 +205,18 @@ class PluginsHere:
         self.plugins = plugins
 
     def __getstate__(self) -> dict:
-        return {}
+        # The plugins the user disabled travel with the job: a node elsewhere may not share our environment.
+        return {"disabled": list(self.plugins.disabled_requested) if self.plugins is not None else None}
 
     def __setstate__(self, state: dict) -> None:
-        self.plugins = None
+        self.plugins, self.disabled = None, state.get("disabled")
 
     def get(self) -> Plugins:
         if getattr(self, "plugins", None) is None:  # (pickle protocols < 2 never call __setstate__ for {})
             import conflictbench
 
-            self.plugins = conflictbench.plugins()
+            disabled = getattr(self, "disabled", None)
+            self.plugins = conflictbench.plugins() if disabled is None else conflictbench.plugins(disabled=disabled)
         return self.plugins
 
 

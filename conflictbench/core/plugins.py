@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import re
 from collections.abc import Callable, Iterable, Sequence
 from importlib import metadata
 from typing import Any
@@ -53,11 +54,21 @@ class Plugins:
     plugin that implements a hook that does not exist (a misspelling) is an error naming both.
     """
 
-    def __init__(self, builtins: Sequence[str] = (), *, entry_points: bool = True, extra: Iterable[object] = ()):
+    def __init__(
+        self,
+        builtins: Sequence[str] = (),
+        *,
+        entry_points: bool = True,
+        extra: Iterable[object] = (),
+        disabled: Iterable[str] = (),
+    ):
         self.pm = pluggy.PluginManager(hookspecs.PROJECT_NAME)
         self.pm.add_hookspecs(hookspecs)
         self._sources: dict[str, PluginSource] = {}
         self.load_failures: dict[str, str] = {}
+        #: The installed plugins the user switched off (by entry-point or distribution name), never imported.
+        self.disabled: dict[str, PluginSource] = {}
+        self.disabled_requested: tuple[str, ...] = tuple(name.strip() for name in disabled if name.strip())
         own = PluginSource("conflictbench", _version("conflictbench"))
         self._register(prompts, _CORE_PROMPTS, own)
         for module_name in builtins:
@@ -92,17 +103,31 @@ class Plugins:
                 )
                 + ": remove the stale copy, or episodes could be stored under the wrong version"
             )
+        off = {_canonical(name) for name in self.disabled_requested}
+        installed: set[str] = set()
         for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-            if self.pm.get_plugin(ep.name) is not None or self.pm.is_blocked(ep.name):
-                continue
             dist = getattr(ep, "dist", None)
             source = PluginSource(dist.name if dist else ep.value, dist.version if dist else "")
+            names = {_canonical(ep.name), _canonical(source.distribution)}
+            installed |= names
+            if names & off:  # blocked before it is imported: a disabled plugin runs no code at all
+                self.disabled[ep.name] = source
+                self.pm.set_blocked(ep.name)
+                continue
+            if self.pm.get_plugin(ep.name) is not None or self.pm.is_blocked(ep.name):
+                continue
             try:
                 plugin = ep.load()
             except Exception as exc:  # a broken third-party install must not take the tool down
                 self.load_failures[f"{ep.name} ({source.distribution})"] = f"{type(exc).__name__}: {exc}"
                 continue
             self._register(plugin, ep.name, source)
+        unknown = sorted(off - installed)
+        if unknown:
+            raise UserError(
+                f"cannot disable {', '.join(unknown)}: no installed plugin has that entry-point or distribution name; "
+                f"installed plugins: {', '.join(sorted(installed)) or '(none)'}"
+            )
 
     def _check_hooks(self) -> None:
         """Refuse hook implementations without a spec: a misspelled hook would otherwise never run."""
@@ -278,6 +303,11 @@ def _installed_twice() -> dict[str, list[str]]:
             name = (dist.metadata["Name"] or "").lower().replace("_", "-")
             versions.setdefault(name, set()).add(dist.version)
     return {name: sorted(v) for name, v in versions.items() if len(v) > 1}
+
+
+def _canonical(name: str) -> str:
+    """A name as PyPI compares names: ``Conflictbench_Demo`` is ``conflictbench-demo``."""
+    return re.sub(r"[-_.]+", "-", name).lower()
 
 
 def _version(distribution: str) -> str:
