@@ -37,19 +37,19 @@ def conflictbench_register_policies(register):
 
     The policy returned by ``load`` has ``reset(instruction: str) -> None`` and
     ``act(observation) -> ndarray`` of shape ``(7,)`` or a chunk ``(k, 7)`` executed open-loop.
-    It may also define ``act_batch(observations) -> list[ndarray]`` (an exception in place of one
-    result ends that episode alone), ``start()`` (called once before the first episode the run plays,
-    never when everything is stored already: where to start a model server), ``close()`` (called
-    whenever the run ends, started or not), ``identity`` [{}] (what the settings do not say about the
-    model, e.g. a checkpoint's fingerprint: part of every episode's identity),
-    ``concurrent_requests`` [False] (True: ``act_batch`` may run in several threads at once, one
-    observation each, so every worker's query goes out as soon as it comes: what a served policy
-    declares), and these
-    attributes (defaults in brackets): ``needs_images`` [True], ``needs_privileged`` [False] (simulator
-    truth, the goal and the case: experts and oracles only), ``needs_scene_state`` [False] (object poses,
-    regions and scene joints, nothing about the task: :class:`SceneState`),
-    ``image_size`` [256], ``warmup_steps`` [10], ``max_steps`` [a mapping LIBERO suite -> steps;
-    220/280/300/520].
+    It may also declare (defaults in brackets; [none]: a method it may leave out; the one list is
+    ``conflictbench.core.policy.POLICY_DECLARATIONS``): ``act_batch`` [none]
+    (``act_batch(observations) -> list[ndarray]``; an exception in place of one result ends that episode
+    alone), ``start`` [none] (called once before the first episode the run plays, never when everything
+    is stored already: where to start a model server), ``close`` [none] (called whenever the run ends,
+    started or not), ``identity`` [{}] (what the settings do not say about the model, e.g. a checkpoint's
+    fingerprint: part of every episode's identity), ``concurrent_requests`` [False] (True: ``act_batch``
+    may run in several threads at once, one observation each, so every worker's query goes out as soon
+    as it comes: what a served policy declares), ``needs_images`` [True], ``needs_privileged`` [False]
+    (simulator truth, the goal and the case: experts and oracles only), ``needs_scene_state`` [False]
+    (object poses, regions and scene joints, nothing about the task: :class:`SceneState`),
+    ``image_size`` [256], ``warmup_steps`` [10], ``max_steps`` [220/280/300/520] (a mapping LIBERO
+    suite -> steps).
 
     A run loads the policy once, whatever ``run.workers`` is, and how it is called depends on
     ``act_batch``:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
@@ -19,6 +20,53 @@ DEFAULT_MAX_STEPS: Mapping[str, int] = {
 }
 DEFAULT_WARMUP_STEPS = 10
 DEFAULT_IMAGE_SIZE = 256
+
+
+@dataclass(frozen=True)
+class Declaration:
+    """One thing a policy object may define besides ``reset`` and ``act``."""
+
+    name: str
+    default: str
+    """As the documentation shows it (``none``: a method the policy may leave out)."""
+    meaning: str
+
+
+#: Everything a policy may declare, the one list of them: :class:`PolicyTraits` reads the attributes, and the
+#: hook spec's docstring and README's table are checked against it (tests/test_policy_contract.py).
+POLICY_DECLARATIONS: tuple[Declaration, ...] = (
+    Declaration(
+        "act_batch",
+        "none",
+        "`act_batch(observations) -> list[ndarray]`: several episodes' observations in one call; an exception in "
+        "place of one result ends that episode alone",
+    ),
+    Declaration(
+        "start",
+        "none",
+        "`start()`: called once before the first episode the run plays, never when everything is stored "
+        "already (where to start a model server)",
+    ),
+    Declaration("close", "none", "`close()`: called whenever the run ends, started or not"),
+    Declaration(
+        "identity",
+        "{}",
+        "what the settings do not say about the model (a checkpoint's fingerprint); part of every episode's identity",
+    ),
+    Declaration(
+        "concurrent_requests",
+        "False",
+        "True: `act_batch` may run in several threads at once, one observation each (a served policy)",
+    ),
+    Declaration("needs_images", "True", "render the two cameras for this policy"),
+    Declaration("needs_privileged", "False", "simulator truth, the goal and the case: experts and oracles only"),
+    Declaration(
+        "needs_scene_state", "False", "object poses, regions and scene joints, nothing about the task (`SceneState`)"
+    ),
+    Declaration("image_size", "256", "the cameras' width and height in pixels"),
+    Declaration("warmup_steps", "10", "no-op steps after the initial state, before the first query"),
+    Declaration("max_steps", "220/280/300/520", "steps per LIBERO suite (a mapping suite -> steps)"),
+)
 
 
 @runtime_checkable
