@@ -74,6 +74,13 @@ def test_run_options_accept_a_list_of_initial_states(composed):
     assert opts.init_states == [0, 4] and opts.cases_per_cell is None
 
 
+def test_run_options_name_base_tasks_and_cases(composed):
+    opts = run_options(composed("run.tasks=[libero_goal/3,libero_10/0,libero_goal/3]", "run.cases=[a-1]").run)
+    assert opts.tasks == [("libero_10", 0), ("libero_goal", 3)] and opts.cases == ["a-1"]
+    opts = run_options(composed().run)
+    assert opts.tasks is None and opts.cases is None
+
+
 @pytest.mark.parametrize(
     "override, message",
     [
@@ -85,6 +92,10 @@ def test_run_options_accept_a_list_of_initial_states(composed):
         ("run.workers=0", "run.workers must be an integer >= 1"),
         ("run.backend=dask", "unknown run.backend 'dask'; valid choices: local, ray"),
         ("run.libero_suites=[libero_90]", "unknown LIBERO suite 'libero_90'"),
+        ("run.tasks=[libero_gaol/3]", "'libero_gaol/3' names no LIBERO suite \\(did you mean libero_goal\\?\\)"),
+        ("run.tasks=[libero_goal/10]", "task ids 0-9\\), got 'libero_goal/10'"),
+        ("run.tasks=[libero_goal]", "got 'libero_goal'"),
+        ("run.cases=[]", "run.cases must name at least one, or be null"),
     ],
 )
 def test_bad_run_options_are_user_errors(composed, override, message):

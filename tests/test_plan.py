@@ -160,3 +160,43 @@ def test_a_declaration_added_later_leaves_the_identities_of_policies_without_it(
     seeing = PolicyTraits(Seeing())
     assert seeing.as_dict()["needs_scene_state"] is True
     assert config_hash("p", None, plain) != config_hash("p", None, seeing)
+
+
+def test_named_cases_play_exactly_those_whatever_the_sample_and_with_their_references():
+    cases = [case("a"), case("b", level="L2"), case("c", suite="libero_10", task=4)]
+    episodes = plan(cases, case_ids=["c", "a"], cases_per_cell=1, init_states=[2])
+    assert sorted(e.case_id for e in episodes if e.case) == ["a", "c"]
+    assert sorted((e.suite, e.task_id, e.init_state) for e in episodes if e.case is None) == [
+        ("libero_10", 4, 2),
+        ("libero_goal", 0, 2),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("case_ids", "filters", "message"),
+    [
+        (["spatial-L1-x"], {}, "no case 'spatial-L1-x' in the suite; the closest is spatial-L1-y"),
+        (["zz"], {}, "no case 'zz' in the suite (ids look like a)"),
+        (["gone"], {}, "case gone was removed by the suite's validation"),
+        (["spatial-L1-y"], {"families": ["physical"]}, "spatial-L1-y (spatial L1, libero_goal/0) is outside"),
+        (["a"], {"base_tasks": [("libero_10", 4)]}, "case a (physical L1, libero_goal/0) is outside"),
+    ],
+)
+def test_a_named_case_that_cannot_play_is_one_line_saying_why(case_ids, filters, message):
+    cases = [case("a"), case("spatial-L1-y", family="spatial"), case("gone", status="removed")]
+    with pytest.raises(UserError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        plan(cases, case_ids=case_ids, **filters)
+
+
+def test_named_base_tasks_keep_their_references_and_sampled_cases_only():
+    cases = [case("a"), case("b", task=1), case("c", suite="libero_10", task=4)]
+    episodes = plan(cases, base_tasks=[("libero_goal", 1), ("libero_10", 4)], cases_per_cell=None)
+    assert sorted(e.case_id for e in episodes if e.case) == ["b", "c"]
+    references = plan(cases, base_tasks=[("libero_goal", 1)], cases_per_cell=0, init_states=[0, 1])
+    assert {(e.suite, e.task_id, e.init_state) for e in references} == {("libero_goal", 1, 0), ("libero_goal", 1, 1)}
+    with pytest.raises(UserError, match="run.tasks names libero_10/4, outside run.libero_suites"):
+        plan(
+            cases,
+            base_tasks=[("libero_10", 4)],
+            base_instructions={k: v for k, v in BASE.items() if k[0] != "libero_10"},
+        )

@@ -264,3 +264,46 @@ def test_ctrl_c_says_the_finished_videos_are_kept(store, monkeypatch, capsys):
     assert main(["view", str(store.root)]) == 130
     err = capsys.readouterr().err
     assert "every finished video is kept" in err and "episode" not in err  # not the run's message
+
+
+@pytest.mark.parametrize(
+    ("policy", "settings"),
+    [("noop", {}), ("random", {"seed": 3, "scale": 0.5}), ("subject", {"weights": "/my models/it's.npz"})],
+)
+def test_a_pages_play_again_command_plans_exactly_its_pair(plugins, policy, settings):
+    import dataclasses
+    import shlex
+
+    from hydra import compose, initialize_config_module
+    from hydra.core.global_hydra import GlobalHydra
+    from omegaconf import OmegaConf
+
+    from conflictbench.cli.run import register_model_configs, run_options
+    from conflictbench.core import FAMILIES, LEVELS
+    from conflictbench.sim.plan import build_plan
+    from conflictbench.view.pairs import play_again_command
+
+    case = next(c for c in SHIPPED if c.family == "spatial" and c.level == "L2" and c.suite == "libero_10")
+    conflict = episode("x", case=case, policy=policy, prompt="p1", policy_settings=json.dumps(settings))
+    conflict = dataclasses.replace(conflict, init_state=4, seed=11)
+    words = shlex.split(play_again_command(conflict))
+    assert words[0] == "conflictbench"
+    register_model_configs(plugins)
+    GlobalHydra.instance().clear()
+    with initialize_config_module(config_module="conflictbench.conf", version_base=None):
+        cfg = compose("config", overrides=words[1:])
+    GlobalHydra.instance().clear()
+    options = run_options(cfg.run)
+    model = OmegaConf.to_container(cfg.model)
+    assert {k: model[k] for k in settings} == settings and options.seed == 11
+    base = {(s, t): f"task {s} {t}" for s in options.libero_suites for t in range(10)}
+    plan = build_plan(
+        SHIPPED, base_instructions=base, families=list(cfg.suite.families), levels=list(cfg.level.levels),
+        prompts=list(cfg.prompt.conditions), init_states=options.init_states, cases_per_cell=options.cases_per_cell,
+        libero_suites=options.libero_suites, case_ids=options.cases, base_tasks=options.tasks,
+    )  # fmt: skip
+    assert set(FAMILIES) == set(cfg.suite.families) and set(LEVELS) == set(cfg.level.levels)
+    assert [(e.case_id, e.suite, e.task_id, e.init_state, e.prompt) for e in plan] == [
+        (None, case.suite, case.task_id, 4, "p1"),
+        (case.case_id, case.suite, case.task_id, 4, "p1"),
+    ]

@@ -42,6 +42,8 @@ class RunOptions:
     cases_per_cell: int | None
     sample_seed: int
     libero_suites: list[str]
+    tasks: list[tuple[str, int]] | None
+    cases: list[str] | None
     seed: int
     workers: int
     backend: str
@@ -66,6 +68,35 @@ def _names(value: Any, name: str, allowed: tuple[str, ...]) -> list[str]:
     if not items:
         raise UserError(f"{name} must not be empty")
     return [str(i) for i in items]
+
+
+def _listed(value: Any, name: str) -> list[str] | None:
+    if value is None:
+        return None
+    items = [str(v) for v in (value if isinstance(value, (list, ListConfig)) else [value])]
+    if not items:
+        raise UserError(f"{name} must name at least one, or be null")
+    return items
+
+
+def _base_tasks(value: Any) -> list[tuple[str, int]] | None:
+    """``run.tasks``: ``libero_goal/3`` entries, checked (LIBERO's suites have tasks 0-9)."""
+    import difflib
+
+    named = _listed(value, "run.tasks")
+    if named is None:
+        return None
+    tasks = []
+    for entry in named:
+        suite, _, task = entry.partition("/")
+        if suite not in LIBERO_SUITES:
+            close = difflib.get_close_matches(suite, LIBERO_SUITES, n=1)
+            hint = f" (did you mean {close[0]}?)" if close else f"; suites: {', '.join(LIBERO_SUITES)}"
+            raise UserError(f"run.tasks entries look like libero_goal/3; {entry!r} names no LIBERO suite{hint}")
+        if not task.isdigit() or int(task) > 9:
+            raise UserError(f"run.tasks entries look like libero_goal/3 (task ids 0-9), got {entry!r}")
+        tasks.append((suite, int(task)))
+    return sorted(set(tasks))
 
 
 def run_options(run: DictConfig) -> RunOptions:
@@ -95,6 +126,8 @@ def run_options(run: DictConfig) -> RunOptions:
         cases_per_cell=cases_per_cell,
         sample_seed=_int(run.sample_seed, "run.sample_seed"),
         libero_suites=_names(run.libero_suites, "LIBERO suite", LIBERO_SUITES),
+        tasks=_base_tasks(run.get("tasks")),
+        cases=_listed(run.get("cases"), "run.cases"),
         seed=_int(run.seed, "run.seed"),
         workers=_int(run.workers, "run.workers", minimum=1),
         backend=_names(run.backend, "run.backend", BACKENDS)[0],
@@ -156,6 +189,8 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         cases_per_cell=options.cases_per_cell,
         sample_seed=options.sample_seed,
         libero_suites=options.libero_suites,
+        case_ids=options.cases,
+        base_tasks=options.tasks,
     )
     if not plan:
         raise UserError(

@@ -103,6 +103,28 @@ def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str,
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
+def named_cases(cases: Sequence[ConflictCase], case_ids: Sequence[str], selected) -> list[ConflictCase]:
+    """The cases ``run.cases`` names, in the suite's order; one line for an id that is not there or not playable."""
+    import difflib
+
+    by_id = {c.case_id: c for c in cases}
+    for case_id in case_ids:
+        case = by_id.get(case_id)
+        if case is None:
+            close = difflib.get_close_matches(case_id, list(by_id), n=1, cutoff=0.5)
+            hint = f"; the closest is {close[0]}" if close else f" (ids look like {next(iter(by_id), '?')})"
+            raise UserError(f"run.cases: no case {case_id!r} in the suite{hint}")
+        if case.status not in USABLE:
+            raise UserError(f"run.cases: case {case_id} was {case.status} by the suite's validation; it is not played")
+        if not selected(case):
+            raise UserError(
+                f"run.cases: case {case_id} ({case.family} {case.level}, {case.suite}/{case.task_id}) is outside "
+                "this selection (suite=, level=, run.libero_suites, run.tasks)"
+            )
+    wanted = set(case_ids)
+    return [c for c in cases if c.case_id in wanted]
+
+
 def sample_cases(cases: Sequence[ConflictCase], per_cell: int | None, seed: int) -> list[ConflictCase]:
     """At most ``per_cell`` cases per (family, level) cell: a seeded sample stratified over LIBERO suites.
 
@@ -144,25 +166,40 @@ def build_plan(
     cases_per_cell: int | None,
     sample_seed: int = 0,
     libero_suites: Sequence[str] | None = None,
+    case_ids: Sequence[str] | None = None,
+    base_tasks: Sequence[tuple[str, int]] | None = None,
 ) -> list[EpisodeSpec]:
     """Conflict episodes for the sampled cases plus the references they need, grouped by base task.
 
     ``base_instructions`` maps every usable (suite, task_id) to its reference instruction; with
-    ``cases_per_cell == 0`` the plan holds only the references of those base tasks.
+    ``cases_per_cell == 0`` the plan holds only the references of those base tasks. ``base_tasks``
+    keeps only those base tasks (``run.tasks``); ``case_ids`` plays exactly those cases
+    (``run.cases``: no sample), each of which must be in the selection the other filters make.
     """
     if cases_per_cell is not None and cases_per_cell < 0:
         raise UserError(f"run.cases_per_cell must be >= 0 or 'all', got {cases_per_cell}")
+    if base_tasks is not None:
+        wanted = set(base_tasks)
+        base_instructions = {key: text for key, text in base_instructions.items() if key in wanted}
+        left_out = sorted(wanted - set(base_instructions))
+        if left_out:
+            raise UserError(f"run.tasks names {', '.join(f'{s}/{t}' for s, t in left_out)}, outside run.libero_suites")
     suites = set(libero_suites) if libero_suites else {s for s, _ in base_instructions}
-    eligible = [
-        c
-        for c in cases
-        if c.status in USABLE
-        and c.family in families
-        and c.level in levels
-        and c.suite in suites
-        and (c.suite, c.task_id) in base_instructions
-    ]
-    chosen = [] if cases_per_cell == 0 else sample_cases(eligible, cases_per_cell, sample_seed)
+
+    def selected(c: ConflictCase) -> bool:
+        return (
+            c.family in families
+            and c.level in levels
+            and c.suite in suites
+            and (c.suite, c.task_id) in base_instructions
+        )
+
+    cases = list(cases)
+    if case_ids is not None:
+        chosen = named_cases(cases, case_ids, selected)
+    else:
+        eligible = [c for c in cases if c.status in USABLE and selected(c)]
+        chosen = [] if cases_per_cell == 0 else sample_cases(eligible, cases_per_cell, sample_seed)
 
     conflicts: list[EpisodeSpec] = []
     reference_keys: set[tuple[str, int, int, str]] = set()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -100,3 +102,37 @@ def episode_data(record: EpisodeRecord) -> dict[str, Any]:
         "actions": _rounded(record.actions, 3),
         "targets": _rounded(record.target_pos[0], 4) if len(record.target_pos) else [],
     }
+
+
+def _override_value(value: Any) -> str:
+    """``value`` in Hydra's override grammar (quoted where a plain word would be read otherwise)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_override_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ",".join(f"{k}:{_override_value(v)}" for k, v in value.items()) + "}"
+    text = str(value)
+    if re.fullmatch(r"[A-Za-z_][\w./-]*", text) and text not in ("null", "true", "false"):
+        return text
+    return "'" + text.replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+def play_again_command(conflict: EpisodeRecord) -> str:
+    """The command that plays this pair (its conflict episode and the reference it needs) again."""
+    import shlex
+
+    settings = json.loads(conflict.policy_settings or "{}")
+    overrides = [f"model={conflict.policy}"]
+    overrides += [f"model.{key}={_override_value(value)}" for key, value in sorted(settings.items())]
+    overrides += [
+        f"run.cases=[{conflict.case_id}]",
+        f"run.init_states=[{conflict.init_state}]",
+        f"prompt={conflict.prompt}",
+        f"run.seed={conflict.seed}",
+    ]
+    return " ".join(["conflictbench", *(shlex.quote(o) for o in overrides)])

@@ -10,7 +10,7 @@ from typing import Any
 
 from conflictbench.core import ConflictCase, EpisodeRecord
 
-from .pairs import FILTERS, OUTCOMES, episode_data
+from .pairs import FILTERS, OUTCOMES, episode_data, play_again_command
 
 EQUAL_PATH_M = 1e-6  # a replay within a micrometre of the stored path shows what happened
 
@@ -117,6 +117,11 @@ def pair_page(
         ),  # fmt: skip
         ("Case", escape(conflict.case_id or "")),
         ("Episodes", escape(f"reference {reference.episode_id}, conflict {conflict.episode_id}")),
+        (
+            "Play it again",
+            f"<pre class='command'>{escape(play_again_command(conflict))}</pre>"
+            "(add <code>run.out=</code> another store: in this one both episodes are stored, and nothing plays)",
+        ),
     ]
     words = [replay_words(videos.get(r.episode_id)) for r in (reference, conflict)]
     replay = "".join(
