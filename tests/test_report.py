@@ -20,7 +20,7 @@ from conflictbench.store import EpisodeStore
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
-def episode(policy, case, x_end, move, success, family=None, level=None, steps=1, init=0, error=None):
+def episode(policy, case, x_end, move, success, family=None, level=None, steps=1, init=0, error=None, error_kind=None):
     """Two recorded states on the x axis (target at the origin) and one action of size ``move``."""
     return EpisodeRecord(
         policy=policy,
@@ -35,6 +35,7 @@ def episode(policy, case, x_end, move, success, family=None, level=None, steps=1
         success=success,
         steps=steps,
         error=error,
+        error_kind=error_kind,
         eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
         target_pos=np.zeros((2, 1, 3)),
         target_names=("alphabet_soup_1",),
@@ -266,14 +267,21 @@ def test_policy_errors_count_as_failures_and_simulator_failures_are_left_out(plu
 
     crashed = episode("alpha", "c3", 0.5, 0.0, False, "physical", "L1", error=f"{SIMULATOR_ERROR_PREFIX}: died")
     broke = episode("alpha", "c4", 0.5, 0.0, False, "physical", "L1", error="policy returned NaN")
+    others = [  # typed failures: their kind decides, whatever the text
+        episode("alpha", f"c{5 + i}", 0.5, 0.0, False, "physical", "L1", error="it failed", error_kind=kind)
+        for i, kind in enumerate(("server", "plugin", "server", "client", "policy"))
+    ]
     out = io.StringIO()
-    frames = report_records(two_models() + [crashed, broke], plugins, stream=out)
+    frames = report_records(two_models() + [crashed, broke, *others], plugins, stream=out)
     pairs = frames["pairs"]
-    assert len(pairs) == 5 and set(pairs["case_id"]) == {"c1", "c2", "c4"}
+    assert len(pairs) == 6 and set(pairs["case_id"]) == {"c1", "c2", "c4", "c9"}
     assert not pairs.loc[pairs["case_id"] == "c4", "conflict_success"].item()
     text = out.getvalue()
-    assert "1 episode(s) ended with a policy error and count as failed" in text
-    assert "1 episode(s) ended with a simulator failure and are left out" in text
+    assert "2 episode(s) ended with a policy error and count as failed" in text
+    assert (
+        "5 episode(s) left out, with their pairs, and played again by the next run: 1 plugin, 1 client, 2 server, "
+        "1 simulator (e.g. " in text
+    )
 
 
 def test_report_into_a_closed_pipe_still_writes_its_files(tmp_path):

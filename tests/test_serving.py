@@ -16,7 +16,13 @@ import pytest
 from policy_server import PolicyServer, served_action
 
 from conflictbench import InfrastructureError, PolicyClient, ServerUnavailable
-from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, SIMULATOR_ERROR_PREFIX, EpisodeRecord, Observation
+from conflictbench.core import (
+    INFRASTRUCTURE_ERROR_PREFIX,
+    SIMULATOR_ERROR_PREFIX,
+    ClientError,
+    EpisodeRecord,
+    Observation,
+)
 from conflictbench.report.summary import pair_up
 from conflictbench.store import EpisodeStore
 
@@ -194,19 +200,25 @@ def test_in_a_batch_only_the_failed_request_carries_the_error(server):
     assert isinstance(results[1], InfrastructureError)
 
 
-def test_a_reply_the_client_cannot_read_is_an_infrastructure_error(server):
+def test_a_reply_the_client_cannot_read_or_a_request_it_cannot_make_is_the_clients_failure(server):
     srv = server()
 
     class Misreading(served.ServedTestPolicy):
         def decode(self, reply, observation):
             return reply["actions"]  # the wrong key: a protocol mismatch, not the model's behaviour
 
-    policy = Misreading(served.ServedTestConfig(server=srv.url))
-    try:
-        with pytest.raises(InfrastructureError, match="could not read the reply .* KeyError"):
-            policy.act(observation())
-    finally:
-        policy.close()
+    class Misencoding(served.ServedTestPolicy):
+        def encode(self, observation):
+            return {"image": observation.agentview_image.tolist()}  # no image in this observation: a client bug
+
+    for policy_class, message in ((Misreading, "could not read the reply .* KeyError"), (Misencoding, "encode")):
+        policy = policy_class(served.ServedTestConfig(server=srv.url))
+        try:
+            with pytest.raises(ClientError, match=message) as raised:
+                policy.act(observation())
+            assert raised.value.kind == "client"
+        finally:
+            policy.close()
 
 
 def test_a_server_killed_mid_run_stops_the_run_naming_the_url(server):

@@ -185,7 +185,7 @@ def test_an_episode_the_server_fails_is_stored_left_out_and_played_again(play, s
     assert pairs == [] and [r.episode_id for r in counts.unserved] == [failed.episode_id]
     text = io.StringIO()
     report_store(store, plugins, stream=text, figures=False)  # what `conflictbench report DIR` prints
-    assert "1 episode(s) ended with an infrastructure failure and are left out" in text.getvalue()
+    assert "1 episode(s) left out, with their pairs, and played again by the next run: 1 server" in text.getvalue()
 
     healthy = servers()
     result, store = play("served-test", specs, settings={"server": healthy.url}, workers=2, plugin_set=plugins)

@@ -6,6 +6,7 @@ layer above this one, :mod:`conflictbench.hosting`; its names, which lived here 
 from here too (``conflictbench.hosting`` puts them back when ``conflictbench`` is imported)."""
 
 from .errors import (
+    ClientError,
     ConflictbenchError,
     InfrastructureError,
     PluginError,
@@ -20,6 +21,7 @@ from .policy import DEFAULT_MAX_STEPS, PerEpisode, Policy, PolicyTraits, as_acti
 from .prompts import P1_PREAMBLE, default_format_prompt
 from .records import (
     ACTION_DIM,
+    ERROR_KINDS,
     FAMILIES,
     INFRASTRUCTURE_ERROR_PREFIX,
     LEVELS,
@@ -43,9 +45,11 @@ from .sampling import rng_for, sampling_seed
 __all__ = [
     "ACTION_DIM",
     "ActionContext",
+    "ClientError",
     "ConflictCase",
     "ConflictbenchError",
     "DEFAULT_MAX_STEPS",
+    "ERROR_KINDS",
     "EpisodeRecord",
     "FAMILIES",
     "INFRASTRUCTURE_ERROR_PREFIX",

@@ -30,6 +30,8 @@ class PolicyError(ConflictbenchError):
     The episode is stored with this message as its ``error`` and counted as failed; the run goes on.
     """
 
+    kind = "policy"
+
 
 class PluginError(ConflictbenchError):
     """A plugin registered something invalid (a duplicate name, a non-dataclass config) or implements
@@ -46,6 +48,16 @@ class InfrastructureError(ConflictbenchError):
     and played again by the next run of the same command. Raise it from a served policy's
     transport or ``decode`` for a server's error reply.
     """
+
+    kind = "server"
+
+
+class ClientError(InfrastructureError):
+    """A served policy's own processing failed on one episode (its ``encode`` raised, or its ``decode``
+    could not read a reply): a bug or a mismatch in the client, not the model's behaviour. Stored with
+    ``error_kind`` ``client``, left out and played again like a server's error."""
+
+    kind = "client"
 
 
 class ServerUnavailable(ConflictbenchError):

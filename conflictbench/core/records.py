@@ -18,6 +18,13 @@ SIMULATOR_ERROR_PREFIX = "simulator error"
 #: How the ``error`` of an episode ended by the serving infrastructure (a policy server's error
 #: reply, a connection that kept failing) begins; such episodes are played again by the next run.
 INFRASTRUCTURE_ERROR_PREFIX = "infrastructure error"
+#: Whose failure ended an episode, decided by where it was raised (the ``error_kind`` column). ``policy``: the
+#: model's own answer (an in-process policy's ``act`` raised, a served model's valid reply was NaN or the wrong
+#: shape): the episode counts as failed. The others are not the model's behaviour: ``plugin`` (a post-processor
+#: or prompt hook), ``client`` (a served policy's own ``encode``/``decode``), ``server`` (the policy server or
+#: the connection to it), ``simulator`` (the simulator or its worker process). Such an episode is left out of
+#: every measure, with its pair, and played again by the next run.
+ERROR_KINDS = ("policy", "plugin", "client", "server", "simulator")
 LIBERO_SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
 PROMPT_CONDITIONS = ("p0", "p1")
 FAMILIES = ("instruction", "grounding", "spatial", "physical")
@@ -235,6 +242,9 @@ class EpisodeRecord:
     success: bool = False
     steps: int = 0
     error: str | None = None
+    error_kind: str | None = None
+    """One of :data:`ERROR_KINDS` where ``error`` is set (``None`` in stores written before the column: see
+    :attr:`failure_kind`)."""
     # process
     eef_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     target_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
@@ -276,18 +286,28 @@ class EpisodeRecord:
         return self.case_id is None
 
     @property
-    def simulator_failed(self) -> bool:
-        """The environment, not the policy, ended this episode: it says nothing about the policy.
+    def failure_kind(self) -> str | None:
+        """Whose failure ended this episode (:data:`ERROR_KINDS`), ``None`` where none did. Episodes stored
+        before the ``error_kind`` column get it from their error's text, as those stores decided it."""
+        if self.error is None:
+            return None
+        if self.error_kind:
+            return self.error_kind
+        if self.error.startswith(SIMULATOR_ERROR_PREFIX):
+            return "simulator"
+        return "server" if self.error.startswith(INFRASTRUCTURE_ERROR_PREFIX) else "policy"
 
-        A policy error (raised, NaN, wrong shape) is different: that episode counts as failed.
-        """
-        return self.error is not None and self.error.startswith(SIMULATOR_ERROR_PREFIX)
+    @property
+    def simulator_failed(self) -> bool:
+        """The environment, not the policy, ended this episode: it says nothing about the policy."""
+        return self.failure_kind == "simulator"
 
     @property
     def infrastructure_failed(self) -> bool:
-        """The simulator or the serving infrastructure (not the policy) ended this episode: it is left
-        out of the measures with its pairs. A serving failure is also played again by the next run."""
-        return self.error is not None and self.error.startswith((SIMULATOR_ERROR_PREFIX, INFRASTRUCTURE_ERROR_PREFIX))
+        """Something other than the policy ended this episode (a plugin, a client, a server, the simulator):
+        it is left out of the measures with its pairs and played again by the next run. A policy error
+        (raised, NaN, wrong shape) is different: that episode counts as failed."""
+        return self.failure_kind not in (None, "policy")
 
 
 @dataclass(frozen=True)

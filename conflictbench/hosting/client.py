@@ -63,7 +63,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..core.errors import InfrastructureError, PolicyError, ServerUnavailable, UserError
+from ..core.errors import ClientError, InfrastructureError, PolicyError, ServerUnavailable, UserError
 from ..core.records import Observation
 from .transport import HttpJsonTransport, Transport, one_line
 
@@ -291,7 +291,7 @@ class ServedPolicy:
     def act_batch(self, observations: Sequence[Observation]) -> list[Any]:
         """Actions in order; an :class:`Exception` in place of each observation whose request failed
         (that episode alone ends with it). Raises :class:`ServerUnavailable`."""
-        encoded = [_outcome(self.encode, obs) for obs in observations]
+        encoded = [_outcome(self._encode, obs) for obs in observations]
         sendable = [i for i, e in enumerate(encoded) if not isinstance(e, Exception)]
         replies = self.client.request_many([(observations[i].stream, encoded[i]) for i in sendable])
         results: list[Any] = list(encoded)
@@ -299,13 +299,23 @@ class ServedPolicy:
             results[i] = reply if isinstance(reply, Exception) else _outcome(self._decode, reply, observations[i])
         return results
 
+    def _encode(self, observation: Observation) -> Any:
+        try:
+            return self.encode(observation)
+        except InfrastructureError:
+            raise
+        except Exception as exc:  # our processing failed on this observation: not the model's behaviour
+            raise ClientError(
+                f"{type(self).__name__}.encode could not make the request: {type(exc).__name__}: {one_line(str(exc))}"
+            ) from exc
+
     def _decode(self, reply: Any, observation: Observation) -> np.ndarray:
         try:
             return self.decode(reply, observation)
         except (InfrastructureError, PolicyError):
             raise
         except Exception as exc:  # the reply is not what this client expects: not the model's behaviour
-            raise InfrastructureError(
+            raise ClientError(
                 f"could not read the reply of {self.client.url}: {type(exc).__name__}: {one_line(str(exc))}"
             ) from exc
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import re
 import sys
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from typing import TextIO
 import pandas as pd
 from tabulate import tabulate
 
-from conflictbench.core import EpisodeRecord, MetricSpec, Pair
+from conflictbench.core import ERROR_KINDS, EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
 from conflictbench.metrics import (
     GROUPINGS,
@@ -102,6 +103,19 @@ class EpisodeCounts:
     """Episodes the serving infrastructure ended (a policy server's error reply, a broken connection)."""
 
 
+def left_out_line(episodes: Sequence[EpisodeRecord]) -> str | None:
+    """``k left out: 2 server, 1 simulator``: the episodes something other than the policy ended, by whose failure."""
+    if not episodes:
+        return None
+    by_kind = Counter(r.failure_kind for r in episodes)
+    kinds = ", ".join(f"{by_kind[k]} {k}" for k in ERROR_KINDS if by_kind[k])
+    first = episodes[0]
+    return (
+        f"{len(episodes)} episode(s) left out, with their pairs, and played again by the next run: {kinds} "
+        f"(e.g. {first.episode_id}: {first.error})"
+    )
+
+
 def pair_up(records: Iterable[EpisodeRecord]) -> tuple[list[Pair], EpisodeCounts]:
     """Pairs for the report. A policy error ends an episode as a failure (it stays in); a simulator or
     serving-infrastructure failure says nothing about the policy, so such episodes are left out with their pairs."""
@@ -175,18 +189,15 @@ def report_frame(
         f"conflict), {counts.pairs} pairs",
         file=stream,
     )
-    for episodes, what in (
-        (counts.policy_errors, "ended with a policy error and count as failed"),
-        (counts.crashed, "ended with a simulator failure and are left out, with their pairs"),
-        (
-            counts.unserved,
-            "ended with an infrastructure failure and are left out, with their pairs; the next run plays them again",
-        ),
-    ):
-        if episodes:
-            print(
-                f"{len(episodes)} episode(s) {what} (e.g. {episodes[0].episode_id}: {episodes[0].error})", file=stream
-            )
+    if counts.policy_errors:
+        first = counts.policy_errors[0]
+        print(
+            f"{len(counts.policy_errors)} episode(s) ended with a policy error and count as failed "
+            f"(e.g. {first.episode_id}: {first.error})",
+            file=stream,
+        )
+    if line := left_out_line(counts.crashed + counts.unserved):
+        print(line, file=stream)
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
     if (line := tar_undefined_line(frame, names)) is not None:

@@ -1,8 +1,10 @@
 """Asking the policy: one decision for the workers that wait, and the reply each of them gets.
 
-Failures are sorted here. A policy that raises, or answers NaN, inf or the wrong shape, ends its
-episode as a failed one (the model's behaviour). An :class:`InfrastructureError` (its server
-answered an error) ends the episode for a replay, left out of the measures. A
+Failures are sorted here, by where they were raised (``ERROR_KINDS``). A policy that raises, or
+answers NaN, inf or the wrong shape, ends its episode as a failed one (``policy``: the model's
+behaviour). An :class:`InfrastructureError` (its server answered an error: ``server``; the client's
+own encode or decode failed, a :class:`ClientError`: ``client``) and a post-processor that raises or
+returns a bad action (``plugin``) end the episode for a replay, left out of the measures. A
 :class:`ServerUnavailable` is not caught: the run stops.
 """
 
@@ -54,11 +56,14 @@ def ask_policy(policy: Any, observations: list[Any], batched: bool) -> list[Any]
 def reply_for(plugins: Plugins, policy: str, item: Item, observation: Any, raw: Any) -> Abort | Actions:
     """What the worker playing ``item`` gets: the chunk to execute (raw and post-processed), or why it stops."""
     if isinstance(raw, InfrastructureError):  # not the model's behaviour: stored apart, replayed next run
-        return Abort(f"{INFRASTRUCTURE_ERROR_PREFIX}: {raw}")
+        return Abort(f"{INFRASTRUCTURE_ERROR_PREFIX}: {raw}", kind=raw.kind)
     try:
         if isinstance(raw, Exception):  # act_batch may end one episode alone by returning its error
             raise as_error(raw)
         chunk = as_action_chunk(raw)
+    except PolicyError as exc:
+        return Abort(str(exc))
+    try:  # from here on, plugins' code: what fails is not the model's answer
         job = item.job
         executed = np.stack(
             [
@@ -80,17 +85,17 @@ def reply_for(plugins: Plugins, policy: str, item: Item, observation: Any, raw: 
         if not np.all(np.isfinite(executed)):
             raise PolicyError("post-processing produced a non-finite action")
     except PolicyError as exc:
-        return Abort(str(exc))
+        return Abort(str(exc), kind="plugin")
     except Exception as exc:
-        return Abort(f"action post-processing raised {type(exc).__name__}: {exc}")
+        return Abort(f"action post-processing raised {type(exc).__name__}: {exc}", kind="plugin")
     return Actions(raw=chunk, executed=executed)
 
 
-def reset_error(exc: Exception) -> str:
-    """The ``error`` of an episode whose policy ``reset`` raised."""
+def reset_error(exc: Exception) -> tuple[str, str]:
+    """The ``error`` and ``error_kind`` of an episode whose policy ``reset`` raised."""
     if isinstance(exc, InfrastructureError):
-        return f"{INFRASTRUCTURE_ERROR_PREFIX}: {exc}"
-    return f"policy reset raised {type(exc).__name__}: {exc}"
+        return f"{INFRASTRUCTURE_ERROR_PREFIX}: {exc}", exc.kind
+    return f"policy reset raised {type(exc).__name__}: {exc}", "policy"
 
 
 def as_error(exc: Exception) -> PolicyError | InfrastructureError:

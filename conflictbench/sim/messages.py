@@ -55,14 +55,17 @@ class EpisodeOutcome:
     """(H, 7) as the policy returned them"""
     sim_time_s: float | None
     """Seconds the worker spent simulating, not waiting for the policy (``None``: not measured)."""
+    error_kind: str | None = None
+    """Whose failure ended it (``ERROR_KINDS``) where ``error`` is set."""
 
     @classmethod
-    def failed(cls, error: str, targets: int) -> EpisodeOutcome:
+    def failed(cls, error: str, kind: str, targets: int) -> EpisodeOutcome:
         """An episode that ended before any state was recorded (the policy's reset raised, the worker died)."""
         return cls(
             success=False,
             steps=0,
             error=error,
+            error_kind=kind,
             eef_pos=np.zeros((0, 3)),
             target_pos=np.zeros((0, targets, 3)),
             actions=np.zeros((0, ACTION_DIM)),
@@ -127,6 +130,8 @@ class Abort:
     """The answer to a :class:`Query` when the policy failed: the episode ends with this error."""
 
     reason: str
+    kind: str = "policy"
+    """Whose failure it is (``ERROR_KINDS``): decided where it was raised."""
 
 
 @dataclass(frozen=True)

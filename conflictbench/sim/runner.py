@@ -263,7 +263,7 @@ class Runner:
             except ServerUnavailable:
                 raise
             except Exception as exc:
-                self._finish(slot, EpisodeOutcome.failed(reset_error(exc), len(job.targets)), result)
+                self._finish(slot, EpisodeOutcome.failed(*reset_error(exc), len(job.targets)), result)
                 return
         try:
             slot.conn.send(Play(job))
@@ -287,7 +287,7 @@ class Runner:
                 raise
             except Exception as exc:
                 with contextlib.suppress(OSError):  # a gone worker is found by the next wait()
-                    slot.conn.send(Abort(reset_error(exc)))
+                    slot.conn.send(Abort(*reset_error(exc)))
                 continue
             self._serving = slot
             waiting.append((slot, observation))
@@ -371,7 +371,7 @@ class Runner:
 
     def _worker_lost(self, slot: Slot, queue: EpisodeQueue, result: RunResult) -> None:
         """The worker playing ``slot``'s episode is gone (crashed, its node lost): the episode is played again
-        by another worker, once; lost a second time it is stored as an infrastructure failure (left out of the
+        by another worker, once; lost a second time it is stored as a ``simulator`` failure (left out of the
         measures, played again by the next run). Then the slot gets a new worker, or is retired."""
         item = slot.item
         reason = self._pool.lost_reason(slot)
@@ -383,7 +383,7 @@ class Runner:
             print(f"conflictbench: {reason}; its episode is played again", file=sys.stderr)
         else:
             error = f"{INFRASTRUCTURE_ERROR_PREFIX}: {reason}"
-            self._finish(slot, EpisodeOutcome.failed(error, len(item.job.targets)), result)
+            self._finish(slot, EpisodeOutcome.failed(error, "simulator", len(item.job.targets)), result)
         self._pool.restart(slot)
 
     def _release(self, episode_id: str) -> None:

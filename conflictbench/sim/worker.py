@@ -29,6 +29,7 @@ class _Recording:
     success: bool = False
     steps: int = 0
     error: str | None = None
+    error_kind: str | None = None
     eef_pos: list[np.ndarray] = field(default_factory=list)
     target_pos: list[np.ndarray] = field(default_factory=list)
     actions: list[np.ndarray] = field(default_factory=list)
@@ -41,6 +42,7 @@ class _Recording:
             success=self.success,
             steps=self.steps,
             error=self.error,
+            error_kind=self.error_kind,
             eef_pos=np.array(self.eef_pos, dtype=np.float64).reshape(-1, 3),
             target_pos=np.array(self.target_pos, dtype=np.float64).reshape(-1, self.targets, 3),
             actions=np.array(self.actions, dtype=np.float64).reshape(-1, ACTION_DIM),
@@ -135,7 +137,7 @@ class EpisodePlayer:
                 reply = conn.recv()
                 out.waiting_s += time.perf_counter() - asked
                 if isinstance(reply, Abort):
-                    out.error = reply.reason
+                    out.error, out.error_kind = reply.reason, reply.kind
                     break
                 if not isinstance(reply, Actions):  # Stop: the run ends (e.g. its policy server died)
                     raise StopRequested
@@ -156,6 +158,7 @@ class EpisodePlayer:
             raise
         except Exception as exc:  # the simulator failed: keep what was recorded, report, go on
             out.error = f"{SIMULATOR_ERROR_PREFIX}: {type(exc).__name__}: {exc}"
+            out.error_kind = "simulator"
             out.success = False
             self.close()
             traceback.print_exc()

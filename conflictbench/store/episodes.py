@@ -27,7 +27,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, EpisodeRecord
+from conflictbench.core import EpisodeRecord
 
 from .schema import SCHEMA, records_to_table, table_to_records
 
@@ -84,7 +84,7 @@ class EpisodeStore:
 
     def write(self, record: EpisodeRecord) -> Path:
         """Write one episode atomically (temporary file in the same directory, then rename)."""
-        replay = record.error is not None and record.error.startswith(INFRASTRUCTURE_ERROR_PREFIX)
+        replay = record.infrastructure_failed  # not the model's behaviour: the next run plays it again
         final = (self.replay_path_for if replay else self.path_for)(record.policy, record.episode_id)
         self._land(final, lambda tmp: pq.write_table(records_to_table([record]), tmp))
         if not replay:  # the replay of an episode the infrastructure ended: drop the failed attempt

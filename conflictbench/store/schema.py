@@ -38,6 +38,7 @@ SCHEMA = pa.schema(
         ("success", pa.bool_()),
         ("steps", pa.int32()),
         ("error", pa.string()),
+        ("error_kind", pa.string()),
         # process
         ("eef_pos", pa.list_(_VEC3)),
         ("target_pos", pa.list_(pa.list_(_VEC3))),
