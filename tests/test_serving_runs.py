@@ -26,6 +26,7 @@ from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, ConflictCase
 from conflictbench.core.plugins import Plugins
 from conflictbench.report import report_store
 from conflictbench.report.summary import pair_up
+from conflictbench.sim.runner import Runner
 from conflictbench.store import EpisodeStore
 from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.testing import (
@@ -187,8 +188,17 @@ def test_an_episode_the_server_fails_is_stored_left_out_and_played_again(play, s
     report_store(store, plugins, stream=text, figures=False)  # what `conflictbench report DIR` prints
     assert "1 episode(s) left out, with their pairs, and played again by the next run: 1 server" in text.getvalue()
 
+    # Failing the same way again: the next runs leave it waiting, and say so, until told to retry.
+    result, store = play("served-test", specs, settings={"server": failing.url}, workers=2, plugin_set=plugins)
+    assert (result.already_stored, result.played, result.errors) == (1, 1, 1)
+    assert store.repeated_failure_ids() == {failed.episode_id}
     healthy = servers()
     result, store = play("served-test", specs, settings={"server": healthy.url}, workers=2, plugin_set=plugins)
+    assert (result.already_stored, result.played, result.failed_twice) == (1, 0, 1)
+    assert healthy.stats()["requests"] == 0
+    spec = plugins.policy("served-test")
+    config = spec.make_config({"server": healthy.url})
+    result = Runner(plugins, spec, config, store=store, workers=2, progress=False, retry=True).run(specs)
     assert (result.already_stored, result.played, result.errors) == (1, 1, 0)  # only the failed one, again
     assert healthy.stats()["requests"] == STEPS
     assert store.replay_ids() == set() and [r.error for r in store.records()] == [None, None]

@@ -267,3 +267,32 @@ def test_temporaries_of_another_machine_are_left_alone(tmp_path):
         tmp.write_bytes(b"half")
     assert store.clean_stale_temporaries() == 1
     assert not dead_here.exists() and elsewhere.exists()
+
+
+def test_an_episode_failing_twice_the_same_way_not_by_the_policy_is_left_waiting(tmp_path):
+    store = EpisodeStore(tmp_path / "store")
+    store.write(record("e1", error="infrastructure error: HTTP 500", error_kind="server"))
+    assert store.replay_ids() == {"e1"} and store.repeated_failure_ids() == set()
+    store.write(record("e1", error="infrastructure error: HTTP 503", error_kind="server"))  # another failure
+    assert store.repeated_failure_ids() == set()
+    store.write(record("e1", error="infrastructure error: HTTP 503", error_kind="server"))
+    assert store.repeated_failure_ids() == {"e1"}
+    store.write(record("e1", error="infrastructure error: HTTP 503", error_kind="client"))  # same text, other kind
+    assert store.repeated_failure_ids() == set()
+    store.write(record("e1", error="infrastructure error: HTTP 503", error_kind="client"))
+    assert store.repeated_failure_ids() == {"e1"}
+    store.write(record("e1"))  # played at last
+    assert store.replay_ids() == set() and store.repeated_failure_ids() == set() and store.stored_ids() == {"e1"}
+    policy_failures = [record("e2", error="policy returned NaN", error_kind="policy") for _ in range(2)]
+    for failure in policy_failures:
+        store.write(failure)  # the model's own failure: stored for good, scored
+    assert "e2" in store.stored_ids() and store.repeated_failure_ids() == set()
+
+
+def test_a_store_written_before_the_error_kind_column_reads_its_kinds_from_the_text(tmp_path):
+    store = EpisodeStore(tmp_path)
+    store.write(record("a", error="simulator error: MuJoCo died"))
+    path = store.replay_path_for("noop", "a")
+    pq.write_table(pq.read_table(path).drop_columns(["error_kind"]), path)  # as an older conflictbench wrote it
+    [read] = EpisodeStore(tmp_path).records()
+    assert read.error_kind is None and read.failure_kind == "simulator" and read.infrastructure_failed

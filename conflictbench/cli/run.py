@@ -48,6 +48,7 @@ class RunOptions:
     workers: int
     backend: str
     ray_address: str | None
+    retry: bool
     out: Path
     metrics: list[str] | None
     progress: bool
@@ -132,6 +133,7 @@ def run_options(run: DictConfig) -> RunOptions:
         workers=_int(run.workers, "run.workers", minimum=1),
         backend=_names(run.backend, "run.backend", BACKENDS)[0],
         ray_address=None if run.ray_address is None else str(run.ray_address),
+        retry=bool(run.get("retry", False)),
         out=Path(str(run.out)),
         metrics=metrics,
         progress=bool(run.progress),
@@ -214,6 +216,7 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         progress=options.progress,
         backend=options.backend,
         ray_address=options.ray_address,
+        retry=options.retry,
     )
     result = runner.run(plan)
     print(

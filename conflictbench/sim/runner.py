@@ -57,6 +57,8 @@ class RunResult:
     """Episodes played again because their worker was lost mid-episode."""
     succeeded: int = 0
     errors: int = 0
+    failed_twice: int = 0
+    """Episodes left waiting: their last two attempts failed the same way, not by the policy (``retry``)."""
     episode_ids: list[str] = field(default_factory=list)
 
 
@@ -76,12 +78,13 @@ class Runner:
         on_episode: Callable[[EpisodeRecord], None] | None = None,
         backend: str = "local",
         ray_address: str | None = None,
+        retry: bool = False,
     ):
         if workers < 1:
             raise UserError(f"run.workers must be >= 1, got {workers}")
         if backend not in BACKENDS:
             raise UserError(f"unknown run.backend {backend!r}; valid choices: {', '.join(BACKENDS)}")
-        self.backend, self.ray_address = backend, ray_address
+        self.backend, self.ray_address, self.retry = backend, ray_address, retry
         self.plugins, self.spec, self.config = plugins, spec, config
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
@@ -190,6 +193,14 @@ class Runner:
         stored = self.store.stored_ids()
         todo = [i for i in items if i.job.episode_id not in stored]
         result.already_stored = len(items) - len(todo)
+        if not self.retry and (repeated := self.store.repeated_failure_ids() & {i.job.episode_id for i in todo}):
+            todo = [i for i in todo if i.job.episode_id not in repeated]
+            result.failed_twice = len(repeated)
+            print(
+                f"conflictbench: {len(repeated)} episode(s) failed twice the same way, not by the policy, and are "
+                "not played again (run.retry=true plays them)",
+                file=sys.stderr,
+            )
         if self.progress:
             seconds, basis = self._seconds_each(items, stored)
             print(plan_line(len(todo), result.already_stored, seconds, self.workers, basis), file=sys.stderr)

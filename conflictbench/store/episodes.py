@@ -4,10 +4,9 @@ Each file is written to a temporary name and renamed into place, so a run killed
 leaves only whole episodes behind. A claim file marks an episode being played, so two jobs
 sharing a store (a sweep split over processes) never play the same episode twice.
 
-An episode the serving infrastructure ended (its ``error`` starts with
-``INFRASTRUCTURE_ERROR_PREFIX``: a policy server's error reply, a connection that kept breaking) is
-stored under ``<root>/replay/<policy>/`` instead. It is kept for the record and seen by
-:meth:`EpisodeStore.files`, ``records()`` and reports (which leave it out of the measures and say
+An episode something other than the policy ended (its ``error_kind`` is not ``policy``: a plugin, a
+client, a server, the simulator) is stored under ``<root>/replay/<policy>/`` instead. It is kept for
+the record and seen by :meth:`EpisodeStore.files`, ``records()`` and reports (which leave it out of the measures and say
 how many), but not by :meth:`EpisodeStore.stored_ids`, so the next run plays it again; the replay,
 once stored, removes it. Planning reads only file names, never file contents.
 """
@@ -32,6 +31,8 @@ from conflictbench.core import EpisodeRecord
 from .schema import SCHEMA, records_to_table, table_to_records
 
 SUFFIX = ".parquet"
+#: Beside a waiting replay: its last two attempts failed the same way (see ``EpisodeStore.write``).
+REPEATED_SUFFIX = ".failed-twice"
 #: How long a claim made on another machine holds unless its owner refreshes it (its process cannot be checked
 #: from here): a job the scheduler killed gives its episodes up this long after its last refresh.
 REMOTE_CLAIM_TTL_S = 10 * 60
@@ -83,13 +84,40 @@ class EpisodeStore:
         self.replay_path_for(policy, episode_id).unlink(missing_ok=True)  # played after all
 
     def write(self, record: EpisodeRecord) -> Path:
-        """Write one episode atomically (temporary file in the same directory, then rename)."""
+        """Write one episode atomically (temporary file in the same directory, then rename).
+
+        An episode something other than the policy ended waits under ``replay/`` for the next run; when it
+        failed exactly as its last attempt did (same kind, same message), a marker beside it says so, and
+        runs leave it alone unless told to retry (:meth:`repeated_failure_ids`)."""
         replay = record.infrastructure_failed  # not the model's behaviour: the next run plays it again
         final = (self.replay_path_for if replay else self.path_for)(record.policy, record.episode_id)
+        repeated = replay and self._last_failure(final) == (record.failure_kind, record.error)
         self._land(final, lambda tmp: pq.write_table(records_to_table([record]), tmp))
+        marker = self.replay_path_for(record.policy, record.episode_id).with_suffix(REPEATED_SUFFIX)
+        if repeated:
+            marker.touch()
+        else:
+            marker.unlink(missing_ok=True)
         if not replay:  # the replay of an episode the infrastructure ended: drop the failed attempt
             self.replay_path_for(record.policy, record.episode_id).unlink(missing_ok=True)
         return final
+
+    @staticmethod
+    def _last_failure(path: Path) -> tuple[str | None, str | None] | None:
+        """(kind, error) of the attempt stored at ``path`` (a replay waiting), or ``None``."""
+        if not path.is_file():
+            return None
+        try:
+            [record] = table_to_records(ds.dataset(str(path), format="parquet", schema=SCHEMA).to_table())
+        except (OSError, ValueError, pa.ArrowException):
+            return None
+        return record.failure_kind, record.error
+
+    def repeated_failure_ids(self) -> set[str]:
+        """The episodes waiting for a replay whose last two attempts failed the same way (not the policy's
+        failure): playing them again would most likely fail again, so a run skips them unless asked."""
+        waiting = self.replay_ids()
+        return {p.name[: -len(REPEATED_SUFFIX)] for p in self.replay_dir.glob(f"*/*{REPEATED_SUFFIX}")} & waiting
 
     # -- what is there ---------------------------------------------------------------------
     @staticmethod
