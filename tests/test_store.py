@@ -53,12 +53,13 @@ def test_round_trip_keeps_every_column_bit_for_bit(tmp_path):
     originals = [
         record("a", h=5, k=2, seed=1),
         record("b", h=0, k=1, seed=2, case_id="c1", family="spatial", level="L2"),
-        record("c", h=3, k=0, seed=3, error="policy returned NaN"),
+        record("c", h=3, k=0, seed=3, error="policy returned NaN", error_kind="policy"),
+        record("d", seed=4, error="simulator error: x", error_kind="simulator", sim_warnings=("mjWARN_BADQACC x2",)),
     ]
     for r in originals:
         store.write(r)
     back = {r.episode_id: r for r in store.records()}
-    assert set(back) == {"a", "b", "c"}
+    assert set(back) == {"a", "b", "c", "d"}
     for r in originals:
         assert_same(r, back[r.episode_id])
     assert back["b"].eef_pos.shape == (1, 3) and back["b"].actions.shape == (0, 7)

@@ -245,6 +245,9 @@ class EpisodeRecord:
     error_kind: str | None = None
     """One of :data:`ERROR_KINDS` where ``error`` is set (``None`` in stores written before the column: see
     :attr:`failure_kind`)."""
+    sim_warnings: tuple[str, ...] = ()
+    """MuJoCo's warnings during the episode, e.g. ``mjWARN_BADQACC x2`` (an unstable simulation, which
+    MuJoCo resets); empty where there were none (and in stores written before the column)."""
     # process
     eef_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     target_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))

@@ -30,6 +30,7 @@ def light_records(store: EpisodeStore, episode_ids: Iterable[str] | None = None)
     rows = store.read_table(columns=KEY_COLUMNS, episode_ids=episode_ids).to_pylist()
     for row in rows:
         row["target_names"] = tuple(row["target_names"] or ())
+        row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # stores written before the column
         row["policy_settings"] = row["policy_settings"] or ""  # stores written before the column
     return [EpisodeRecord(**row) for row in rows]
 

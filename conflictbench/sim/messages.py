@@ -57,6 +57,8 @@ class EpisodeOutcome:
     """Seconds the worker spent simulating, not waiting for the policy (``None``: not measured)."""
     error_kind: str | None = None
     """Whose failure ended it (``ERROR_KINDS``) where ``error`` is set."""
+    sim_warnings: tuple[str, ...] = ()
+    """MuJoCo's warnings during the episode (``mjWARN_BADQACC x2``: an unstable simulation MuJoCo reset)."""
 
     @classmethod
     def failed(cls, error: str, kind: str, targets: int) -> EpisodeOutcome:

@@ -7,6 +7,7 @@ and finally sends back the recorded arrays (see :mod:`.messages`).
 
 from __future__ import annotations
 
+import contextlib
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -30,6 +31,9 @@ class _Recording:
     steps: int = 0
     error: str | None = None
     error_kind: str | None = None
+    sim_warnings: tuple[str, ...] = ()
+    stepping: np.ndarray | None = None
+    """The policy's action the env is executing (a failure during it may be the policy's doing)."""
     eef_pos: list[np.ndarray] = field(default_factory=list)
     target_pos: list[np.ndarray] = field(default_factory=list)
     actions: list[np.ndarray] = field(default_factory=list)
@@ -43,6 +47,7 @@ class _Recording:
             steps=self.steps,
             error=self.error,
             error_kind=self.error_kind,
+            sim_warnings=self.sim_warnings,
             eef_pos=np.array(self.eef_pos, dtype=np.float64).reshape(-1, 3),
             target_pos=np.array(self.target_pos, dtype=np.float64).reshape(-1, self.targets, 3),
             actions=np.array(self.actions, dtype=np.float64).reshape(-1, ACTION_DIM),
@@ -144,7 +149,9 @@ class EpisodePlayer:
                 last = len(reply.executed) - 1
                 for i, (raw_action, action) in enumerate(zip(reply.raw, reply.executed)):
                     render_next(i == last and out.steps + 1 < job.max_steps)
+                    out.stepping = action
                     raw, _, done, _ = env.step(action)
+                    out.stepping = None
                     out.steps += 1
                     out.raw_actions.append(np.asarray(raw_action, dtype=np.float64))
                     out.actions.append(np.asarray(action, dtype=np.float64))
@@ -154,15 +161,57 @@ class EpisodePlayer:
                         break
                     if out.steps >= job.max_steps:
                         break
+            out.sim_warnings = simulator_warnings(env)
         except StopRequested:
             raise
         except Exception as exc:  # the simulator failed: keep what was recorded, report, go on
-            out.error = f"{SIMULATOR_ERROR_PREFIX}: {type(exc).__name__}: {exc}"
-            out.error_kind = "simulator"
-            out.success = False
-            self.close()
             traceback.print_exc()
+            failure = f"{type(exc).__name__}: {exc}"
+            with contextlib.suppress(Exception):
+                out.sim_warnings = simulator_warnings(self._env)
+            self.close()
+            # The policy's doing if its actions bring a fresh simulator to the same failure: its behaviour, scored.
+            policys = out.stepping is not None and self.fails_again(job, [*out.actions, out.stepping], failure)
+            out.error = f"{SIMULATOR_ERROR_PREFIX}: {failure}" + (REPRODUCED if policys else "")
+            out.error_kind = "policy" if policys else "simulator"
+            out.success = False
         return out.outcome(time.perf_counter() - start)
+
+    def fails_again(self, job: EpisodeJob, actions: list[np.ndarray], failure: str) -> bool:
+        """Whether a fresh env fails with ``failure`` when ``actions`` are replayed from the episode's start
+        (seed, initial state, warm-up; no rendering, which changes no physics)."""
+        try:
+            env = self._env_for(job)
+            env.seed(job.seed)
+            env.reset()
+            if self.settings.needs_images:
+                self._libero_env.CameraGate(env).set(False)
+            env.set_init_state(self._init_states[job.init_state])
+            for _ in range(job.warmup_steps):
+                env.step(NOOP_ACTION)
+            for action in actions:
+                env.step(action)
+        except Exception as exc:
+            self.close()
+            return f"{type(exc).__name__}: {exc}" == failure
+        return False
+
+
+#: Added to a simulator failure's error when the policy's actions reproduce it.
+REPRODUCED = " (it happens again when the policy's actions are replayed in a fresh simulator: the policy's doing)"
+
+
+def simulator_warnings(env) -> tuple[str, ...]:
+    """MuJoCo's warnings in this episode's simulator, e.g. ``mjWARN_BADQACC x2`` (an unstable simulation
+    that MuJoCo reset): counted since the env's last reset, which builds a new simulator."""
+    import mujoco
+
+    if env is None:
+        return ()
+    warnings = env.sim.data.warning
+    return tuple(
+        f"{mujoco.mjtWarning(i).name} x{warnings[i].number}" for i in range(len(warnings)) if warnings[i].number
+    )
 
 
 class StopRequested(Exception):

@@ -39,6 +39,7 @@ SCHEMA = pa.schema(
         ("steps", pa.int32()),
         ("error", pa.string()),
         ("error_kind", pa.string()),
+        ("sim_warnings", pa.list_(pa.string())),
         # process
         ("eef_pos", pa.list_(_VEC3)),
         ("target_pos", pa.list_(pa.list_(_VEC3))),
@@ -103,7 +104,7 @@ def records_to_table(records: Iterable[EpisodeRecord]) -> pa.Table:
                 columns[name] = _nested(values, width, ndim=3 if name == "target_pos" else 2)
             except ValueError as exc:
                 raise ValueError(f"column {name}: {exc}") from None
-        elif name in ("target_names", "code_versions"):
+        elif name in ("target_names", "code_versions", "sim_warnings"):
             columns[name] = pa.array([list(v) for v in values], type=SCHEMA.field(name).type)
         else:
             columns[name] = pa.array(values, type=SCHEMA.field(name).type)
@@ -147,6 +148,7 @@ def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
     for i, row in enumerate(scalars):
         row["target_names"] = tuple(row["target_names"] or ())
         row["code_versions"] = tuple(row["code_versions"] or ())  # null in stores written before the column
+        row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # the same
         row["policy_settings"] = row["policy_settings"] or ""  # the same
         for name in ARRAY_COLUMNS:
             row[name] = arrays[name][i]
