@@ -140,25 +140,37 @@ def test_claims_exclude_live_processes_and_are_taken_over_from_dead_ones(tmp_pat
         other.wait()
     assert store.claim("e2")  # its owner is gone
 
-    import time
-
-    (tmp_path / "claims" / "e3.claim").write_text(f"another-host 1 {time.time():.0f}\n")
+    (tmp_path / "claims" / "e3.claim").write_text("another-host 1 a1\n")
     assert not store.claim("e3")  # a process on another machine cannot be checked: respected...
-    (tmp_path / "claims" / "e4.claim").write_text(f"another-host 1 {time.time() - 11 * 60:.0f}\n")
-    assert store.claim("e4")  # ...but not past ten minutes without a refresh (a job the scheduler killed)
+
+
+def test_another_machines_claim_holds_while_it_is_renewed_whatever_its_clock_says(tmp_path):
+    """A lease that needs no agreeing clocks: another machine's claim holds while its token changes, and is taken
+    over once this process has seen it unchanged for the TTL (a job the scheduler killed)."""
+    store = EpisodeStore(tmp_path)
+    store.remote_claim_ttl_s = 0.5
+    claim = tmp_path / "claims" / "e.claim"
+    claim.parent.mkdir(parents=True)
+    # Their clock is a day behind ours (what the old time stamps read as a claim long dead), then a day ahead.
+    for token in (f"{time.time() - 86400:.3f}", "b2", f"{time.time() + 86400:.3f}", "d4"):
+        claim.write_text(f"another-host 1 {token}\n")  # a renewal: a new token
+        assert not store.claim("e") and store.held_by_others(["e"]) == {"e"}
+        time.sleep(0.3)  # more than the TTL in all, never the TTL unchanged
+    assert not store.claim("e")  # still inside the TTL since the last renewal was seen
+    time.sleep(0.3)
+    assert store.claim("e")  # unchanged for longer than the TTL: its owner is gone
+    assert claim.read_text().startswith(os.uname().nodename)
 
 
 def test_refreshing_renews_only_this_processs_own_claims(tmp_path):
-    import time
 
     store = EpisodeStore(tmp_path)
     assert store.claim("mine")
-    theirs = f"another-host 1 {time.time() - 500:.3f}\n"
+    theirs = "another-host 1 c3\n"
     (tmp_path / "claims" / "theirs.claim").write_text(theirs)
-    before = float((tmp_path / "claims" / "mine.claim").read_text().split()[2])
-    time.sleep(0.01)
+    before = (tmp_path / "claims" / "mine.claim").read_text().split()[2]
     assert store.refresh_claims(["mine", "theirs", "unclaimed"]) == {"theirs", "unclaimed"}  # not (or no longer) ours
-    assert float((tmp_path / "claims" / "mine.claim").read_text().split()[2]) > before
+    assert (tmp_path / "claims" / "mine.claim").read_text().split()[2] != before  # renewed: a new token
     assert (tmp_path / "claims" / "theirs.claim").read_text() == theirs  # never overwritten
     assert not (tmp_path / "claims" / "unclaimed.claim").exists()
     assert not list((tmp_path / "claims").glob(".*.tmp"))
@@ -172,7 +184,7 @@ def test_a_claim_taken_over_from_a_job_that_looked_dead_stays_with_the_new_owner
     keeper = ClaimKeeper(old)
     keeper.hold("e")
     # the old job stalled past the TTL; a job on another machine took the episode over
-    (tmp_path / "claims" / "e.claim").write_text(f"another-host 1 {time.time():.3f}\n")
+    (tmp_path / "claims" / "e.claim").write_text("another-host 1 e5\n")
     keeper.refresh()
     assert keeper.lost == {"e"}  # the runner stores nothing of it
     old.release("e")
@@ -186,11 +198,11 @@ def test_the_claim_keeper_renews_from_its_own_thread(tmp_path):
     from conflictbench.store.episodes import ClaimKeeper
 
     assert store.claim("e")
-    first = float((tmp_path / "claims" / "e.claim").read_text().split()[2])
+    first = (tmp_path / "claims" / "e.claim").read_text().split()[2]
     with ClaimKeeper(store) as keeper:
         keeper.hold("e")
         time.sleep(0.3)  # the main thread does nothing meanwhile
-    assert float((tmp_path / "claims" / "e.claim").read_text().split()[2]) > first and not keeper.lost
+    assert (tmp_path / "claims" / "e.claim").read_text().split()[2] != first and not keeper.lost
 
 
 def test_empty_store_reads_as_nothing(tmp_path):

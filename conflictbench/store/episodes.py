@@ -19,6 +19,7 @@ import shutil
 import socket
 import threading
 import time
+import uuid
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -33,8 +34,9 @@ from .schema import SCHEMA, records_to_table, table_to_records
 SUFFIX = ".parquet"
 #: Beside a waiting replay: its last two attempts failed the same way (see ``EpisodeStore.write``).
 REPEATED_SUFFIX = ".failed-twice"
-#: How long a claim made on another machine holds unless its owner refreshes it (its process cannot be checked
-#: from here): a job the scheduler killed gives its episodes up this long after its last refresh.
+#: How long a claim made on another machine holds once this process sees it stop changing (its process cannot be
+#: checked from here): a job the scheduler killed gives its episodes up this long after its last refresh. Measured
+#: on this machine's own monotonic clock, never against the other machine's: no clocks need to agree.
 REMOTE_CLAIM_TTL_S = 10 * 60
 #: How often a running job refreshes the claims of the episodes it is playing (well inside the TTL).
 CLAIM_REFRESH_S = 60.0
@@ -56,6 +58,8 @@ class EpisodeStore:
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
+        self._seen: dict[str, tuple[str, float]] = {}
+        """Another machine's claim -> (its text, when this process first saw that text, monotonic)."""
         self.episodes_dir = self.root / "episodes"
         self.replay_dir = self.root / "replay"
         self.claims_dir = self.root / "claims"
@@ -182,12 +186,18 @@ class EpisodeStore:
     def _claimed_by_other(self, path: Path) -> bool:
         """Whether a live process other than this one holds the claim at ``path``."""
         try:
-            host, pid, stamp = path.read_text().split()
+            host, pid, token = path.read_text().split()
         except (OSError, ValueError):
             return False
         if host != self._host:
-            # Another machine's process cannot be checked: respect its claim for a while.
-            return time.time() - float(stamp) < self.remote_claim_ttl_s
+            # Another machine's process cannot be checked: its claim holds while its owner renews it (each
+            # renewal writes a new token), and for the TTL after this process sees it stop changing.
+            text, now = f"{host} {pid} {token}", time.monotonic()
+            seen = self._seen.get(path.name)
+            if seen is None or seen[0] != text:
+                self._seen[path.name] = (text, now)
+                return True
+            return now - seen[1] < self.remote_claim_ttl_s
         return int(pid) != os.getpid() and pid_alive(int(pid))
 
     def claim(self, episode_id: str) -> bool:
@@ -213,7 +223,8 @@ class EpisodeStore:
             mine.unlink(missing_ok=True)
 
     def _claim_text(self) -> str:
-        return f"{self._host} {os.getpid()} {time.time():.3f}\n"
+        """``host pid token``: a new token at every renewal is what tells another machine the owner is alive."""
+        return f"{self._host} {os.getpid()} {uuid.uuid4().hex}\n"
 
     def _owns(self, path: Path) -> bool:
         try:
