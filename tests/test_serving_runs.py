@@ -241,7 +241,7 @@ def test_every_worker_keeps_its_request_in_flight_while_the_others_wait_for_thei
     spec.loader.exec_module(module)
     plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[module])
     specs = [reference_spec("libero_goal", 1, 0), reference_spec("libero_spatial", 0, 0)]
-    meeting = servers("--meet", "2", "--meet-timeout-s", "3")
+    meeting = servers("--meet", "2", "--meet-timeout-s", "20")  # a scene compiled by one worker, loaded by the other
     result, store = play("served-test", specs, settings={"server": meeting.url}, workers=2, plugin_set=plugins)
     assert (result.played, result.errors) == (2, 0)
     stats = meeting.stats()
