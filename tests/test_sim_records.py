@@ -88,7 +88,7 @@ class SlowExpert:
     def act(self, obs):
         SlowExpert.seen.append(obs)
         claim = SlowExpert.claims / f"{obs.episode_id}.claim"  # the runner's claim on this episode, as it is now
-        SlowExpert.stamps.append(float(claim.read_text().split()[2]))
+        SlowExpert.stamps.append(claim.read_text().split()[2])  # a new token at every renewal
         time.sleep(THINK_S)
         return np.array([0.0, 0.3, 0.0, 0.0, 0.0, 0.0, -1.0])
 
@@ -112,7 +112,7 @@ def test_privileged_geometry_is_typed_and_the_simulation_time_is_stored(tmp_path
     assert result.played == 1 and result.errors == 0
     (record,) = store.records()
     assert record.warmup_steps == 4  # what a replay of the episode must play again
-    assert SlowExpert.stamps[-1] > SlowExpert.stamps[0]  # the claim was kept fresh while it played
+    assert SlowExpert.stamps[-1] != SlowExpert.stamps[0]  # the claim was kept fresh while it played
     # the worker's own measure leaves out the time spent waiting for the policy
     assert 0 < record.sim_time_s < record.wall_time_s - 12 * THINK_S
 
