@@ -104,6 +104,7 @@ def test_a_named_file_that_changes_is_another_scene(fresh_process, tmp_path):
 
 
 def test_an_unreadable_stored_model_is_compiled_again_and_replaced(fresh_process, monkeypatch, tmp_path, caplog):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs the bad file to MUJOCO_LOG.TXT in the working directory
     scene = SMALL_SCENE.format(size=0.1)
     monkeypatch.setenv(compiled_models.CACHE_DIR_VARIABLE, str(tmp_path))
     stored = tmp_path / f"{compiled_models.scene_key(scene)}.mjb"

@@ -66,7 +66,8 @@ def test_a_failure_the_actions_bring_about_again_is_the_policys_and_a_flaky_one_
     assert not player(fail_at=3, flaky=False).fails_again(JOB, actions[:2], failure)  # the actions alone are fine
 
 
-def test_mujocos_warnings_are_read_off_the_episodes_simulator():
+def test_mujocos_warnings_are_read_off_the_episodes_simulator(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to MUJOCO_LOG.TXT in the working directory
     from conflictbench.sim.libero_env import EnvSettings, configure_process, make_env
     from conflictbench.sim.worker import simulator_warnings
     from conflictbench.tasks.libero.base_tasks import base_task

@@ -25,7 +25,7 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from conflictbench.core import PluginError, ServerUnavailable, SimulatorUnavailable, UserError
+from conflictbench.core import PluginError, PolicyStalled, ServerUnavailable, SimulatorUnavailable, UserError
 
 VERBS = {
     "list": "listing",
@@ -62,10 +62,10 @@ def _take_disabled_plugins(argv: list[str]) -> list[str]:
 
     from conflictbench import DISABLE_PLUGINS_VARIABLE
 
-    names, rest, args = [], [], iter(argv)
-    for arg in args:
+    names, rest, remaining = [], [], iter(argv)
+    for arg in remaining:
         if arg == "--disable-plugins":
-            value = next(args, None)
+            value = next(remaining, None)
             if value is None or value.startswith("-") or "=" in value:
                 raise UserError("--disable-plugins needs the plugins' names, e.g. --disable-plugins demo,other")
             names.append(value)
@@ -94,7 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         plugins = conflictbench.plugins()
         module, rest = (VERBS[argv[0]], argv[1:]) if argv[:1] and argv[0] in VERBS else ("run", argv)
         return importlib.import_module(f"{__name__}.{module}").command(rest, plugins)
-    except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
+    except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled) as exc:
         print(f"conflictbench: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # output piped into `head` and the like
