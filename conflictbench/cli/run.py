@@ -19,6 +19,7 @@ from conflictbench.core import (
     LIBERO_SUITES,
     PROMPT_CONDITIONS,
     PluginError,
+    PolicyStalled,
     ServerUnavailable,
     SimulatorUnavailable,
     UserError,
@@ -49,6 +50,7 @@ class RunOptions:
     backend: str
     ray_address: str | None
     retry: bool
+    stall_timeout_s: float | None
     out: Path
     metrics: list[str] | None
     progress: bool
@@ -69,6 +71,14 @@ def _names(value: Any, name: str, allowed: tuple[str, ...]) -> list[str]:
     if not items:
         raise UserError(f"{name} must not be empty")
     return [str(i) for i in items]
+
+
+def _seconds(value: Any, name: str) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
+        raise UserError(f"{name} must be a number of seconds > 0, or null, got {value!r}")
+    return float(value)
 
 
 def _listed(value: Any, name: str) -> list[str] | None:
@@ -134,6 +144,7 @@ def run_options(run: DictConfig) -> RunOptions:
         backend=_names(run.backend, "run.backend", BACKENDS)[0],
         ray_address=None if run.ray_address is None else str(run.ray_address),
         retry=bool(run.get("retry", False)),
+        stall_timeout_s=_seconds(run.get("stall_timeout_s"), "run.stall_timeout_s"),
         out=Path(str(run.out)),
         metrics=metrics,
         progress=bool(run.progress),
@@ -217,6 +228,7 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         backend=options.backend,
         ray_address=options.ray_address,
         retry=options.retry,
+        stall_timeout_s=options.stall_timeout_s,
     )
     result = runner.run(plan)
     print(
@@ -277,7 +289,7 @@ def command(argv: list[str], plugins: Plugins) -> int:
         state["started"] = True
         try:
             return run_job(cfg, here.get(), HydraConfig.get().runtime.choices["model"])
-        except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable) as exc:
+        except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             hydra_config, job = HydraConfig.get(), sweep_job()
             if job is not None:  # the sweep goes on; its end says which jobs failed (and takes the record back)

@@ -1,8 +1,8 @@
 """Errors the framework raises on purpose.
 
 The command line turns every error with an ``exit_code`` into one line on stderr and that exit
-code: a :class:`UserError` or :class:`PluginError` 2, a :class:`SimulatorUnavailable` or
-:class:`ServerUnavailable` 3; anything else is a bug and keeps its traceback.
+code: a :class:`UserError` or :class:`PluginError` 2, a :class:`SimulatorUnavailable`,
+:class:`ServerUnavailable` or :class:`PolicyStalled` 3; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -78,3 +78,10 @@ class ServerUnavailable(ConflictbenchError):
             f"the policy server at {self.url} cannot be reached{why}; check that it is running and "
             f"that the URL is right, then run the same command again to resume"
         )
+
+
+class PolicyStalled(ConflictbenchError):
+    """A policy call has not returned within its bound (``run.stall_timeout_s``; a thread cannot be stopped):
+    the run stops with this message, every finished episode stored; the same command resumes."""
+
+    exit_code = 3

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import os
 import threading
-from concurrent.futures import Future, ThreadPoolExecutor
+import time
+from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
@@ -109,42 +110,75 @@ Answer = tuple[Any, Any, Any, Any]
 
 
 class PolicyCalls:
-    """Answers the workers' queries: in this thread, or, for a policy that declares
-    ``concurrent_requests`` (a served one), each query from a thread of its own as soon as it
-    arrives, so N workers keep N requests in flight while this thread keeps serving the workers.
+    """Answers the workers' queries from threads of their own, never the runner's: the runner keeps serving the
+    workers and its watchdog (``watchdog.py``) keeps time while a call runs, and a call that never returns cannot
+    stall the run unseen. A policy that declares ``concurrent_requests`` (a served one) gets each query as soon as
+    it arrives, so N workers keep N requests in flight; any other is called once at a time, in one thread, with
+    the queries that arrived meanwhile batched into its next call (as if it had been called from the runner).
 
     A finished call wakes the runner's ``wait()`` through a pipe (:attr:`wakeup`)."""
 
     def __init__(self, policy: Any, traits: PolicyTraits, workers: int):
         self.policy, self.batched, self.concurrent = policy, traits.batched, traits.concurrent
-        self._pending: dict[Future, tuple[Any, Any, Any]] = {}
-        self._executor: ThreadPoolExecutor | None = None
-        self._read = self._write = -1
+        self._pending: dict[Future, tuple[list[tuple[Any, Any, Any]], float]] = {}
+        """A call -> ((slot, item, observation) of each query it answers, when it started: monotonic)."""
+        self._backlog: list[tuple[Any, Any]] = []  # queries waiting for a one-at-a-time policy's next call
+        self._open = True
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._read, False)
         self._pipe_lock = threading.Lock()  # a call finishing after close() must not write to a reused fd
-        if self.concurrent:
-            self._executor = ThreadPoolExecutor(workers, thread_name_prefix="conflictbench-policy")
-            self._read, self._write = os.pipe()
-            os.set_blocking(self._read, False)
 
     @property
     def wakeup(self) -> list[int]:
         """What ``wait()`` should watch besides the workers: the pipe, while calls are pending."""
         return [self._read] if self._pending else []
 
+    def waiting_slots(self) -> set[int]:
+        """The slots whose episodes wait for an answer (in a call, or for the next one)."""
+        return {slot.index for queries, _ in self._pending.values() for slot, _, _ in queries} | {
+            slot.index for slot, _ in self._backlog
+        }
+
+    def oldest_call_s(self) -> float:
+        """How long the longest-running call has been running (0 without one)."""
+        now = time.monotonic()
+        return max((now - started for _, started in self._pending.values()), default=0.0)
+
     def submit(self, waiting: list[tuple[Any, Any]]) -> list[Answer]:
-        """Ask for these queries; the answers ready now (all of them, unless calls are concurrent)."""
-        if not self.concurrent:
-            outputs = ask_policy(self.policy, [obs for _, obs in waiting], self.batched)
-            return [(slot, slot.item, obs, raw) for (slot, obs), raw in zip(waiting, outputs)]
-        for slot, obs in waiting:
-            future = self._executor.submit(ask_policy, self.policy, [obs], True)
-            self._pending[future] = (slot, slot.item, obs)
-            future.add_done_callback(self._wake)
+        """Ask for these queries; their answers come through :meth:`collect`."""
+        if self.concurrent:
+            for slot, obs in waiting:
+                self._call([(slot, obs)], batched=True)
+        else:
+            self._backlog += waiting
+            if not self._pending:
+                self._next_call()
         return []
+
+    def _next_call(self) -> None:
+        if self._backlog:
+            queries, self._backlog = self._backlog, []
+            self._call(queries, batched=self.batched)
+
+    def _call(self, queries: list[tuple[Any, Any]], batched: bool) -> None:
+        """One call in a daemon thread of its own: a call that never returns must not keep the process alive
+        after the run has stopped (a pool's threads are joined at exit)."""
+        future: Future = Future()
+        observations = [obs for _, obs in queries]
+
+        def call() -> None:
+            try:
+                future.set_result(ask_policy(self.policy, observations, batched))
+            except BaseException as exc:  # ServerUnavailable: collect() raises it in the runner's thread
+                future.set_exception(exc)
+
+        self._pending[future] = ([(slot, slot.item, obs) for slot, obs in queries], time.monotonic())
+        future.add_done_callback(self._wake)
+        threading.Thread(target=call, name="conflictbench-policy", daemon=True).start()
 
     def _wake(self, _: Future) -> None:
         with self._pipe_lock:
-            if self._executor is not None:  # else closed: the run has ended and a call outlived it
+            if self._open:  # else closed: the run has ended and a call outlived it
                 os.write(self._write, b".")
 
     def collect(self) -> list[Answer]:
@@ -156,14 +190,15 @@ class PolicyCalls:
             pass
         answers = []
         for future in [f for f in self._pending if f.done()]:
-            slot, item, obs = self._pending.pop(future)
-            answers.append((slot, item, obs, future.result()[0]))
+            queries, _ = self._pending.pop(future)
+            answers += [(slot, item, obs, raw) for (slot, item, obs), raw in zip(queries, future.result(), strict=True)]
+        if not self.concurrent and not self._pending:
+            self._next_call()
         return answers
 
     def close(self) -> None:
         with self._pipe_lock:
-            if self._executor is not None:
-                self._executor.shutdown(wait=False, cancel_futures=True)
+            if self._open:
                 os.close(self._read)
                 os.close(self._write)
-                self._executor = None
+                self._open = False

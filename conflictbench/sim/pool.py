@@ -159,6 +159,12 @@ class WorkerPool:
         self.start(slot)
         self.await_ready([slot])
 
+    def stop_worker(self, slot: Slot) -> None:
+        """End ``slot``'s worker now, whatever it is doing (even stopped: SIGKILL reaches a SIGSTOPped process)."""
+        if slot.process is not None:
+            slot.process.kill()
+            slot.process.join(STOP_TIMEOUT_S)
+
     def stop(self) -> None:
         for slot in self.slots:
             try:

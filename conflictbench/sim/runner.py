@@ -11,15 +11,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import datetime as _dt
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 from typing import Any
-
-import pyarrow.compute as pc
 
 from conflictbench.core import (
     INFRASTRUCTURE_ERROR_PREFIX,
@@ -32,18 +29,16 @@ from conflictbench.core import (
 )
 from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
-from conflictbench.tasks.libero.base_tasks import base_task
 
 from . import BACKENDS
 from .deciding import PolicyCalls, reply_for, reset_error
+from .episode_rows import episode_record, make_items, seconds_each
 from .libero_env import EnvSettings
-from .messages import Abort, Done, EpisodeJob, EpisodeOutcome, Play, Query
-from .plan import EpisodeSpec, config_hash, episode_id, settings_json
+from .messages import Abort, Done, EpisodeOutcome, Play, Query
+from .plan import EpisodeSpec, config_hash
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
 from .progress import plan_line
-
-#: Episodes read at most for a fresh run's time estimate (the policy's latest in the store).
-ESTIMATE_SAMPLE = 200
+from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
 
 
 @dataclass
@@ -79,12 +74,15 @@ class Runner:
         backend: str = "local",
         ray_address: str | None = None,
         retry: bool = False,
+        stall_timeout_s: float | None = None,
     ):
         if workers < 1:
             raise UserError(f"run.workers must be >= 1, got {workers}")
         if backend not in BACKENDS:
             raise UserError(f"unknown run.backend {backend!r}; valid choices: {', '.join(BACKENDS)}")
         self.backend, self.ray_address, self.retry = backend, ray_address, retry
+        self.stall_timeout_s = stall_timeout_s
+        """How long a worker may be silent (``None``: derived from the step budget, ``watchdog.stall_bound``)."""
         self.plugins, self.spec, self.config = plugins, spec, config
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
@@ -125,50 +123,11 @@ class Runner:
 
     # -- planning --------------------------------------------------------------------------
     def jobs(self, plan: list[EpisodeSpec], traits: PolicyTraits) -> list[Item]:
-        items = []
-        for spec in plan:
-            task = base_task(spec.suite, spec.task_id)
-            text = self.plugins.format_prompt(spec.instruction, spec.prompt, self.spec.name)
-            eid = episode_id(
-                policy=self.spec.name, config_hash=self.config_hash, spec=spec, prompt_text=text, seed=self.seed
-            )
-            job = EpisodeJob(
-                episode_id=eid,
-                suite=spec.suite,
-                task_id=spec.task_id,
-                bddl_path=task.bddl_path,
-                init_state=spec.init_state,
-                seed=self.seed,
-                instruction=text,
-                goal=task.goal,
-                targets=task.targets,
-                warmup_steps=traits.warmup_steps,
-                max_steps=traits.max_steps[spec.suite],
-                needs_privileged=traits.needs_privileged,
-                needs_scene_state=traits.needs_scene_state,
-                case=spec.case,
-            )
-            items.append(Item(spec, job))
-        return items
+        """Each planned episode with its worker's job (its identity, prompt text and step budget)."""
+        return make_items(plan, traits, self.plugins, self.spec.name, self.config_hash, self.seed)
 
     def _seconds_each(self, items: list[Item], stored: set[str]) -> tuple[float | None, str]:
-        """Mean wall time of this plan's episodes already stored; else of this policy's (same settings and
-        code) elsewhere in the store, the last ``ESTIMATE_SAMPLE`` of them; None where there are none. With
-        the basis, in words."""
-        done = [i.job.episode_id for i in items if i.job.episode_id in stored]
-        basis = "so far"
-        if done:
-            table = self.store.read_table(columns=["wall_time_s"], episode_ids=done)
-        else:
-            basis = "of its earlier episodes in this store"
-            folder = self.store.episodes_dir / self.spec.name
-            files = sorted(folder.glob("*.parquet"), key=lambda p: p.stat().st_mtime)[-ESTIMATE_SAMPLE:]
-            if not files:
-                return None, basis
-            table = self.store.read_table(columns=["config_hash", "wall_time_s"], episode_ids=[f.stem for f in files])
-            table = table.filter(pc.equal(table["config_hash"], self.config_hash))
-        times = [t for t in table["wall_time_s"].to_pylist() if t]
-        return (sum(times) / len(times) if times else None), basis
+        return seconds_each(self.store, items, stored, self.spec.name, self.config_hash)
 
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
@@ -217,13 +176,15 @@ class Runner:
             raise
         self._policy, self._serving, self._held = policy, None, []
         self._calls = PolicyCalls(policy, traits, len(pool.slots))
+        stall_s = self.stall_timeout_s or stall_bound(traits.max_steps[suite] for suite in {i.job.suite for i in todo})
+        self._watch = StallWatch(stall_s, call_bound(self.config, stall_s))
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
         self._claims = ClaimKeeper(self.store)
         try:
             with self._claims:  # renews the claims of the episodes being played, from a thread
                 pool.start_all()
                 self._loop(EpisodeQueue(todo), result, traits)
-        except ServerUnavailable:
+        except (ServerUnavailable, PolicyStalled):
             self._end_in_flight(result)
             raise
         finally:
@@ -280,6 +241,7 @@ class Runner:
             slot.conn.send(Play(job))
         except OSError:  # its worker has just gone: the next wait() finds it and plays the episode again
             pass
+        self._watch.heard(slot)
 
     def _queried(self, slot: Slot, observation: Any, waiting: list[tuple[Slot, Any]], traits: PolicyTraits) -> None:
         """A worker asks for actions: decide now, or hold its episode until the policy is free."""
@@ -346,7 +308,8 @@ class Runner:
             wakeup = self._calls.wakeup
             owners = {s.conn: s for s in busy} | {s.process.sentinel: s for s in busy}
             lost_now: set[int] = set()  # their waitables this round were the lost worker's, not its successor's
-            for ready in wait([*owners, *wakeup]):
+            patience = self._watch.timeout(busy, self._waiting_slots(), self._calls.oldest_call_s())
+            for ready in wait([*owners, *wakeup], timeout=patience):
                 if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
                     answers += self._calls.collect()
                     continue
@@ -361,6 +324,7 @@ class Runner:
                     lost_now.add(slot.index)
                     self._worker_lost(slot, queue, result)
                     continue
+                self._watch.heard(slot)
                 match msg:
                     case Query(observation=observation):
                         self._queried(slot, observation, waiting, traits)
@@ -378,7 +342,31 @@ class Runner:
                     slot.conn.send(reply_for(self.plugins, self.spec.name, item, obs, raw))
                 except OSError:  # BrokenPipe, reset, a send timeout: the worker is gone; the next wait() finds it
                     pass
+                self._watch.heard(slot)
+            self._check_stalls(result)
             fill()
+
+    def _waiting_slots(self) -> set[int]:
+        """The slots whose episodes wait for the policy (their workers are silent by right)."""
+        return self._calls.waiting_slots() | {slot.index for slot, _ in self._held}
+
+    def _check_stalls(self, result: RunResult) -> None:
+        """A policy call past its bound stops the run; a worker silent past its bound is replaced (watchdog.py)."""
+        if (running := self._calls.oldest_call_s()) > self._watch.call_s:
+            raise PolicyStalled(
+                f"a call of policy {self.spec.name!r} has not returned in {running:.0f} s (limit "
+                f"{self._watch.call_s:.0f} s, run.stall_timeout_s); every finished episode is stored, and the same "
+                "command resumes the run"
+            )
+        busy = [s for s in self._pool.slots if s.item is not None and not s.retired]
+        for slot in self._watch.stalled(busy, self._waiting_slots()):
+            silent = f"the simulator worker sent nothing for {self._watch.stall_s:.0f} s; it was stopped and replaced"
+            print(f"conflictbench: {silent} (episode {slot.item.job.episode_id} is played again by the next run)",
+                  file=sys.stderr)  # fmt: skip
+            self._pool.stop_worker(slot)
+            error = f"{INFRASTRUCTURE_ERROR_PREFIX}: {silent}"
+            self._finish(slot, EpisodeOutcome.failed(error, "simulator", len(slot.item.job.targets)), result)
+            self._pool.restart(slot)
 
     def _worker_lost(self, slot: Slot, queue: EpisodeQueue, result: RunResult) -> None:
         """The worker playing ``slot``'s episode is gone (crashed, its node lost): the episode is played again
@@ -421,43 +409,19 @@ class Runner:
             self._serving = None
         self._held = [(s, o) for s, o in self._held if s is not slot]
 
-    def _record(self, item: Item, outcome: EpisodeOutcome, wall_time_s: float) -> EpisodeRecord:
-        """The stored row: the episode's keys and provenance from here, the rest from the worker's outcome."""
-        spec, job = item.spec, item.job
-        case = spec.case
-        return EpisodeRecord(
-            policy=self.spec.name,
-            suite=spec.suite,
-            task_id=spec.task_id,
-            init_state=spec.init_state,
-            prompt=spec.prompt,
-            instruction=spec.instruction,
-            seed=job.seed,
-            case_id=spec.case_id,
-            family=case.family if case else None,
-            level=case.level if case else None,
-            episode_id=job.episode_id,
-            base_instruction=spec.base_instruction,
-            prompt_text=job.instruction,
-            max_steps=job.max_steps,
-            warmup_steps=job.warmup_steps,
-            target_names=job.targets,
-            conflictbench_version=_own_version(),
-            plugin=self.spec.plugin,
-            plugin_version=self.spec.plugin_version,
-            code_versions=self.code_versions,
-            config_hash=self.config_hash,
-            policy_settings=settings_json(self.config),
-            created_at=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-            wall_time_s=wall_time_s,
-            **self._pool.versions,
-            **outcome.record_fields(),
-        )
-
     def _finish(self, slot: Slot, outcome: EpisodeOutcome, result: RunResult) -> None:
         item = slot.item
         assert item is not None
-        record = self._record(item, outcome, wall_time_s=time.time() - slot.started)
+        record = episode_record(
+            item,
+            outcome,
+            spec=self.spec,
+            config=self.config,
+            config_hash=self.config_hash,
+            code_versions=self.code_versions,
+            simulator=self._pool.versions,
+            wall_time_s=time.time() - slot.started,
+        )
         if item.job.episode_id in self._claims.lost:  # taken over while this job looked dead: the other one stores it
             self._claims.drop(item.job.episode_id)
             result.played_elsewhere += 1
@@ -472,12 +436,6 @@ class Runner:
         self._bar.set_postfix(success=result.succeeded, errors=result.errors)
         if self.on_episode is not None and item.job.episode_id not in self._claims.lost:
             self.on_episode(record)
-
-
-def _own_version() -> str:
-    import conflictbench
-
-    return conflictbench.__version__
 
 
 def _progress(total: int, name: str, enabled: bool):

@@ -1,0 +1,93 @@
+"""A run cannot hang: a worker that stops answering is replaced and its episode stored as the simulator's failure;
+a policy call that never returns stops the run with one line, every finished episode stored."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+from testing_support import reference_spec
+
+from conflictbench import BUILTIN_PLUGINS, hookimpl
+from conflictbench.core import Plugins, PolicyStalled
+from conflictbench.sim.runner import Runner
+from conflictbench.store import EpisodeStore
+
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # runs that wait out their bounds
+
+RELEASE = threading.Event()  # lets a stuck call end when its test is over
+STEPS = {"libero_spatial": 30, "libero_object": 30, "libero_goal": 30, "libero_10": 30}
+
+
+class Stuck:
+    """Zero motion; on the second episode's tenth query it either never returns or freezes the asking worker."""
+
+    needs_images = False
+    max_steps = STEPS
+    how = "hang"
+    runner: Runner | None = None
+
+    def __init__(self, cfg=None):
+        self.episodes: list[str] = []
+
+    def reset(self, instruction: str) -> None:
+        pass
+
+    def act(self, observation):
+        if observation.episode_id not in self.episodes:
+            self.episodes.append(observation.episode_id)
+        if len(self.episodes) == 2 and observation.step == 10:
+            if Stuck.how == "hang":
+                RELEASE.wait()
+            else:  # what SIGSTOP or a stuck simulator step looks like from here: a worker that says nothing
+                os.kill(Stuck.runner._pool.slots[observation.stream].process.pid, signal.SIGSTOP)
+        return np.array([0, 0, 0, 0, 0, 0, -1.0])
+
+
+class StuckPlugin:
+    @hookimpl
+    def conflictbench_register_policies(self, register):
+        register("stuck", load=Stuck)
+
+
+def runner(tmp_path, stall_s: float) -> tuple[Runner, EpisodeStore]:
+    plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[StuckPlugin()])
+    spec = plugins.policy("stuck")
+    store = EpisodeStore(tmp_path / "store")
+    run = Runner(plugins, spec, spec.make_config({}), store=store, workers=1, progress=False, stall_timeout_s=stall_s)
+    Stuck.runner = run
+    return run, store
+
+
+SPECS = [reference_spec("libero_spatial", 0, 0), reference_spec("libero_spatial", 0, 1)]
+
+
+def test_a_policy_call_that_never_returns_stops_the_run_with_the_finished_episodes_stored(tmp_path):
+    Stuck.how = "hang"
+    run, store = runner(tmp_path, stall_s=6)
+    started = time.monotonic()
+    try:
+        with pytest.raises(PolicyStalled, match="a call of policy 'stuck' has not returned in [67] s"):
+            run.run(SPECS)
+    finally:
+        RELEASE.set()
+    assert time.monotonic() - started < 120
+    [stored] = store.records()
+    assert stored.init_state == 0 and stored.error is None and stored.steps == 30
+    assert not list((tmp_path / "store" / "claims").glob("*.claim"))
+
+
+def test_a_worker_that_stops_answering_is_replaced_and_the_run_goes_on(tmp_path):
+    Stuck.how = "freeze"
+    run, store = runner(tmp_path, stall_s=6)
+    result = run.run([*SPECS, reference_spec("libero_spatial", 0, 2)])
+    assert (result.played, result.errors) == (3, 1)
+    records = {r.init_state: r for r in store.records()}
+    frozen = records[1]
+    assert frozen.error_kind == "simulator" and "sent nothing for 6 s; it was stopped and replaced" in frozen.error
+    assert store.replay_ids() == {frozen.episode_id}  # played again by the next run
+    assert records[0].error is None and records[2].error is None and records[2].steps == 30  # a new worker played it
