@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,6 +13,11 @@ import conflictbench
 from conflictbench.sim.plan import EpisodeSpec
 from conflictbench.sim.runner import Runner, RunResult
 from conflictbench.store import EpisodeStore
+
+# Tests start hundreds of short runs, each in new processes that would compile their scenes again (~5 s each): a
+# shared cache of compiled models (conflictbench/sim/compiled_models.py) loads them instead. .ci/run sets it for
+# every stage (the plugins' tests too); set it yourself to move it, or to an empty value to compile every time.
+os.environ.setdefault("CONFLICTBENCH_MODEL_CACHE", str(Path.home() / ".cache" / "conflictbench" / "compiled-models"))
 
 
 @pytest.fixture(scope="session")
