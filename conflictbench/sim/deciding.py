@@ -118,7 +118,7 @@ class PolicyCalls:
 
     A finished call wakes the runner's ``wait()`` through a pipe (:attr:`wakeup`)."""
 
-    def __init__(self, policy: Any, traits: PolicyTraits, workers: int):
+    def __init__(self, policy: Any, traits: PolicyTraits):
         self.policy, self.batched, self.concurrent = policy, traits.batched, traits.concurrent
         self._pending: dict[Future, tuple[list[tuple[Any, Any, Any]], float]] = {}
         """A call -> ((slot, item, observation) of each query it answers, when it started: monotonic)."""
@@ -144,7 +144,7 @@ class PolicyCalls:
         now = time.monotonic()
         return max((now - started for _, started in self._pending.values()), default=0.0)
 
-    def submit(self, waiting: list[tuple[Any, Any]]) -> list[Answer]:
+    def submit(self, waiting: list[tuple[Any, Any]]) -> None:
         """Ask for these queries; their answers come through :meth:`collect`."""
         if self.concurrent:
             for slot, obs in waiting:
@@ -153,7 +153,6 @@ class PolicyCalls:
             self._backlog += waiting
             if not self._pending:
                 self._next_call()
-        return []
 
     def _next_call(self) -> None:
         if self._backlog:

@@ -175,7 +175,7 @@ class Runner:
             pool.stop()
             raise
         self._policy, self._serving, self._held = policy, None, []
-        self._calls = PolicyCalls(policy, traits, len(pool.slots))
+        self._calls = PolicyCalls(policy, traits)
         stall_s = self.stall_timeout_s or stall_bound(traits.max_steps[suite] for suite in {i.job.suite for i in todo})
         self._watch = StallWatch(stall_s, call_bound(self.config, stall_s))
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
@@ -334,7 +334,7 @@ class Runner:
                         raise TypeError(f"a worker sent {type(msg).__name__} during an episode")
             self._serve_next(waiting)
             if waiting:
-                answers += self._calls.submit(waiting)
+                self._calls.submit(waiting)
             for slot, item, obs, raw in answers:
                 if slot.item is not item:  # its worker died meanwhile; the slot plays another episode now
                     continue
