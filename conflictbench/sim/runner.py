@@ -126,9 +126,6 @@ class Runner:
         """Each planned episode with its worker's job (its identity, prompt text and step budget)."""
         return make_items(plan, traits, self.plugins, self.spec.name, self.config_hash, self.seed)
 
-    def _seconds_each(self, items: list[Item], stored: set[str]) -> tuple[float | None, str]:
-        return seconds_each(self.store, items, stored, self.spec.name, self.config_hash)
-
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
         policy = self._load_policy()
@@ -161,7 +158,7 @@ class Runner:
                 file=sys.stderr,
             )
         if self.progress:
-            seconds, basis = self._seconds_each(items, stored)
+            seconds, basis = seconds_each(self.store, items, stored, self.spec.name, self.config_hash)
             print(plan_line(len(todo), result.already_stored, seconds, self.workers, basis), file=sys.stderr)
         if not todo:
             return result
@@ -176,7 +173,7 @@ class Runner:
             raise
         self._policy, self._serving, self._held = policy, None, []
         self._calls = PolicyCalls(policy, traits)
-        stall_s = self.stall_timeout_s or stall_bound(traits.max_steps[suite] for suite in {i.job.suite for i in todo})
+        stall_s = self.stall_timeout_s or stall_bound(i.job.max_steps for i in todo)
         self._watch = StallWatch(stall_s, call_bound(self.config, stall_s))
         self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
         self._claims = ClaimKeeper(self.store)
