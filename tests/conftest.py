@@ -27,7 +27,7 @@ def plugins():
 
 @pytest.fixture
 def play(tmp_path: Path, plugins):
-    """play(policy_name, specs, settings=None, workers=1, store_dir=None) -> (RunResult, EpisodeStore)."""
+    """play(policy, specs, settings=None, workers=1, store_dir=None, max_steps=None) -> (RunResult, EpisodeStore)."""
 
     def _play(
         policy: str,
@@ -36,11 +36,20 @@ def play(tmp_path: Path, plugins):
         workers: int = 1,
         store_dir: Path | None = None,
         plugin_set=None,
+        max_steps: int | None = None,
     ) -> tuple[RunResult, EpisodeStore]:
         pl = plugin_set or plugins
         spec = pl.policy(policy)
         store = EpisodeStore(store_dir or tmp_path / "store")
-        runner = Runner(pl, spec, spec.make_config(settings or {}), store=store, workers=workers, progress=False)
+        runner = Runner(
+            pl,
+            spec,
+            spec.make_config(settings or {}),
+            store=store,
+            workers=workers,
+            progress=False,
+            max_steps=max_steps,
+        )
         return runner.run(list(specs)), store
 
     return _play

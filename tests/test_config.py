@@ -96,6 +96,8 @@ def test_run_options_name_base_tasks_and_cases(composed):
         ("run.tasks=[libero_goal/10]", "task ids 0-9\\), got 'libero_goal/10'"),
         ("run.tasks=[libero_goal]", "got 'libero_goal'"),
         ("run.cases=[]", "run.cases must name at least one, or be null"),
+        ("run.max_steps=0", "run.max_steps \\(or null\\) must be an integer >= 1, got 0"),
+        ("run.max_steps=ten", "run.max_steps"),
     ],
 )
 def test_bad_run_options_are_user_errors(composed, override, message):

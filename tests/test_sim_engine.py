@@ -285,3 +285,17 @@ def test_p1_prompt_text_reaches_the_policy_and_the_store(play, probe_plugins):
     assert rec.prompt_text.startswith(P1_PREAMBLE) and rec.prompt_text.endswith("turn on the stove")
     assert Probe.instances[0].instructions == [rec.prompt_text]
     assert all(o.instruction == rec.prompt_text for o in Probe.instances[0].seen)
+
+
+def test_a_step_cap_is_its_own_identity_and_stored(play, tmp_path):
+    """``run.max_steps``: capped episodes stop at the cap, store it, and are never reused for another budget."""
+    spec = reference_spec("libero_spatial", 0, 0)
+    store_dir = tmp_path / "capped"
+    first, store = play("noop", [spec], store_dir=store_dir, max_steps=5)
+    (five,) = store.records()
+    assert first.played == 1 and five.steps == 5 and five.max_steps == 5
+    second, store = play("noop", [spec], store_dir=store_dir, max_steps=7)
+    assert second.played == 1 and second.already_stored == 0  # another budget: another episode
+    assert sorted(r.steps for r in store.records()) == [5, 7] and len({r.episode_id for r in store.records()}) == 2
+    again, _ = play("noop", [spec], store_dir=store_dir, max_steps=5)
+    assert again.played == 0 and again.already_stored == 1

@@ -51,6 +51,7 @@ class RunOptions:
     ray_address: str | None
     retry: bool
     stall_timeout_s: float | None
+    max_steps: int | None
     out: Path
     metrics: list[str] | None
     progress: bool
@@ -145,6 +146,7 @@ def run_options(run: DictConfig) -> RunOptions:
         ray_address=None if run.ray_address is None else str(run.ray_address),
         retry=bool(run.get("retry", False)),
         stall_timeout_s=_seconds(run.get("stall_timeout_s"), "run.stall_timeout_s"),
+        max_steps=None if run.get("max_steps") is None else _int(run.max_steps, "run.max_steps (or null)", minimum=1),
         out=Path(str(run.out)),
         metrics=metrics,
         progress=bool(run.progress),
@@ -214,7 +216,8 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     print(
         f"conflictbench: model={model} suite={'+'.join(families)} level={'+'.join(levels)} "
         f"prompt={'+'.join(prompts)}: {len(plan)} episodes ({conflicts} conflict, {len(plan) - conflicts} reference) "
-        f"from suite {suite.name} {suite.version}; store {store.root}/",
+        f"from suite {suite.name} {suite.version}; store {store.root}/"
+        + (f"; every episode capped at {n} steps (run.max_steps)" if (n := options.max_steps) else ""),
         file=sys.stderr,
     )
     runner = Runner(
@@ -229,6 +232,7 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         ray_address=options.ray_address,
         retry=options.retry,
         stall_timeout_s=options.stall_timeout_s,
+        max_steps=options.max_steps,
     )
     result = runner.run(plan)
     print(

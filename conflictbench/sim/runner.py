@@ -75,6 +75,7 @@ class Runner:
         ray_address: str | None = None,
         retry: bool = False,
         stall_timeout_s: float | None = None,
+        max_steps: int | None = None,
     ):
         if workers < 1:
             raise UserError(f"run.workers must be >= 1, got {workers}")
@@ -82,6 +83,8 @@ class Runner:
             raise UserError(f"unknown run.backend {backend!r}; valid choices: {', '.join(BACKENDS)}")
         self.backend, self.ray_address, self.retry = backend, ray_address, retry
         self.stall_timeout_s = stall_timeout_s
+        self.max_steps = max_steps
+        """A cap on every suite's step budget (``run.max_steps``; ``None``: the policy's own)."""
         """How long a worker may be silent (``None``: derived from the step budget, ``watchdog.stall_bound``)."""
         self.plugins, self.spec, self.config = plugins, spec, config
         self.store, self.workers, self.seed = store, workers, seed
@@ -138,6 +141,8 @@ class Runner:
 
     def _run_with(self, policy: Any, plan: list[EpisodeSpec]) -> RunResult:
         traits = PolicyTraits(policy)
+        if self.max_steps is not None:  # a shorter budget is other episodes: the traits enter the identity
+            traits.max_steps = {suite: min(steps, self.max_steps) for suite, steps in traits.max_steps.items()}
         self.code_versions = self.plugins.provenance(self.spec.name)
         self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
