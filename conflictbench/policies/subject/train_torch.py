@@ -5,6 +5,9 @@ This file imports nothing of conflictbench: it is run by path with the training 
 
     python train_torch.py dataset --prepared prepared.npz --root DATASET
     python train_torch.py train --root DATASET --out subject.npz --seed 0 --minutes 30
+    python train_torch.py train --prepared prepared.npz --root DATASET ...   both, in one process
+
+One process for both is what ``conflictbench train-subject`` runs: importing torch and LeRobot takes about 25 s here.
 
 The network is the one ``model.py`` runs in NumPy, parameter for parameter.
 """
@@ -265,10 +268,21 @@ def main(argv: list[str]) -> int:
     fit.add_argument("--batch", type=int, default=256)
     fit.add_argument("--threads", type=int, default=2)
     fit.add_argument("--report", type=Path, default=None, help="where to write the run's figures (JSON)")
+    fit.add_argument("--prepared", type=Path, default=None, help="first write the dataset at --root from this")
     args = parser.parse_args(argv)
     if args.command == "dataset":
         write_dataset(args.prepared, args.root)
     else:
+        dataset_s = None
+        if args.prepared is not None:
+            started = time.monotonic()
+            write_dataset(args.prepared, args.root)
+            dataset_s = round(time.monotonic() - started, 1)
+            print(
+                f"conflictbench: 3/3 training: seed {args.seed}, up to {args.epochs} epochs or {args.minutes:g} min",
+                file=sys.stderr,
+                flush=True,
+            )
         report = train(
             args.root,
             args.out,
@@ -279,7 +293,7 @@ def main(argv: list[str]) -> int:
             threads=args.threads,
         )
         if args.report:
-            args.report.write_text(json.dumps(report) + "\n")
+            args.report.write_text(json.dumps({**report, "dataset_s": dataset_s}) + "\n")
     return 0
 
 
