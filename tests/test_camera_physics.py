@@ -182,17 +182,12 @@ def test_the_scripted_experts_own_episode_is_the_native_clients(play, replay_plu
     )
 
 
-# Full length: the drift this guards against grows with the steps, and a grasp brings contacts. Cameras at every
-# step (a native client's own rendering, ~0.2 s a step here) are left to the 40-step test above: over a whole
-# episode the native client already renders every step, and the camera gate renders at every query.
+# Full length, with a grasp: contacts all the way, where a difference would only start late. A difference from
+# the start (the missing forward above: every step after the reset differed in its last bits) the 40-step random
+# test already finds, in every mode, so no full-length random episode is played. Cameras at every step (a native
+# client's own rendering, ~0.2 s a step here) are left to that test too: over a whole episode the native client
+# already renders every step, and the camera gate renders at every query.
 FULL_LENGTH_MODES = ("state-only", "camera gate")
-
-
-@pytest.mark.slow
-def test_a_full_random_episode_records_the_native_path_without_and_with_the_camera_gate(play, replay_plugins, tmp_path):
-    assert_every_mode_records_the_native_path(
-        play, replay_plugins, tmp_path, OBJECT_TASK, random_actions(280), modes=FULL_LENGTH_MODES
-    )
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.sim
 def test_sigterm_ends_a_run_cleanly_and_the_same_command_resumes(tmp_path):
     args = [sys.executable, "-m", "conflictbench.cli", "model=noop", "suite=physical", "level=L1",
             "run.init_states=2", "run.libero_suites=[libero_spatial]", "run.workers=1", "run.progress=false",
-            "run.report=false", f"run.out={tmp_path / 'results'}"]  # fmt: skip
+            "run.report=false", f"run.out={tmp_path / 'results'}", "run.max_steps=40"]  # fmt: skip
     run = subprocess.Popen(args, cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
     episodes = tmp_path / "results" / "episodes"
     deadline = time.monotonic() + 300

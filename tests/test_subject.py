@@ -148,15 +148,16 @@ def test_bad_settings_are_one_line(tmp_path):
 @pytest.mark.sim
 def test_in_one_scene_the_words_decide_where_the_arm_goes(play, tmp_path):
     """libero_goal task 2 (the wine bottle on the cabinet) played with its own words and with task 6's (the cream
-    cheese in the bowl): the first thing to reach differs."""
+    cheese in the bowl): the first thing to reach differs, which the first 100 steps show."""
     own = reference_spec("libero_goal", 2, 0)
     other = dataclasses.replace(own, base_instruction=reference_spec("libero_goal", 6, 0).base_instruction)
-    (_, store) = play("subject", [own, other], settings={"weights": None}, store_dir=tmp_path / "s")
+    (_, store) = play("subject", [own, other], settings={"weights": None}, store_dir=tmp_path / "s", max_steps=100)
     paths = {r.instruction: r.eef_pos for r in store.records()}
     a, b = paths[own.instruction], paths[other.instruction]
     steps = min(len(a), len(b))
     assert steps > 50
-    assert np.linalg.norm(a[:steps] - b[:steps], axis=1).max() > 0.05  # 5 cm apart somewhere: the words moved it
+    apart = np.linalg.norm(a[:steps] - b[:steps], axis=1)
+    assert apart.max() > 0.05, apart.max()  # 5 cm apart somewhere (by step 10, 0.5 m in 100): the words moved it
 
 
 def test_decoding_picks_one_mode_of_the_bins_never_their_mean():
