@@ -20,6 +20,9 @@ from conflictbench.store import EpisodeStore
 pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # runs that wait out their bounds
 
 RELEASE = threading.Event()  # lets a stuck call end when its test is over
+#: The bound the tests run under: above an env build on a loaded machine (a worker is silent while it builds one;
+#: 6 s was passed on a machine busy with two test lanes, the first episode's worker replaced), far below the default.
+STALL_S = 15
 STEPS = {"libero_spatial": 30, "libero_object": 30, "libero_goal": 30, "libero_10": 30}
 
 
@@ -68,10 +71,10 @@ SPECS = [reference_spec("libero_spatial", 0, 0), reference_spec("libero_spatial"
 
 def test_a_policy_call_that_never_returns_stops_the_run_with_the_finished_episodes_stored(tmp_path):
     Stuck.how = "hang"
-    run, store = runner(tmp_path, stall_s=6)
+    run, store = runner(tmp_path, stall_s=STALL_S)
     started = time.monotonic()
     try:
-        with pytest.raises(PolicyStalled, match="a call of policy 'stuck' has not returned in [67] s"):
+        with pytest.raises(PolicyStalled, match="a call of policy 'stuck' has not returned in 1[56] s"):
             run.run(SPECS)
     finally:
         RELEASE.set()
@@ -83,11 +86,12 @@ def test_a_policy_call_that_never_returns_stops_the_run_with_the_finished_episod
 
 def test_a_worker_that_stops_answering_is_replaced_and_the_run_goes_on(tmp_path):
     Stuck.how = "freeze"
-    run, store = runner(tmp_path, stall_s=6)
+    run, store = runner(tmp_path, stall_s=STALL_S)
     result = run.run([*SPECS, reference_spec("libero_spatial", 0, 2)])
     assert (result.played, result.errors) == (3, 1)
     records = {r.init_state: r for r in store.records()}
     frozen = records[1]
-    assert frozen.error_kind == "simulator" and "sent nothing for 6 s; it was stopped and replaced" in frozen.error
+    assert frozen.error_kind == "simulator"
+    assert f"sent nothing for {STALL_S} s; it was stopped and replaced" in frozen.error
     assert store.replay_ids() == {frozen.episode_id}  # played again by the next run
     assert records[0].error is None and records[2].error is None and records[2].steps == 30  # a new worker played it
