@@ -81,12 +81,29 @@ def _played(root, policy: str) -> tuple[Plugins, EpisodeStore]:
     return plugins, store
 
 
+_SITES: dict = {}
+
+
+def _site(policy: str, tmp_path_factory):
+    """The site of three played episodes of ``policy``, built once per module."""
+    if policy not in _SITES:
+        root = tmp_path_factory.mktemp(policy)
+        plugins, store = _played(root / "results", policy)
+        built = build_site(store.root, root / "site", plugins, Selection(), videos=None, progress=False)
+        _SITES[policy] = plugins, store, built
+    return _SITES[policy]
+
+
 @pytest.fixture(scope="module", params=["mover", "camera-mover"])
 def site(request, tmp_path_factory):
-    root = tmp_path_factory.mktemp(request.param)
-    plugins, store = _played(root / "results", request.param)
-    built = build_site(store.root, root / "site", plugins, Selection(), videos=None, progress=False)
-    return plugins, store, built
+    """For what a replay must do alike whether its policy saw images (the camera gate's physics) or not."""
+    return _site(request.param, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def mover_site(tmp_path_factory):
+    """For what the viewer does with any site (its pages, its processes, a pair asked for)."""
+    return _site("mover", tmp_path_factory)
 
 
 @pytest.mark.sim
@@ -126,14 +143,14 @@ def test_a_replay_that_leaves_the_stored_path_says_so_and_only_changed_episodes_
 
 
 @pytest.mark.sim
-def test_the_pages_load_plot_filter_and_play_in_chromium(site):
+def test_the_pages_load_plot_filter_and_play_in_chromium(mover_site):
     if not CHROMIUM:
         if os.environ.get("CI"):
             pytest.fail("CI needs Chromium for the viewer's browser test (scripts/setup.sh installs it)")
         pytest.skip("no Chromium here (Debian: apt-get install chromium)")
     from playwright.sync_api import sync_playwright
 
-    _, store, built = site
+    _, store, built = mover_site
     problems: list[str] = []
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=list(CHROMIUM_ARGS))
@@ -180,9 +197,9 @@ class SlowSink:
 
 
 @pytest.mark.sim
-def test_leaving_the_replays_early_ends_their_processes_at_once(site):
+def test_leaving_the_replays_early_ends_their_processes_at_once(mover_site):
     """What Ctrl-C in `conflictbench view` does (the generator is closed): no waiting for replays under way."""
-    _, store, _ = site
+    _, store, _ = mover_site
     jobs = [
         ReplayJob(
             r.episode_id, r.suite, r.task_id, r.init_state, r.seed, r.warmup_steps, r.actions, r.eef_pos, SlowSink()
@@ -206,8 +223,8 @@ def test_leaving_the_replays_early_ends_their_processes_at_once(site):
 
 
 @pytest.mark.sim
-def test_a_pair_named_gets_its_videos_without_narrowing_the_site(site, tmp_path):
-    plugins, store, built = site
+def test_a_pair_named_gets_its_videos_without_narrowing_the_site(mover_site, tmp_path):
+    plugins, store, built = mover_site
     index = (built.out / "index.html").read_text()
     second = index.split('href="pairs/')[2].split(".html")[0]
     again = build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, video_pairs={second},
