@@ -83,9 +83,9 @@ class Runner:
             raise UserError(f"unknown run.backend {backend!r}; valid choices: {', '.join(BACKENDS)}")
         self.backend, self.ray_address, self.retry = backend, ray_address, retry
         self.stall_timeout_s = stall_timeout_s
+        """How long a worker may be silent (``None``: derived from the step budget, ``watchdog.stall_bound``)."""
         self.max_steps = max_steps
         """A cap on every suite's step budget (``run.max_steps``; ``None``: the policy's own)."""
-        """How long a worker may be silent (``None``: derived from the step budget, ``watchdog.stall_bound``)."""
         self.plugins, self.spec, self.config = plugins, spec, config
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
