@@ -57,9 +57,14 @@ def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_p
     assert play(new, store, monkeypatch) == 1  # the policy's plugin upgraded
     assert play(new, store, monkeypatch, Halve()) == 1  # a post-processor installed
     assert play(new, store, monkeypatch, Halve()) == 0
+    module = new / "conflictbench_demo" / "__init__.py"
+    module.write_text(module.read_text() + "\n# one line edited, the version unchanged\n")
+    assert play(new, store, monkeypatch, Halve()) == 1  # other code: played again
+    assert play(new, store, monkeypatch, Halve()) == 0
     records = store.records()
-    assert len(records) == 3 and len({r.config_hash for r in records}) == 3
+    assert len(records) == 4 and len({r.config_hash for r in records}) == 4
     assert {r.plugin_version for r in records} == {"0.3.1", "0.3.2"}
     demo_pins = {pin for r in records for pin in r.code_versions if pin.startswith("conflictbench-demo==")}
-    assert demo_pins == {"conflictbench-demo==0.3.1", "conflictbench-demo==0.3.2"}
-    assert sum("(in-process)==" in pin for r in records for pin in r.code_versions) == 1  # the post-processor
+    assert {pin.split(" files=")[0] for pin in demo_pins} == {"conflictbench-demo==0.3.1", "conflictbench-demo==0.3.2"}
+    assert len(demo_pins) == 3  # 0.3.1, and 0.3.2 before and after the edit
+    assert sum("(in-process)==" in pin for r in records for pin in r.code_versions) == 2  # the post-processor

@@ -85,9 +85,10 @@ def settings_json(config: Any) -> str:
 
 def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str, ...] = ()) -> str:
     """Identifies everything besides the episode itself that can change a rollout: the policy, its
-    settings and declared traits, the code behind it (``code``: ``distribution==version`` of the
-    policy's plugin and of every plugin implementing a global per-episode hook, see
-    ``Plugins.provenance``) and the simulator stack (a store never mixes MuJoCo versions)."""
+    settings and declared traits, the code behind it (``code``: ``distribution==version files=DIGEST`` of
+    conflictbench's rollout packages, the policy's plugin, every plugin implementing a global per-episode
+    hook and the conflictbench distributions they require, see ``code_identity.code_pins``) and the
+    simulator stack (a store never mixes MuJoCo versions)."""
     settings = identity_settings(config)  # a served policy's address and timeouts are not (ServingConfig)
     blob = json.dumps(
         {

@@ -31,6 +31,7 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 
 from . import BACKENDS
+from .code_identity import code_pins
 from .deciding import PolicyCalls, reply_for, reset_error
 from .episode_rows import episode_record, make_items, seconds_each
 from .libero_env import EnvSettings
@@ -143,7 +144,7 @@ class Runner:
         traits = PolicyTraits(policy)
         if self.max_steps is not None:  # a shorter budget is other episodes: the traits enter the identity
             traits.max_steps = {suite: min(steps, self.max_steps) for suite, steps in traits.max_steps.items()}
-        self.code_versions = self.plugins.provenance(self.spec.name)
+        self.code_versions = code_pins(self.plugins.provenance(self.spec.name))  # the code by content
         self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:

@@ -1,0 +1,137 @@
+"""The code behind a rollout, by content: a digest of the files themselves, not a version string.
+
+A version says little while a package is installed editable (`scripts/setup.sh`): conflictbench stayed 0.2.0 and
+every plugin 0.1.0 while their rollout code changed. So each distribution that can change an episode (see
+``Plugins.provenance``; with the conflictbench distributions it requires, such as conflictbench-serving for a
+plugin's server) is identified by ``name==version`` and a digest of its files as they are on disk: an editable
+tree's sources or an installed wheel's files alike. For conflictbench itself only the packages on a rollout's
+path count (:data:`ROLLOUT_PACKAGES`): editing the report or the viewer does not make stored episodes stale.
+Hashing them takes a few milliseconds a run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata as metadata
+import importlib.util
+import re
+from collections.abc import Iterable
+from pathlib import Path
+
+__all__ = ["NOT_ROLLOUT", "ROLLOUT_PACKAGES", "code_pins", "distribution_files", "files_digest"]
+
+#: conflictbench's packages whose code runs while an episode is played, or decides what it is: the contract and
+#: its records (core), the served-policy clients (hosting), the built-in policies with the subject's weights,
+#: the workers, env set-up, observations and planning (sim), LIBERO's tasks and the suite (tasks).
+ROLLOUT_PACKAGES = ("conflictbench.core", "conflictbench.hosting", "conflictbench.policies", "conflictbench.sim",
+                    "conflictbench.tasks")  # fmt: skip
+#: The rest of conflictbench, and why it cannot change an episode (tests/test_code_identity.py checks that a run
+#: imports nothing outside these two lists).
+NOT_ROLLOUT = {
+    "conflictbench": "the package's entry: re-exports and plugin discovery (core's)",
+    "conflictbench.cli": "the command: composes the run (its settings are in the identity) and prints",
+    "conflictbench.conf": "the config tree: its values are settings, which are in the identity",
+    "conflictbench.metrics": "computed from stored episodes, after the rollout",
+    "conflictbench.report": "tables and figures from stored episodes",
+    "conflictbench.store": "writes and reads episodes; never decides an action",
+    "conflictbench.testing": "helpers for tests",
+    "conflictbench.view": "the viewer's site, from stored episodes",
+}
+_PIN = re.compile(r"^(?P<name>[A-Za-z0-9._-]+)==(?P<version>\S+)$")
+_SKIPPED_PARTS = {"__pycache__", ".pytest_cache"}
+
+
+def files_digest(files: Iterable[tuple[str, Path]]) -> str:
+    """12 hex digits over the (name, content) of ``files`` (sorted by name)."""
+    digest = hashlib.sha256()
+    for name, path in sorted(files):
+        digest.update(name.encode() + b"\0" + hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()[:12]
+
+
+def _package_files(package: str, dist: metadata.Distribution | None = None) -> list[tuple[str, Path]]:
+    """Every file of a package (or module), by its path from the package's parent folder: where ``dist``
+    installed it, else (an editable install, whose files stay in its tree) where Python finds it."""
+    roots: list[Path] = []
+    if dist is not None and "." not in package:
+        here = Path(str(dist.locate_file(package)))
+        if here.is_dir():
+            roots = [here]
+        elif here.with_suffix(".py").is_file():
+            return [(f"{package}.py", here.with_suffix(".py"))]
+    if not roots:
+        spec = importlib.util.find_spec(package)
+        if spec is None:
+            return []
+        if spec.submodule_search_locations:
+            roots = [Path(p) for p in spec.submodule_search_locations]
+        elif spec.origin and spec.origin not in ("built-in", "frozen"):
+            path = Path(spec.origin)
+            return [(path.name, path)]
+        else:
+            return []
+    found = []
+    for root in roots:
+        for path in root.rglob("*"):
+            parts = path.relative_to(root).parts
+            if path.is_file() and not _SKIPPED_PARTS & set(parts) and path.suffix != ".pyc":
+                found.append(("/".join([*package.split("."), *parts]), path))
+    return found
+
+
+def _top_level(dist: metadata.Distribution) -> list[str]:
+    listed = (dist.read_text("top_level.txt") or "").split()
+    if listed:
+        return listed
+    name = dist.metadata["Name"]
+    return sorted(top for top, dists in metadata.packages_distributions().items() if name in dists)
+
+
+def distribution_files(name: str) -> list[tuple[str, Path]]:
+    """The files of distribution ``name`` that can change a rollout: all of its packages' files, but for
+    conflictbench only :data:`ROLLOUT_PACKAGES`."""
+    if metadata.distribution(name).metadata["Name"] == "conflictbench":
+        return [f for package in ROLLOUT_PACKAGES for f in _package_files(package)]
+    dist = metadata.distribution(name)
+    return [f for top in _top_level(dist) for f in _package_files(top, dist)]
+
+
+def _conflictbench_requirements(name: str) -> set[str]:
+    """The installed conflictbench distributions ``name`` requires (a plugin's conflictbench-serving), deeply."""
+    found: set[str] = set()
+    todo = [name]
+    while todo:
+        for requirement in metadata.requires(todo.pop()) or ():
+            if "extra ==" in requirement:
+                continue
+            wanted = re.match(r"[A-Za-z0-9._-]+", requirement)[0]
+            if wanted.lower().replace("_", "-").startswith("conflictbench") and wanted not in found:
+                try:
+                    metadata.distribution(wanted)
+                except metadata.PackageNotFoundError:
+                    continue
+                found.add(wanted)
+                todo.append(wanted)
+    return found
+
+
+def code_pins(pins: Iterable[str]) -> tuple[str, ...]:
+    """``name==version`` pins (``Plugins.provenance``), each installed distribution's followed by the digest of its
+    rollout files (``name==version files=0123456789ab``), with the conflictbench distributions they require.
+    Pins that name no installed distribution (a plugin object registered in-process) stay as they are."""
+    names: dict[str, str] = {}
+    kept: set[str] = set()
+    for pin in pins:
+        match = _PIN.match(pin)
+        try:
+            dist = metadata.distribution(match["name"]) if match else None
+        except metadata.PackageNotFoundError:
+            dist = None
+        if dist is None:
+            kept.add(pin)
+            continue
+        names[dist.metadata["Name"]] = dist.version
+        for required in _conflictbench_requirements(dist.metadata["Name"]):
+            names.setdefault(required, metadata.distribution(required).version)
+    pinned = {f"{name}=={version} files={files_digest(distribution_files(name))}" for name, version in names.items()}
+    return tuple(sorted(kept | pinned))
