@@ -12,6 +12,7 @@ import pytest
 
 import conflictbench
 from conflictbench.sim.code_identity import NOT_ROLLOUT, ROLLOUT_PACKAGES, code_pins, distribution_files
+from conflictbench.sim.identity_change import code_changes, keep_manifests
 
 
 def _covered(module: str) -> bool:
@@ -88,3 +89,22 @@ def test_one_edited_line_of_a_plugins_processing_is_other_code_under_the_same_ve
     (package / "__pycache__").mkdir()
     (package / "__pycache__" / "processing.cpython-311.pyc").write_bytes(b"compiled")  # a cache is not code
     assert code_pins(["lab-policy==1.0", "conflictbench==0.2.0", "(in-process)==unknown"]) == before
+
+
+def test_what_changed_is_said_in_words_naming_the_files_a_store_kept(tmp_path):
+    before = {"lab_policy/processing.py": "a1", "lab_policy/__init__.py": "b1"}
+    after = {"lab_policy/processing.py": "a2", "lab_policy/__init__.py": "b1", "lab_policy/new.py": "c1"}
+    old, new = "lab-policy==1.0 files=000000000001", "lab-policy==1.0 files=000000000002"
+    keep_manifests(tmp_path, {old: before, new: after})
+    keep_manifests(tmp_path, {old: {"overwritten?": "no"}})  # a digest's manifest is written once
+    assert code_changes(tmp_path, (old, "conflictbench==0.2.0 files=x"), (new, "conflictbench==0.2.0 files=x")) == [
+        "code changed: lab-policy (lab_policy/new.py, lab_policy/processing.py)"
+    ]
+    assert code_changes(tmp_path, (old,), ("lab-policy==1.1 files=000000000003",)) == ["lab-policy 1.0 -> 1.1"]
+    assert code_changes(tmp_path, ("lab-policy==1.0",), (new,)) == [
+        "lab-policy: its code is now identified by content (this store's episodes by version)"
+    ]
+    assert code_changes(tmp_path, (old, "(in-process)==x"), (new.replace("2", "9"),)) == [
+        "(in-process) removed",
+        "code changed: lab-policy",  # no manifest kept for that digest: the files are not named
+    ]

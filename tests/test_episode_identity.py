@@ -48,18 +48,27 @@ def play(site: Path, store: EpisodeStore, monkeypatch, *extra) -> int:
         return runner.run([reference_spec("libero_spatial", 0, 0)]).played
 
 
-def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_path, monkeypatch):
+def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_path, monkeypatch, capfd):
     old = install_demo("0.3.1", tmp_path / "site-old")
     new = install_demo("0.3.2", tmp_path / "site-new")
     store = EpisodeStore(tmp_path / "store")
+
+    def why() -> str:
+        said = [line for line in capfd.readouterr().err.splitlines() if "under another identity" in line]
+        return said[0].split("are not reused: ")[1] if said else ""
+
     assert play(old, store, monkeypatch) == 1
     assert play(old, store, monkeypatch) == 0  # same code: reused
+    assert why() == ""
     assert play(new, store, monkeypatch) == 1  # the policy's plugin upgraded
+    assert why() == "conflictbench-demo 0.3.1 -> 0.3.2"
     assert play(new, store, monkeypatch, Halve()) == 1  # a post-processor installed
+    assert why() == "(in-process) added"
     assert play(new, store, monkeypatch, Halve()) == 0
     module = new / "conflictbench_demo" / "__init__.py"
     module.write_text(module.read_text() + "\n# one line edited, the version unchanged\n")
-    assert play(new, store, monkeypatch, Halve()) == 1  # other code: played again
+    assert play(new, store, monkeypatch, Halve()) == 1  # other code: played again, and the file named
+    assert why() == "code changed: conflictbench-demo (conflictbench_demo/__init__.py)"
     assert play(new, store, monkeypatch, Halve()) == 0
     records = store.records()
     assert len(records) == 4 and len({r.config_hash for r in records}) == 4

@@ -18,7 +18,15 @@ import re
 from collections.abc import Iterable
 from pathlib import Path
 
-__all__ = ["NOT_ROLLOUT", "ROLLOUT_PACKAGES", "code_pins", "distribution_files", "files_digest"]
+__all__ = [
+    "NOT_ROLLOUT",
+    "ROLLOUT_PACKAGES",
+    "code_identity",
+    "code_pins",
+    "distribution_files",
+    "file_hashes",
+    "files_digest",
+]
 
 #: conflictbench's packages whose code runs while an episode is played, or decides what it is: the contract and
 #: its records (core), the served-policy clients (hosting), the built-in policies with the subject's weights,
@@ -41,12 +49,15 @@ _PIN = re.compile(r"^(?P<name>[A-Za-z0-9._-]+)==(?P<version>\S+)$")
 _SKIPPED_PARTS = {"__pycache__", ".pytest_cache"}
 
 
-def files_digest(files: Iterable[tuple[str, Path]]) -> str:
-    """12 hex digits over the (name, content) of ``files`` (sorted by name)."""
-    digest = hashlib.sha256()
-    for name, path in sorted(files):
-        digest.update(name.encode() + b"\0" + hashlib.sha256(path.read_bytes()).digest())
-    return digest.hexdigest()[:12]
+def file_hashes(files: Iterable[tuple[str, Path]]) -> dict[str, str]:
+    """Each file's content digest (16 hex digits), by its name: the manifest a store keeps of a pin's code."""
+    return {name: hashlib.sha256(path.read_bytes()).hexdigest()[:16] for name, path in sorted(files)}
+
+
+def files_digest(hashes: dict[str, str]) -> str:
+    """12 hex digits over a manifest (names and content digests, in name order)."""
+    text = "".join(f"{name}\0{digest}\n" for name, digest in sorted(hashes.items()))
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def _package_files(package: str, dist: metadata.Distribution | None = None) -> list[tuple[str, Path]]:
@@ -115,10 +126,11 @@ def _conflictbench_requirements(name: str) -> set[str]:
     return found
 
 
-def code_pins(pins: Iterable[str]) -> tuple[str, ...]:
+def code_identity(pins: Iterable[str]) -> tuple[tuple[str, ...], dict[str, dict[str, str]]]:
     """``name==version`` pins (``Plugins.provenance``), each installed distribution's followed by the digest of its
-    rollout files (``name==version files=0123456789ab``), with the conflictbench distributions they require.
-    Pins that name no installed distribution (a plugin object registered in-process) stay as they are."""
+    rollout files (``name==version files=0123456789ab``), with the conflictbench distributions they require; and
+    each digested pin's manifest (its files' digests, to say later which files changed). Pins that name no
+    installed distribution (a plugin object registered in-process) stay as they are."""
     names: dict[str, str] = {}
     kept: set[str] = set()
     for pin in pins:
@@ -133,5 +145,13 @@ def code_pins(pins: Iterable[str]) -> tuple[str, ...]:
         names[dist.metadata["Name"]] = dist.version
         for required in _conflictbench_requirements(dist.metadata["Name"]):
             names.setdefault(required, metadata.distribution(required).version)
-    pinned = {f"{name}=={version} files={files_digest(distribution_files(name))}" for name, version in names.items()}
-    return tuple(sorted(kept | pinned))
+    manifests = {}
+    for name, version in names.items():
+        hashes = file_hashes(distribution_files(name))
+        manifests[f"{name}=={version} files={files_digest(hashes)}"] = hashes
+    return tuple(sorted(kept | set(manifests))), manifests
+
+
+def code_pins(pins: Iterable[str]) -> tuple[str, ...]:
+    """The pins of :func:`code_identity`, without the manifests."""
+    return code_identity(pins)[0]

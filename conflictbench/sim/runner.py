@@ -31,15 +31,18 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 
 from . import BACKENDS
-from .code_identity import code_pins
+from .code_identity import code_identity
 from .deciding import PolicyCalls, reply_for, reset_error
 from .episode_rows import episode_record, make_items, seconds_each
-from .libero_env import EnvSettings
+from .identity_change import identity_changes, keep_manifests
+from .libero_env import EnvSettings, simulator_versions
 from .messages import Abort, Done, EpisodeOutcome, Play, Query
-from .plan import EpisodeSpec, config_hash
+from .plan import EpisodeSpec, config_hash, settings_json
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
 from .progress import plan_line
 from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
+
+CHANGED = "this policy's newest episodes in the store were played under another identity and are not reused"
 
 
 @dataclass
@@ -144,7 +147,7 @@ class Runner:
         traits = PolicyTraits(policy)
         if self.max_steps is not None:  # a shorter budget is other episodes: the traits enter the identity
             traits.max_steps = {suite: min(steps, self.max_steps) for suite, steps in traits.max_steps.items()}
-        self.code_versions = code_pins(self.plugins.provenance(self.spec.name))  # the code by content
+        self.code_versions, manifests = code_identity(self.plugins.provenance(self.spec.name))  # code by content
         self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:
@@ -155,6 +158,10 @@ class Runner:
         stored = self.store.stored_ids()
         todo = [i for i in items if i.job.episode_id not in stored]
         result.already_stored = len(items) - len(todo)
+        keep_manifests(self.store.root, manifests)
+        if todo and (changed := identity_changes(self.store, self.spec.name, self.config_hash, self.code_versions,
+                                                 settings_json(self.config), simulator_versions())):  # fmt: skip
+            print(f"conflictbench: {CHANGED}: {'; '.join(changed)}", file=sys.stderr)
         if not self.retry and (repeated := self.store.repeated_failure_ids() & {i.job.episode_id for i in todo}):
             todo = [i for i in todo if i.job.episode_id not in repeated]
             result.failed_twice = len(repeated)

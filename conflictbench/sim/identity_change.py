@@ -1,0 +1,97 @@
+"""Why a plan plays again what earlier runs of the same policy stored: what differs in the identity.
+
+A store keeps, beside its episodes, the manifest of each code pin its runs used (``code/``: each file's digest), so
+a changed digest can be told as the files that changed ("code changed: conflictbench_pi0 (processing.py)").
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+
+from conflictbench.store import EpisodeStore
+
+SIMULATOR_COLUMNS = ("mujoco_version", "robosuite_version", "libero_version", "numpy_version")
+#: The newest episodes of the policy that are compared (as the time estimate reads them).
+SAMPLE = 20
+#: Files named at most, per distribution.
+NAMED_FILES = 3
+
+
+def _manifest_path(root: Path, pin: str) -> Path:
+    name_version, _, digest = pin.partition(" files=")
+    return root / "code" / f"{name_version.replace('==', '-')}-{digest}.json"
+
+
+def keep_manifests(root: Path, manifests: Mapping[str, Mapping[str, str]]) -> None:
+    """Store each pin's manifest once (a few kB each; written beside the episodes of the run that used it)."""
+    for pin, hashes in manifests.items():
+        path = _manifest_path(root, pin)
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            temporary = path.with_suffix(".tmp")
+            temporary.write_text(json.dumps(dict(hashes), indent=0, sort_keys=True))
+            temporary.replace(path)
+
+
+def _by_name(pins) -> dict[str, str]:
+    return {pin.split(" ")[0].split("==")[0]: pin for pin in pins}
+
+
+def code_changes(root: Path, before: tuple[str, ...], now: tuple[str, ...]) -> list[str]:
+    """In words, how the code pins ``now`` differ from ``before`` (files named where both manifests are kept)."""
+    old, new = _by_name(before), _by_name(now)
+    changes = []
+    for name in sorted(old.keys() | new.keys()):
+        was, is_ = old.get(name), new.get(name)
+        if was == is_:
+            continue
+        if was is None or is_ is None:
+            changes.append(f"{name} {'added' if was is None else 'removed'}")
+            continue
+        old_version, new_version = was.split(" ")[0].split("==")[1], is_.split(" ")[0].split("==")[1]
+        if old_version != new_version:
+            changes.append(f"{name} {old_version} -> {new_version}")
+            continue
+        if " files=" not in was:
+            changes.append(f"{name}: its code is now identified by content (this store's episodes by version)")
+            continue
+        try:
+            a = json.loads(_manifest_path(root, was).read_text())
+            b = json.loads(_manifest_path(root, is_).read_text())
+        except (OSError, ValueError):
+            changes.append(f"code changed: {name}")
+            continue
+        files = sorted(f for f in a.keys() | b.keys() if a.get(f) != b.get(f))
+        more = f" and {len(files) - NAMED_FILES} more" if len(files) > NAMED_FILES else ""
+        changes.append(f"code changed: {name} ({', '.join(files[:NAMED_FILES])}{more})")
+    return changes
+
+
+def identity_changes(
+    store: EpisodeStore,
+    policy: str,
+    config_hash: str,
+    code_versions: tuple[str, ...],
+    settings: str,
+    simulator: Mapping[str, str],
+) -> list[str] | None:
+    """What differs between this run's identity and that of the newest stored episodes of ``policy`` with the
+    same settings (another variant's are other episodes, nothing to explain): None where there are none, or some
+    of them share this identity (nothing changed: the plan holds new episodes)."""
+    folder = store.episodes_dir / policy
+    files = sorted(folder.glob("*.parquet"), key=lambda p: p.stat().st_mtime)[-SAMPLE:]
+    if not files:
+        return None
+    columns = ["episode_id", "config_hash", "code_versions", "policy_settings", *SIMULATOR_COLUMNS]
+    rows = {r["episode_id"]: r for r in store.read_table(columns, [f.stem for f in files]).to_pylist()}
+    alike = [rows[f.stem] for f in files if f.stem in rows and (rows[f.stem]["policy_settings"] or "") == settings]
+    if not alike or any(r["config_hash"] == config_hash for r in alike):
+        return None
+    newest = alike[-1]
+    changes = code_changes(store.root, tuple(newest["code_versions"] or ()), tuple(code_versions))
+    for column in SIMULATOR_COLUMNS:
+        if newest[column] and simulator.get(column) and newest[column] != simulator[column]:
+            changes.append(f"{column.removesuffix('_version')} {newest[column]} -> {simulator[column]}")
+    return changes or ["the model's identity or declared traits changed (its checkpoint, model stack, or budgets)"]
