@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from testing_support import DEMO_PLUGIN, pip_install_into, reference_spec
 
@@ -44,8 +45,14 @@ def play(site: Path, store: EpisodeStore, monkeypatch, *extra) -> int:
         m.syspath_prepend(str(site))
         plugins = Plugins(BUILTIN_PLUGINS, extra=extra)
         spec = plugins.policy("demo-wave")
-        runner = Runner(plugins, spec, spec.make_config({}), store=store, workers=1, progress=False)
+        settings = spec.make_config({"noise": 0.1})  # it samples: its draws are seeded per episode and step
+        runner = Runner(plugins, spec, settings, store=store, workers=1, progress=False)
         return runner.run([reference_spec("libero_spatial", 0, 0)]).played
+
+
+def halves(record) -> bool:
+    """Whether the episode was played with the in-process post-processor ``Halve`` installed."""
+    return any(pin.startswith("(in-process)==") for pin in record.code_versions)
 
 
 def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_path, monkeypatch, capfd):
@@ -65,6 +72,7 @@ def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_p
     assert play(new, store, monkeypatch, Halve()) == 1  # a post-processor installed
     assert why() == "(in-process) added"
     assert play(new, store, monkeypatch, Halve()) == 0
+    (halved,) = [r for r in store.records() if halves(r)]
     module = new / "conflictbench_demo" / "__init__.py"
     module.write_text(module.read_text() + "\n# one line edited, the version unchanged\n")
     assert play(new, store, monkeypatch, Halve()) == 1  # other code: played again, and the file named
@@ -72,6 +80,12 @@ def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_p
     assert play(new, store, monkeypatch, Halve()) == 0
     records = store.records()
     assert len(records) == 4 and len({r.config_hash for r in records}) == 4
+    # The edit changed no action: the episode played again drew the noise it drew before (sampling is seeded by
+    # the identity by settings and versions), so its actions are the same; another version draws other noise.
+    (edited,) = [r for r in records if halves(r) and r.episode_id != halved.episode_id]
+    np.testing.assert_array_equal(edited.actions, halved.actions)
+    old_version, new_version = sorted((r for r in records if not halves(r)), key=lambda r: r.plugin_version)
+    assert np.abs(old_version.raw_actions - new_version.raw_actions).max() > 0.01
     assert {r.plugin_version for r in records} == {"0.3.1", "0.3.2"}
     demo_pins = {pin for r in records for pin in r.code_versions if pin.startswith("conflictbench-demo==")}
     assert {pin.split(" files=")[0] for pin in demo_pins} == {"conflictbench-demo==0.3.1", "conflictbench-demo==0.3.2"}

@@ -40,6 +40,14 @@ def test_the_seed_depends_on_episode_and_step_only():
     assert 0 <= base < 2**64
 
 
+def test_a_sampling_key_seeds_in_place_of_the_episode_id():
+    """The runner hands the episode's identity by settings and versions: a code edit leaves the draws alone."""
+    keyed = sampling_seed(obs(episode_id="by-content-1", sampling_key="by-versions"))
+    assert sampling_seed(obs(episode_id="by-content-2", sampling_key="by-versions")) == keyed
+    assert keyed == sampling_seed(obs(episode_id="by-versions"))
+    assert sampling_seed(obs(episode_id="by-content-1", sampling_key="other")) != keyed
+
+
 def test_the_seed_is_the_same_in_every_process():
     # hash() is salted per process; the seed must not be
     code = (

@@ -197,7 +197,11 @@ class Observation:
     stream: int = 0
     """Which concurrent episode this belongs to (worker slot); batched policies key state by it."""
     episode_id: str = ""
-    """The episode's identity in the store; with ``step`` it seeds sampling (:func:`rng_for`)."""
+    """The episode's identity in the store (it covers the code by content)."""
+    sampling_key: str = ""
+    """What seeds sampling with ``step`` (:func:`rng_for`): the episode's identity by settings and versions, without
+    the code's content, so that editing code that changes no action draws the same noise (an edit that changes
+    actions still plays the episode again, under a new ``episode_id``). Empty: ``episode_id`` seeds."""
     suite: str = ""
     """The LIBERO suite of the episode's base task (``libero_goal``, ...): the same for a conflict and its
     reference. Native clients of per-suite checkpoints pick their normalization statistics by it."""

@@ -2,8 +2,9 @@
 
 A policy's draws must depend on which episode and step it is deciding, never on the order of its
 calls: otherwise batched and unbatched play, or one worker and several, give different actions for
-the same episode. These functions derive the seed from ``(observation.episode_id, observation.step)``
-with a hash that is the same in every process and Python version (``hash()`` is salted per process).
+the same episode. These functions derive the seed from the episode's ``sampling_key`` (its identity by
+settings and versions; ``episode_id`` where none is given) and ``observation.step``, with a hash that is
+the same in every process and Python version (``hash()`` is salted per process).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from .records import Observation
 
 def sampling_seed(observation: Observation) -> int:
     """A 64-bit seed determined by the episode's identity and the decision's step alone."""
-    key = f"{observation.episode_id}\0{observation.step}".encode()
+    key = f"{observation.sampling_key or observation.episode_id}\0{observation.step}".encode()
     return int.from_bytes(hashlib.blake2b(key, digest_size=8).digest(), "little")
 
 

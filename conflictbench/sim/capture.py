@@ -271,6 +271,7 @@ def make_observation(
     images: bool,
     privileged: PrivilegedState | None,
     scene: SceneState | None = None,
+    sampling_key: str = "",
 ) -> Observation:
     """The policy's view: robosuite's own observation values, exactly as a native client gets them."""
     eef_pos = np.asarray(raw_obs["robot0_eef_pos"], dtype=np.float64).copy()
@@ -293,5 +294,6 @@ def make_observation(
         scene=scene,
         stream=stream,
         episode_id=episode_id,
+        sampling_key=sampling_key,
         suite=suite,
     )

@@ -23,17 +23,26 @@ ESTIMATE_SAMPLE = 200
 
 
 def make_items(
-    plan: list[EpisodeSpec], traits: PolicyTraits, plugins: Plugins, policy: str, config_hash: str, seed: int
+    plan: list[EpisodeSpec],
+    traits: PolicyTraits,
+    plugins: Plugins,
+    policy: str,
+    config_hash: str,
+    seed: int,
+    sampling_hash: str = "",
 ) -> list[Item]:
     """Each planned episode with its worker's job: the prompt text the policy gets, the episode's identity, the
-    base task's files and targets, the policy's step budget."""
+    base task's files and targets, the policy's step budget. ``sampling_hash`` is ``config_hash`` by versions
+    rather than code content: the episode's id under it seeds sampling (``EpisodeJob.sampling_key``)."""
     items = []
     for spec in plan:
         task = base_task(spec.suite, spec.task_id)
         text = plugins.format_prompt(spec.instruction, spec.prompt, policy)
         eid = episode_id(policy=policy, config_hash=config_hash, spec=spec, prompt_text=text, seed=seed)
+        key = episode_id(policy=policy, config_hash=sampling_hash, spec=spec, prompt_text=text, seed=seed)
         job = EpisodeJob(
             episode_id=eid,
+            sampling_key=key if sampling_hash else "",
             suite=spec.suite,
             task_id=spec.task_id,
             bddl_path=task.bddl_path,

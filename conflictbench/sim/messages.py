@@ -36,6 +36,8 @@ class EpisodeJob:
     case: ConflictCase | None = None
     needs_scene_state: bool = False
     stream: int = 0
+    sampling_key: str = ""
+    """Seeds a sampling policy's draws (``Observation.sampling_key``): the episode's id without the code digest."""
 
 
 @dataclass(frozen=True)

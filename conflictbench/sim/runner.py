@@ -93,6 +93,7 @@ class Runner:
         self.plugins, self.spec, self.config = plugins, spec, config
         self.store, self.workers, self.seed = store, workers, seed
         self.config_hash = ""
+        self.sampling_hash = ""
         self.code_versions: tuple[str, ...] = ()
         self.progress, self.on_episode = progress, on_episode
         self._bar: Any = _progress(0, spec.name, enabled=False)
@@ -131,7 +132,7 @@ class Runner:
     # -- planning --------------------------------------------------------------------------
     def jobs(self, plan: list[EpisodeSpec], traits: PolicyTraits) -> list[Item]:
         """Each planned episode with its worker's job (its identity, prompt text and step budget)."""
-        return make_items(plan, traits, self.plugins, self.spec.name, self.config_hash, self.seed)
+        return make_items(plan, traits, self.plugins, self.spec.name, self.config_hash, self.seed, self.sampling_hash)
 
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
@@ -147,8 +148,11 @@ class Runner:
         traits = PolicyTraits(policy)
         if self.max_steps is not None:  # a shorter budget is other episodes: the traits enter the identity
             traits.max_steps = {suite: min(steps, self.max_steps) for suite, steps in traits.max_steps.items()}
-        self.code_versions, manifests = code_identity(self.plugins.provenance(self.spec.name))  # code by content
+        versions = self.plugins.provenance(self.spec.name)
+        self.code_versions, manifests = code_identity(versions)  # code by content
         self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
+        # Sampling is seeded by the identity by versions: an edit that changes no action draws the same noise.
+        self.sampling_hash = config_hash(self.spec.name, self.config, traits, versions)
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:
             raise UserError(f"policy {self.spec.name!r} declares no max_steps for {', '.join(missing)}")

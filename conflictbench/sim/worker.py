@@ -131,6 +131,7 @@ class EpisodePlayer:
                             instruction=job.instruction,
                             stream=job.stream,
                             episode_id=job.episode_id,
+                            sampling_key=job.sampling_key,
                             suite=job.suite,
                             images=gate is not None,
                             privileged=priv,

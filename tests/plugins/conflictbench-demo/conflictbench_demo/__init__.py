@@ -72,6 +72,8 @@ class WaveConfig:
     """Actions returned per query (executed open-loop)."""
     images: bool = False
     """Ask for camera images (as a VLA would)."""
+    noise: float = 0.0
+    """Standard deviation of Gaussian noise on x, drawn as a sampling VLA draws (``rng_for``)."""
 
 
 class WavePolicy:
@@ -91,6 +93,8 @@ class WavePolicy:
         x = self.cfg.amplitude * np.sin(2 * np.pi * steps / self.cfg.period)
         out = np.zeros((self.cfg.chunk, 7))
         out[:, 0] = x
+        if self.cfg.noise:
+            out[:, 0] += self.cfg.noise * rng_for(observation).standard_normal(self.cfg.chunk)
         out[:, 6] = -1.0
         return out if self.cfg.chunk > 1 else out[0]
 
