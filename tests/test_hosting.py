@@ -7,9 +7,11 @@ The "model environment" here is this interpreter with a one-file server module o
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import sys
 import textwrap
+import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +19,8 @@ import numpy as np
 import pytest
 
 from conflictbench import HostedConfig, HostedPolicy, HttpJsonTransport, Observation, ServerUnavailable, UserError
+from conflictbench.sim.episode_rows import stack_pins
+from conflictbench.sim.identity_change import stack_changes
 
 SERVER_MODULE = textwrap.dedent(
     """
@@ -130,7 +134,10 @@ def load(folder: Path, python: Path, **settings) -> EchoPolicy:
 def test_the_server_starts_only_when_asked_serves_and_stops_with_the_policy(tmp_path, model_env):
     policy = load(checkpoint(tmp_path / "ckpt", 0.5), model_env, max_batch=3)
     assert policy.server is None and policy.client is None  # loading plays nothing: no server yet
-    assert policy.identity == {"checkpoint": EchoPolicy.fingerprint(tmp_path / "ckpt"), "max_batch": 3}
+    assert {k: policy.identity[k] for k in ("checkpoint", "max_batch")} == {
+        "checkpoint": EchoPolicy.fingerprint(tmp_path / "ckpt"),
+        "max_batch": 3,
+    }
     policy.start()
     try:
         process = policy.server.process
@@ -235,10 +242,14 @@ SERVED_MODULE = textwrap.dedent(
         if not (folder / "weights.txt").is_file():
             raise CheckpointError(f"{folder} is not an echo checkpoint (see {naming}{policy})")
 
-    def load(checkpoint, device):
-        return float((pathlib.Path(checkpoint) / "weights.txt").read_text())
+    class Echo:
+        def __init__(self, weight):
+            self.weight, self.metadata = weight, {"policy_type": "echo"}
 
-    def serve(weight, host, port, max_batch, on_ready):
+    def load(checkpoint, device):
+        return Echo(float((pathlib.Path(checkpoint) / "weights.txt").read_text()))
+
+    def serve(backend, host, port, max_batch, on_ready):
         class Handler(http.server.BaseHTTPRequestHandler):
             protocol_version = "HTTP/1.1"
             def log_message(self, *a):
@@ -250,10 +261,12 @@ SERVED_MODULE = textwrap.dedent(
                 self.end_headers()
                 self.wfile.write(body)
             def do_GET(self):
+                if self.path == "/metadata":
+                    return self._send(200, backend.metadata)
                 self._send(200 if self.path == "/healthz" else 404, "OK")
             def do_POST(self):
                 request = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-                self._send(200, [weight, max_batch, 0.01 * request["step"], 0, 0, 0, -1])
+                self._send(200, [backend.weight, max_batch, 0.01 * request["step"], 0, 0, 0, -1])
 
         server = http.server.ThreadingHTTPServer((host, port), Handler)
         on_ready(host, server.server_address[1])
@@ -268,19 +281,22 @@ SERVED_MODULE = textwrap.dedent(
 TORCH_STANDIN = "class cuda:\n    is_available = staticmethod(lambda: False)\n\n\ndef set_num_threads(n):\n    pass\n"
 
 
+def served_site(folder: Path, version: str = "1.0") -> Path:
+    """A folder holding an installed plugin: a distribution of that version with a ``conflictbench_serving`` entry
+    point."""
+    info = folder / f"echo_served-{version}.dist-info"
+    info.mkdir(parents=True)
+    (folder / "echo_served.py").write_text(SERVED_MODULE)
+    (folder / "torch.py").write_text(TORCH_STANDIN)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: echo-served\nVersion: {version}\n")
+    (info / "entry_points.txt").write_text("[conflictbench_serving]\necho = echo_served:SERVED\n")
+    return folder
+
+
 @pytest.fixture
 def served_env(tmp_path, monkeypatch) -> Path:
     """This interpreter with an installed plugin (a distribution with a ``conflictbench_serving`` entry point)."""
-    site = tmp_path / "served-site"
-    (site / "echo_served-1.0.dist-info").mkdir(parents=True)
-    (site / "echo_served.py").write_text(SERVED_MODULE)
-    (site / "torch.py").write_text(TORCH_STANDIN)
-    (site / "echo_served-1.0.dist-info" / "METADATA").write_text(
-        "Metadata-Version: 2.1\nName: echo-served\nVersion: 1.0\n"
-    )
-    (site / "echo_served-1.0.dist-info" / "entry_points.txt").write_text(
-        "[conflictbench_serving]\necho = echo_served:SERVED\n"
-    )
+    site = served_site(tmp_path / "served-site")
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]))
     monkeypatch.syspath_prepend(str(site))
     return Path(sys.executable)
@@ -320,3 +336,50 @@ def test_a_policy_declaring_served_checks_its_checkpoint_with_the_declared_check
     monkeypatch.setenv("PYTHONPATH", without)
     with pytest.raises(UserError, match=r"cannot run the echo server \(LookupError: no installed plugin serves 'echo'"):
         served.load("echo", EchoConfig(checkpoint=str(checkpoint(tmp_path / "ckpt")), python=str(served_env)))
+
+
+def test_the_model_stack_is_known_before_the_server_starts_and_is_what_the_server_reports(
+    tmp_path, served_env, monkeypatch
+):
+    """Part of every episode's identity, read from the model environment's files (no server, no torch), with
+    ``model.device=auto`` decided then; the started server says the same in its metadata."""
+    served = served_echo()
+    policy = served.load("echo", EchoConfig(checkpoint=str(checkpoint(tmp_path / "ckpt")), python=str(served_env)))
+    assert policy.server is None
+    stack = policy.identity["model_stack"]
+    assert stack["device"] == "cpu" == policy.device  # auto: no CUDA build of torch here
+    assert stack["packages"]["echo-served"] == "1.0" and stack["packages"]["numpy"] == np.__version__
+    assert "pip" not in stack["packages"]  # installers run no model
+    policy.start()
+    try:
+        argv = policy.server.argv
+        assert argv[argv.index("--device") + 1] == "cpu"  # the server runs where the identity says
+        with urllib.request.urlopen(policy.server.health_url.replace("/healthz", "/metadata")) as reply:
+            assert json.loads(reply.read())["model_stack"] == stack
+    finally:
+        policy.close()
+
+    other = served_site(tmp_path / "upgraded-site", "1.1")  # the plugin upgraded in the model environment
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(other), os.environ["PYTHONPATH"].split(os.pathsep, 1)[1]]))
+    upgraded = served.load("echo", EchoConfig(checkpoint=str(checkpoint(tmp_path / "ckpt2")), python=str(served_env)))
+    assert upgraded.identity["model_stack"]["packages"]["echo-served"] == "1.1"
+    before, now = stack_pins(stack), stack_pins(upgraded.identity["model_stack"])
+    assert before[0] == "device=cpu" and "echo-served==1.0" in before
+    assert stack_changes(before, now) == "echo-served 1.0 -> 1.1"
+    assert stack_changes(before, ("unreported",)) == "reported -> unreported"
+
+
+def test_a_server_that_does_not_say_its_stack_is_counted_unreported_and_the_run_says_so(tmp_path, model_env, capsys):
+    policy = load(checkpoint(tmp_path / "ckpt"), model_env)
+    policy.start()
+    try:
+        url = policy.server.health_url.removesuffix("/healthz")
+        given = EchoPolicy.load("echo", EchoConfig(server=url, checkpoint="echo-weights"))
+        try:
+            assert given.identity == {"checkpoint": "echo-weights", "max_batch": 1, "model_stack": "unreported"}
+        finally:
+            given.close()
+    finally:
+        policy.close()
+    said = capsys.readouterr().err
+    assert said.count("does not say what model stack it runs") == 1 and url in said

@@ -271,8 +271,14 @@ class EpisodeRecord:
     plugin: str = ""
     plugin_version: str = ""
     code_versions: tuple[str, ...] = ()
-    """``distribution==version`` of all code that can change this episode (the policy's plugin and every
-    plugin implementing a global per-episode hook); part of its identity."""
+    """``distribution==version files=DIGEST`` of all code that can change this episode (conflictbench's rollout
+    packages, the policy's plugin, every plugin implementing a global per-episode hook and the conflictbench
+    distributions they require; the digest is of their files' content); part of its identity. Stores written
+    before the digest hold ``distribution==version``."""
+    model_stack: tuple[str, ...] = ()
+    """The stack a served model ran on, part of the identity: ``device=KIND`` and each distribution's
+    ``name==version`` in its environment (read before the run); ``("unreported",)`` from a server that does not say;
+    empty for a policy that runs no model server (and in stores written before the column)."""
     libero_version: str = ""
     robosuite_version: str = ""
     mujoco_version: str = ""

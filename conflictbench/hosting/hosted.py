@@ -20,9 +20,11 @@ What it owns, the same for every model:
 
 - **Lazy start.** Loading a checkpoint takes seconds to minutes, so :meth:`HostedPolicy.start` starts the
   server only when the run has episodes to play (the runner calls it); ``close()`` stops it.
-- **Identity by content.** With a checkpoint, ``identity`` is its fingerprint and the server's
-  ``max_batch`` (float rounding follows the batch shape); against a running server, what its metadata
-  says (``checkpoint_fingerprint``, ``max_batch``), else the name given in ``model.checkpoint``.
+- **Identity by content.** With a checkpoint, ``identity`` is its fingerprint, the server's ``max_batch`` (float
+  rounding follows the batch shape) and the model stack (``conflictbench_serving.stack``: the device kind, ``auto``
+  decided now, and every distribution's version in the model environment, read from its files before the run
+  plans); against a running server, what its metadata says (``checkpoint_fingerprint``, ``max_batch``,
+  ``model_stack``), else the name given in ``model.checkpoint`` and "unreported", said once.
 - **The right model.** A server whose metadata names another ``policy_type`` is refused; a checkpoint
   changed while its server was loading it is refused.
 - **Clear failures.** A missing model environment is reported when the policy is loaded (before the
@@ -33,6 +35,7 @@ What it owns, the same for every model:
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -50,6 +53,18 @@ from .transport import Transport
 #: Set for every model process unless the user set it: bfloat16 kernels beyond AVX512 kill some CPUs' VMs
 #: (SIGILL), and CPU inference of these models never needs them.
 MODEL_PROCESS_ENV: Mapping[str, str] = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"}
+#: What a model environment's probe prints last: its distributions' versions (JSON), read from their files.
+_VERSIONS_PROBE = """
+try:
+    from conflictbench_serving.stack import installed_versions
+except ImportError:  # a plugin's own server, without the serving half: its stack is not known
+    installed_versions = dict
+import json
+print(json.dumps(installed_versions()))
+"""
+#: The versions each probed model environment reported, by interpreter (probed once a process).
+_ENVIRONMENT_VERSIONS: dict[str, dict[str, str]] = {}
+UNREPORTED = "unreported"
 
 
 @dataclass
@@ -119,12 +134,26 @@ class HostedPolicy(ServedPolicy):
         self.server: ServerProcess | None = None
         self.client: PolicyClient | None = None
         self.metadata: dict[str, Any] = {}
+        self.device = cfg.device
+        """Where the started server runs the model: ``model.device`` with ``auto`` decided before the run plans."""
         if checkpoint is not None:
-            self.identity = {"checkpoint": self.fingerprint(checkpoint), "max_batch": cfg.max_batch}
+            fingerprint, stack = self.fingerprint(checkpoint), self._environment_stack(python)
+            self.identity = {"checkpoint": fingerprint, "max_batch": cfg.max_batch, "model_stack": stack}
         else:
             self.metadata = self._connect(cfg)
             hosted = self.metadata.get("checkpoint_fingerprint") or cfg.checkpoint
-            self.identity = {"checkpoint": hosted, "max_batch": int(self.metadata.get("max_batch", 1))}
+            stack = self.metadata.get("model_stack") or UNREPORTED
+            if stack == UNREPORTED:
+                print(
+                    f"conflictbench: the server at {cfg.server} does not say what model stack it runs (a server of "
+                    "conflictbench-serve does): its episodes count it as unreported",
+                    file=sys.stderr,
+                )
+            self.identity = {
+                "checkpoint": hosted,
+                "max_batch": int(self.metadata.get("max_batch", 1)),
+                "model_stack": stack,
+            }
 
     # What a plugin supplies ----------------------------------------------------------------------------
 
@@ -214,11 +243,25 @@ class HostedPolicy(ServedPolicy):
             probe = f"from conflictbench_serving.command import served_model; served_model({name!r})"
         else:
             probe = f"import {cls.server_module}"
-        done = subprocess.run([str(python), "-c", probe], capture_output=True, text=True)
+        done = subprocess.run([str(python), "-c", probe + _VERSIONS_PROBE], capture_output=True, text=True)
         if done.returncode != 0:
             last = (done.stderr.strip().splitlines() or ["?"])[-1]
             raise UserError(f"{python} cannot run the {environment} server ({last}): build it with {setup}")
+        _ENVIRONMENT_VERSIONS[str(python)] = json.loads(done.stdout.strip().splitlines()[-1])
         return python
+
+    def _environment_stack(self, python: Path | None) -> dict[str, Any] | str:
+        """The model stack of the environment the server will run in (its versions as the probe read them) and the
+        device, ``auto`` decided here so that it is known before the run plans; ``unreported`` where not known."""
+        versions = _ENVIRONMENT_VERSIONS.get(str(python)) if python is not None else None
+        if not versions:
+            return UNREPORTED
+        try:
+            from conflictbench_serving.stack import model_stack, resolve_device
+        except ImportError:  # a plugin's own client without the serving half here
+            return UNREPORTED
+        self.device = resolve_device(self.cfg.device, versions)
+        return model_stack(self.device, versions)
 
     def start(self) -> None:
         if self.checkpoint is None or self.client is not None:
@@ -237,7 +280,7 @@ class HostedPolicy(ServedPolicy):
         port = free_port()
         url = f"{self.url_scheme}://127.0.0.1:{port}"
         argv = [str(python), *self.server_command(), "--checkpoint", str(self.checkpoint)]
-        argv += ["--host", "127.0.0.1", "--port", str(port), "--device", self.cfg.device]
+        argv += ["--host", "127.0.0.1", "--port", str(port), "--device", self.device]
         argv += ["--max-batch", str(self.cfg.max_batch)]
         env = {key: value for key, value in MODEL_PROCESS_ENV.items() if key not in os.environ}
         server = ServerProcess(

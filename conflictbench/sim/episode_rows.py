@@ -83,6 +83,18 @@ def seconds_each(
     return (sum(times) / len(times) if times else None), basis
 
 
+def stack_pins(stack: Any) -> tuple[str, ...]:
+    """A policy's declared ``identity["model_stack"]`` as the store keeps it (``EpisodeRecord.model_stack``):
+    ``device=KIND`` then each ``name==version``; ``("unreported",)`` for a server that does not say."""
+    if isinstance(stack, dict):
+        packages = stack.get("packages") or {}
+        return (
+            f"device={stack.get('device', '?')}",
+            *(f"{name}=={version}" for name, version in sorted(packages.items())),
+        )
+    return (str(stack),) if stack else ()
+
+
 def episode_record(
     item: Item,
     outcome: EpisodeOutcome,
@@ -93,6 +105,7 @@ def episode_record(
     code_versions: tuple[str, ...],
     simulator: dict[str, str],
     wall_time_s: float,
+    model_stack: tuple[str, ...] = (),
 ) -> EpisodeRecord:
     """The stored row: the episode's keys and provenance from the run, the rest from the worker's outcome."""
     planned, job = item.spec, item.job
@@ -118,6 +131,7 @@ def episode_record(
         plugin=spec.plugin,
         plugin_version=spec.plugin_version,
         code_versions=code_versions,
+        model_stack=model_stack,
         config_hash=config_hash,
         policy_settings=settings_json(config),
         created_at=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),

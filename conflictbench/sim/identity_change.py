@@ -69,6 +69,34 @@ def code_changes(root: Path, before: tuple[str, ...], now: tuple[str, ...]) -> l
     return changes
 
 
+def _stack_parts(pins: tuple[str, ...]) -> dict[str, str]:
+    parts = {}
+    for pin in pins:
+        name, _, version = pin.partition("=") if pin.startswith("device=") else pin.partition("==")
+        parts[name] = version
+    return parts
+
+
+def stack_changes(before: tuple[str, ...], now: tuple[str, ...]) -> str:
+    """How two model stacks (``EpisodeRecord.model_stack``) differ, in words: ``device cpu -> cuda, lerobot 0.6.1 ->
+    0.6.2, accelerate added`` (the first few), or which of them the server did not report."""
+    if "unreported" in before + now:
+        return f"{'unreported' if 'unreported' in before else 'reported'} -> " + (
+            "unreported" if "unreported" in now else "reported"
+        )
+    old, new = _stack_parts(before), _stack_parts(now)
+    words = []
+    for name in sorted(old.keys() | new.keys(), key=lambda n: (n != "device", n)):
+        if name not in new:
+            words.append(f"{name} removed")
+        elif name not in old:
+            words.append(f"{name} added")
+        elif old[name] != new[name]:
+            words.append(f"{name} {old[name]} -> {new[name]}")
+    more = f" and {len(words) - NAMED_FILES} more" if len(words) > NAMED_FILES else ""
+    return ", ".join(words[:NAMED_FILES]) + more
+
+
 def identity_changes(
     store: EpisodeStore,
     policy: str,
@@ -76,6 +104,7 @@ def identity_changes(
     code_versions: tuple[str, ...],
     settings: str,
     simulator: Mapping[str, str],
+    model_stack: tuple[str, ...] = (),
 ) -> list[str] | None:
     """What differs between this run's identity and that of the newest stored episodes of ``policy`` with the
     same settings (another variant's are other episodes, nothing to explain): None where there are none, or some
@@ -84,7 +113,7 @@ def identity_changes(
     files = sorted(folder.glob("*.parquet"), key=lambda p: p.stat().st_mtime)[-SAMPLE:]
     if not files:
         return None
-    columns = ["episode_id", "config_hash", "code_versions", "policy_settings", *SIMULATOR_COLUMNS]
+    columns = ["episode_id", "config_hash", "code_versions", "model_stack", "policy_settings", *SIMULATOR_COLUMNS]
     rows = {r["episode_id"]: r for r in store.read_table(columns, [f.stem for f in files]).to_pylist()}
     alike = [rows[f.stem] for f in files if f.stem in rows and (rows[f.stem]["policy_settings"] or "") == settings]
     if not alike or any(r["config_hash"] == config_hash for r in alike):
@@ -94,4 +123,6 @@ def identity_changes(
     for column in SIMULATOR_COLUMNS:
         if newest[column] and simulator.get(column) and newest[column] != simulator[column]:
             changes.append(f"{column.removesuffix('_version')} {newest[column]} -> {simulator[column]}")
+    if newest["model_stack"] and tuple(newest["model_stack"]) != tuple(model_stack):
+        changes.append(f"model stack changed: {stack_changes(tuple(newest['model_stack']), tuple(model_stack))}")
     return changes or ["the model's identity or declared traits changed (its checkpoint, model stack, or budgets)"]

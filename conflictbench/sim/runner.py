@@ -33,7 +33,7 @@ from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 from . import BACKENDS
 from .code_identity import code_identity
 from .deciding import PolicyCalls, reply_for, reset_error
-from .episode_rows import episode_record, make_items, seconds_each
+from .episode_rows import episode_record, make_items, seconds_each, stack_pins
 from .identity_change import identity_changes, keep_manifests
 from .libero_env import EnvSettings, simulator_versions
 from .messages import Abort, Done, EpisodeOutcome, Play, Query
@@ -95,6 +95,7 @@ class Runner:
         self.config_hash = ""
         self.sampling_hash = ""
         self.code_versions: tuple[str, ...] = ()
+        self.model_stack: tuple[str, ...] = ()
         self.progress, self.on_episode = progress, on_episode
         self._bar: Any = _progress(0, spec.name, enabled=False)
         self._pool: WorkerPool | None = None
@@ -153,6 +154,7 @@ class Runner:
         self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
         # Sampling is seeded by the identity by versions: an edit that changes no action draws the same noise.
         self.sampling_hash = config_hash(self.spec.name, self.config, traits, versions)
+        self.model_stack = stack_pins(traits.identity.get("model_stack"))  # in config_hash through the traits
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:
             raise UserError(f"policy {self.spec.name!r} declares no max_steps for {', '.join(missing)}")
@@ -164,7 +166,8 @@ class Runner:
         result.already_stored = len(items) - len(todo)
         keep_manifests(self.store.root, manifests)
         if todo and (changed := identity_changes(self.store, self.spec.name, self.config_hash, self.code_versions,
-                                                 settings_json(self.config), simulator_versions())):  # fmt: skip
+                                                 settings_json(self.config), simulator_versions(),
+                                                 self.model_stack)):  # fmt: skip
             print(f"conflictbench: {CHANGED}: {'; '.join(changed)}", file=sys.stderr)
         if not self.retry and (repeated := self.store.repeated_failure_ids() & {i.job.episode_id for i in todo}):
             todo = [i for i in todo if i.job.episode_id not in repeated]
@@ -433,6 +436,7 @@ class Runner:
             config=self.config,
             config_hash=self.config_hash,
             code_versions=self.code_versions,
+            model_stack=self.model_stack,
             simulator=self._pool.versions,
             wall_time_s=time.time() - slot.started,
         )

@@ -57,6 +57,7 @@ SCHEMA = pa.schema(
         ("plugin", pa.string()),
         ("plugin_version", pa.string()),
         ("code_versions", pa.list_(pa.string())),
+        ("model_stack", pa.list_(pa.string())),
         ("libero_version", pa.string()),
         ("robosuite_version", pa.string()),
         ("mujoco_version", pa.string()),
@@ -104,7 +105,7 @@ def records_to_table(records: Iterable[EpisodeRecord]) -> pa.Table:
                 columns[name] = _nested(values, width, ndim=3 if name == "target_pos" else 2)
             except ValueError as exc:
                 raise ValueError(f"column {name}: {exc}") from None
-        elif name in ("target_names", "code_versions", "sim_warnings"):
+        elif name in ("target_names", "code_versions", "model_stack", "sim_warnings"):
             columns[name] = pa.array([list(v) for v in values], type=SCHEMA.field(name).type)
         else:
             columns[name] = pa.array(values, type=SCHEMA.field(name).type)
@@ -149,6 +150,7 @@ def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
         row["target_names"] = tuple(row["target_names"] or ())
         row["code_versions"] = tuple(row["code_versions"] or ())  # null in stores written before the column
         row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # the same
+        row["model_stack"] = tuple(row["model_stack"] or ())  # the same
         row["policy_settings"] = row["policy_settings"] or ""  # the same
         for name in ARRAY_COLUMNS:
             row[name] = arrays[name][i]

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from .checkpoints import DEVICE, CheckpointError
+from .stack import installed_versions, model_stack
 
 USER_ERROR = 2
 PROGRAM = "conflictbench-serve"
@@ -187,6 +188,10 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
         return user_error(f"--device {args.device}: this machine has no CUDA device torch can use (try --device cpu)")
     try:
         backend = _resolve(model.backend)(args.checkpoint, device=device)
+        # What a run given this server's address counts in its episodes' identity (a checkpoint run reads the same
+        # from the model environment's files before it starts the server).
+        if isinstance(getattr(backend, "metadata", None), dict):
+            backend.metadata = {**backend.metadata, "model_stack": model_stack(device, installed_versions())}
     except CheckpointError as error:
         return user_error(str(error))
     except ImportError as error:
