@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
@@ -23,8 +24,10 @@ from conflictbench.core import (
     ActionContext,
     InfrastructureError,
     PolicyError,
+    PolicySpec,
     PolicyTraits,
     ServerUnavailable,
+    UserError,
     as_action_chunk,
 )
 from conflictbench.core.plugins import Plugins
@@ -32,6 +35,33 @@ from conflictbench.core.policy import batch_outputs
 
 from .messages import Abort, Actions
 from .pool import Item
+
+
+def load_policy(spec: PolicySpec, config: Any) -> Any:
+    """The run's policy, loaded once, checked to have what the contract asks."""
+    policy = _set_up(spec, "load", spec.load, config)
+    for method in ("reset", "act"):
+        if not callable(getattr(policy, method, None)):
+            raise UserError(f"policy {spec.name!r} has no {method}() method")
+    return policy
+
+
+def start_policy(spec: PolicySpec, policy: Any) -> None:
+    """Its optional ``start()``: called once there are episodes to play (a model server loads for minutes)."""
+    start = getattr(policy, "start", None)
+    if callable(start):
+        _set_up(spec, "start", start)
+
+
+def _set_up(spec: PolicySpec, what: str, function: Callable[..., Any], *args: Any) -> Any:
+    """``function(*args)``; a failure that is not already a user error or a missing server becomes one line naming
+    the policy (its loading or starting is set-up, not the model's behaviour)."""
+    try:
+        return function(*args)
+    except (UserError, ServerUnavailable):
+        raise
+    except Exception as exc:
+        raise UserError(f"could not {what} policy {spec.name!r}: {type(exc).__name__}: {exc}") from exc
 
 
 def ask_policy(policy: Any, observations: list[Any], batched: bool) -> list[Any]:

@@ -14,7 +14,6 @@ import dataclasses
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 from typing import Any
 
@@ -31,34 +30,15 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 
 from . import BACKENDS
-from .code_identity import code_identity
-from .deciding import PolicyCalls, reply_for, reset_error
-from .episode_rows import episode_record, make_items, seconds_each, stack_pins
-from .identity_change import identity_changes, keep_manifests
-from .libero_env import EnvSettings, simulator_versions
+from .deciding import PolicyCalls, load_policy, reply_for, reset_error, start_policy
+from .episode_rows import episode_record, make_items, seconds_each
+from .libero_env import EnvSettings
 from .messages import Abort, Done, EpisodeOutcome, Play, Query
-from .plan import EpisodeSpec, config_hash, settings_json
+from .plan import EpisodeSpec
+from .planning import RunResult, left_to_play, run_identity
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
 from .progress import plan_line
 from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
-
-CHANGED = "this policy's newest episodes in the store were played under another identity and are not reused"
-
-
-@dataclass
-class RunResult:
-    planned: int = 0
-    already_stored: int = 0
-    played_elsewhere: int = 0
-    """Episodes another job sharing the store was playing when this one reached them."""
-    played: int = 0
-    replayed_after_loss: int = 0
-    """Episodes played again because their worker was lost mid-episode."""
-    succeeded: int = 0
-    errors: int = 0
-    failed_twice: int = 0
-    """Episodes left waiting: their last two attempts failed the same way, not by the policy (``retry``)."""
-    episode_ids: list[str] = field(default_factory=list)
 
 
 class Runner:
@@ -107,29 +87,6 @@ class Runner:
         """First queries of episodes waiting their turn with such a policy, oldest first."""
         self._claims = ClaimKeeper(store)  # each run starts its own (a keeper's thread starts once)
 
-    # -- policy ----------------------------------------------------------------------------
-    def _load_policy(self) -> Any:
-        policy = self._policy_call("load", self.spec.load, self.config)
-        for method in ("reset", "act"):
-            if not callable(getattr(policy, method, None)):
-                raise UserError(f"policy {self.spec.name!r} has no {method}() method")
-        return policy
-
-    def _start_policy(self, policy: Any) -> None:
-        start = getattr(policy, "start", None)
-        if callable(start):
-            self._policy_call("start", start)
-
-    def _policy_call(self, what: str, function: Callable[..., Any], *args: Any) -> Any:
-        """``function(*args)``; a failure that is not already a user error or a missing server becomes
-        one line naming the policy (its loading or starting is set-up, not the model's behaviour)."""
-        try:
-            return function(*args)
-        except (UserError, ServerUnavailable):
-            raise
-        except Exception as exc:
-            raise UserError(f"could not {what} policy {self.spec.name!r}: {type(exc).__name__}: {exc}") from exc
-
     # -- planning --------------------------------------------------------------------------
     def jobs(self, plan: list[EpisodeSpec], traits: PolicyTraits) -> list[Item]:
         """Each planned episode with its worker's job (its identity, prompt text and step budget)."""
@@ -137,7 +94,7 @@ class Runner:
 
     # -- the loop --------------------------------------------------------------------------
     def run(self, plan: list[EpisodeSpec]) -> RunResult:
-        policy = self._load_policy()
+        policy = load_policy(self.spec, self.config)
         try:
             return self._run_with(policy, plan)
         finally:  # also when nothing was left to play: a policy may hold a server process
@@ -149,35 +106,17 @@ class Runner:
         traits = PolicyTraits(policy)
         if self.max_steps is not None:  # a shorter budget is other episodes: the traits enter the identity
             traits.max_steps = {suite: min(steps, self.max_steps) for suite, steps in traits.max_steps.items()}
-        versions = self.plugins.provenance(self.spec.name)
-        self.code_versions, manifests = code_identity(versions)  # code by content
-        self.config_hash = config_hash(self.spec.name, self.config, traits, self.code_versions)
-        # Sampling is seeded by the identity by versions: an edit that changes no action draws the same noise.
-        self.sampling_hash = config_hash(self.spec.name, self.config, traits, versions)
-        self.model_stack = stack_pins(traits.identity.get("model_stack"))  # in config_hash through the traits
+        identity = run_identity(self.plugins, self.spec.name, self.config, traits)
+        self.config_hash, self.sampling_hash = identity.config_hash, identity.sampling_hash
+        self.code_versions, self.model_stack = identity.code_versions, identity.model_stack
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:
             raise UserError(f"policy {self.spec.name!r} declares no max_steps for {', '.join(missing)}")
         self.store.clean_stale_temporaries()
         items = self.jobs(plan, traits)
-        result = RunResult(planned=len(items), episode_ids=[i.job.episode_id for i in items])
-        stored = self.store.stored_ids()
-        todo = [i for i in items if i.job.episode_id not in stored]
-        result.already_stored = len(items) - len(todo)
-        keep_manifests(self.store.root, manifests)
-        if todo and (changed := identity_changes(self.store, self.spec.name, self.config_hash, self.code_versions,
-                                                 settings_json(self.config), simulator_versions(),
-                                                 self.model_stack)):  # fmt: skip
-            print(f"conflictbench: {CHANGED}: {'; '.join(changed)}", file=sys.stderr)
-        if not self.retry and (repeated := self.store.repeated_failure_ids() & {i.job.episode_id for i in todo}):
-            todo = [i for i in todo if i.job.episode_id not in repeated]
-            result.failed_twice = len(repeated)
-            print(
-                f"conflictbench: {len(repeated)} episode(s) failed twice the same way, not by the policy, and are "
-                "not played again (run.retry=true plays them)",
-                file=sys.stderr,
-            )
+        todo, result = left_to_play(self.store, items, identity, self.spec.name, self.config, self.retry)
         if self.progress:
+            stored = {i.job.episode_id for i in items} - {i.job.episode_id for i in todo}
             seconds, basis = seconds_each(self.store, items, stored, self.spec.name, self.config_hash)
             print(plan_line(len(todo), result.already_stored, seconds, self.workers, basis), file=sys.stderr)
         if not todo:
@@ -187,7 +126,9 @@ class Runner:
         # The pool first (Ray: connecting to the cluster), so a wrong address costs no model server's start.
         pool = self._pool = self._make_pool(settings, size=min(self.workers, len(todo)))
         try:
-            self._start_policy(policy)  # only now that there is something to play (a model server loads for minutes)
+            start_policy(
+                self.spec, policy
+            )  # only now that there is something to play (a model server loads for minutes)
         except BaseException:
             pool.stop()
             raise
