@@ -109,8 +109,16 @@ def test_episode_ids_are_stable_and_change_with_anything_that_changes_the_rollou
         dict(spec=EpisodeSpec("libero_goal", 0, 1, "p0", "open the drawer")),
         dict(spec=EpisodeSpec("libero_goal", 0, 0, "p1", "open the drawer")),
         dict(spec=EpisodeSpec("libero_goal", 0, 0, "p0", "open the drawer", case("a"))),
+        dict(spec=EpisodeSpec("libero_goal", 0, 0, "p0", "open the drawer", case("a"), "conflictvla 2.1.0")),
     ]
     assert len({episode_id(**{**base, **v}) for v in variants} | {eid}) == len(variants) + 1
+
+
+def test_a_conflict_episode_is_its_suites_and_the_plan_says_which():
+    """A new suite version plays its cases again (a case's words may stay while its labels change); references,
+    which no suite changes, keep their ids."""
+    reference, conflict = plan([case("a", "libero_goal", 0)], conflict_suite="conflictvla 2.0.0")
+    assert (reference.conflict_suite, conflict.conflict_suite) == ("", "conflictvla 2.0.0")
 
 
 def test_a_policy_without_settings_hashes_as_it_always_has():

@@ -300,3 +300,29 @@ def test_report_verb_reads_a_store_directory(tmp_path, plugins, capsys):
     t1 = pd.read_csv(tmp_path / "run" / "report" / "table1_overall.csv")
     assert "TS" in t1.columns and "TAR" not in t1.columns
     assert "Table 1" in capsys.readouterr().out
+
+
+def test_a_report_shows_the_current_suites_conflict_episodes_and_counts_the_others(tmp_path, plugins, capsys):
+    """A store keeps episodes of earlier suite versions (a new version plays its cases again): by default the report
+    is the shipped suite's and says what it did not show; --all-suites shows every one."""
+    from dataclasses import replace
+
+    from conflictbench.tasks.suite.file import load_suite
+
+    current = load_suite().label
+    records = [
+        replace(r, conflict_suite=None if r.is_reference else current if r.policy == "alpha" else "conflictvla 1.0.0")
+        for r in two_models()
+    ]
+    stored(tmp_path, records)
+    assert report_command([str(tmp_path / "run")], plugins) == 0
+    shown = pd.read_csv(tmp_path / "run" / "report" / "pairs.csv")
+    assert sorted(set(shown["model"])) == ["alpha"]
+    said = capsys.readouterr().out
+    assert (
+        "conflict episodes not shown: 2 of suite conflictvla 1.0.0 (conflictbench report --all-suites shows them)"
+        in said
+    )
+    assert report_command([str(tmp_path / "run"), "--all-suites"], plugins) == 0
+    assert sorted(set(pd.read_csv(tmp_path / "run" / "report" / "pairs.csv")["model"])) == ["alpha", "beta"]
+    assert "not shown" not in capsys.readouterr().out

@@ -17,6 +17,13 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("store", metavar="DIR", help="the run.out directory of earlier runs")
     parser.add_argument("--metrics", help="comma-separated metric names (default: all registered)")
     parser.add_argument("--out", help="where to write the table files (default: DIR/report)")
+    parser.add_argument(
+        "--suite",
+        metavar="FILE",
+        help="report this suite file's conflict episodes (default: the suite conflictbench ships; episodes of "
+        "other suites or versions are counted, not shown)",
+    )
+    parser.add_argument("--all-suites", action="store_true", help="report the conflict episodes of every suite")
     args = parser.parse_args(argv)
     from conflictbench.report import report_store
     from conflictbench.store import EpisodeStore
@@ -28,8 +35,21 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     if len(store) == 0:
         raise UserError(f"{root} holds no stored episodes (expected {root}/episodes/<policy>/*.parquet)")
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
+    if args.all_suites and args.suite:
+        raise UserError("--suite and --all-suites exclude each other")
+    suite = None if args.all_suites else _suite_label(args.suite)
     tables = io.StringIO()  # the files are written before anything is printed: `report DIR | head` keeps them
     report_store(store, plugins, out_dir=Path(args.out) if args.out else root / "report", metrics=metrics,
-                 stream=tables)  # fmt: skip
+                 stream=tables, suite=suite)  # fmt: skip
     sys.stdout.write(tables.getvalue())
     return 0
+
+
+def _suite_label(path: str | None) -> str:
+    """``name version`` of the suite file (default: the shipped one), as its conflict episodes store it."""
+    from conflictbench.tasks.suite.file import load_suite
+
+    try:
+        return load_suite(path).label
+    except OSError as exc:
+        raise UserError(f"--suite {path}: {exc.strerror or exc}") from None

@@ -206,6 +206,7 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         libero_suites=options.libero_suites,
         case_ids=options.cases,
         base_tasks=options.tasks,
+        conflict_suite=suite.label,
     )
     if not plan:
         raise UserError(

@@ -260,6 +260,9 @@ class EpisodeRecord:
     raw_actions: np.ndarray = field(default_factory=lambda: np.zeros((0, ACTION_DIM)))
     # context
     episode_id: str = ""
+    conflict_suite: str | None = None
+    """``name version`` of the suite the conflict case comes from (``conflictvla 2.0.0``); None for a reference (and
+    in stores written before the column). Reports show the current suite's episodes by default."""
     base_instruction: str = ""
     prompt_text: str = ""
     max_steps: int = 0

@@ -60,11 +60,13 @@ def report_store(
     episode_ids: Iterable[str] | None = None,
     metrics: Sequence[str] | None = None,
     chunk: int = CHUNK_PAIRS,
+    suite: str | None = None,
     **options,
 ) -> dict[str, pd.DataFrame]:
-    """:func:`~conflictbench.report.summary.report_records` for the episodes of a store (or some of them)."""
+    """:func:`~conflictbench.report.summary.report_records` for the episodes of a store (or some of them); with
+    ``suite`` (``name version``) only that suite's conflict episodes, the others counted in one line."""
     chosen = select_metrics(plugins, metrics)
-    pairs, counts = pair_up(light_records(store, episode_ids))
+    pairs, counts = pair_up(light_records(store, episode_ids), suite)
     first, second = tee(loaded_pairs(store, pairs, chunk))
     frame = evaluate_pairs(
         (r for r, _ in first),

@@ -101,6 +101,17 @@ class EpisodeCounts:
     crashed: list[EpisodeRecord] = field(default_factory=list)
     unserved: list[EpisodeRecord] = field(default_factory=list)
     """Episodes the serving infrastructure ended (a policy server's error reply, a broken connection)."""
+    other_suites: Counter = field(default_factory=Counter)
+    """Conflict episodes not shown, by the suite they are of (a report of one suite)."""
+
+
+def other_suites_line(other: Counter) -> str | None:
+    """``412 conflict episode(s) of suite conflictvla 1.0.0 not shown ...``: what a report of one suite left out."""
+    if not other:
+        return None
+    parts = ", ".join(f"{n} of suite {label}" if label else f"{n} of an unrecorded suite" for label, n in sorted(
+        other.items(), key=lambda item: item[0] or ""))  # fmt: skip
+    return f"conflict episodes not shown: {parts} (conflictbench report --all-suites shows them)"
 
 
 def left_out_line(episodes: Sequence[EpisodeRecord]) -> str | None:
@@ -116,11 +127,17 @@ def left_out_line(episodes: Sequence[EpisodeRecord]) -> str | None:
     )
 
 
-def pair_up(records: Iterable[EpisodeRecord]) -> tuple[list[Pair], EpisodeCounts]:
+def pair_up(records: Iterable[EpisodeRecord], suite: str | None = None) -> tuple[list[Pair], EpisodeCounts]:
     """Pairs for the report. A policy error ends an episode as a failure (it stays in); a simulator or
-    serving-infrastructure failure says nothing about the policy, so such episodes are left out with their pairs."""
+    serving-infrastructure failure says nothing about the policy, so such episodes are left out with their pairs.
+    With ``suite`` (``name version``), only that suite's conflict episodes, and the others counted."""
     records = list(records)
+    other = Counter()
+    if suite is not None:
+        other = Counter(r.conflict_suite for r in records if not r.is_reference and r.conflict_suite != suite)
+        records = [r for r in records if r.is_reference or r.conflict_suite == suite]
     counts = EpisodeCounts(
+        other_suites=other,
         episodes=len(records),
         references=sum(r.is_reference for r in records),
         policy_errors=[r for r in records if r.error is not None and not r.infrastructure_failed],
@@ -197,6 +214,8 @@ def report_frame(
             file=stream,
         )
     if line := left_out_line(counts.crashed + counts.unserved):
+        print(line, file=stream)
+    if line := other_suites_line(counts.other_suites):
         print(line, file=stream)
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)

@@ -4,6 +4,7 @@ earlier episodes, and the stored record with its provenance."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 from typing import Any
 
@@ -39,7 +40,8 @@ def make_items(
         task = base_task(spec.suite, spec.task_id)
         text = plugins.format_prompt(spec.instruction, spec.prompt, policy)
         eid = episode_id(policy=policy, config_hash=config_hash, spec=spec, prompt_text=text, seed=seed)
-        key = episode_id(policy=policy, config_hash=sampling_hash, spec=spec, prompt_text=text, seed=seed)
+        unversioned = dataclasses.replace(spec, conflict_suite="")  # the same draws for a case a new suite keeps
+        key = episode_id(policy=policy, config_hash=sampling_hash, spec=unversioned, prompt_text=text, seed=seed)
         job = EpisodeJob(
             episode_id=eid,
             sampling_key=key if sampling_hash else "",
@@ -122,6 +124,7 @@ def episode_record(
         family=case.family if case else None,
         level=case.level if case else None,
         episode_id=job.episode_id,
+        conflict_suite=planned.conflict_suite or None,
         base_instruction=planned.base_instruction,
         prompt_text=job.instruction,
         max_steps=job.max_steps,

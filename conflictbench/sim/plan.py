@@ -32,6 +32,9 @@ class EpisodeSpec:
     prompt: str
     base_instruction: str
     case: ConflictCase | None = None
+    conflict_suite: str = ""
+    """``name version`` of the suite the case comes from (``conflictvla 2.0.0``); empty for a reference, which no
+    suite changes. Part of a conflict episode's identity: a new suite version plays its cases again."""
 
     @property
     def instruction(self) -> str:
@@ -64,6 +67,8 @@ def episode_id(*, policy: str, config_hash: str, spec: EpisodeSpec, prompt_text:
         prompt_text,
         seed,
     ]
+    if spec.conflict_suite:  # references' ids are as before the suite counted
+        key.append(spec.conflict_suite)
     return hashlib.sha256(json.dumps(key).encode()).hexdigest()[:24]
 
 
@@ -169,6 +174,7 @@ def build_plan(
     libero_suites: Sequence[str] | None = None,
     case_ids: Sequence[str] | None = None,
     base_tasks: Sequence[tuple[str, int]] | None = None,
+    conflict_suite: str = "",
 ) -> list[EpisodeSpec]:
     """Conflict episodes for the sampled cases plus the references they need, grouped by base task.
 
@@ -176,6 +182,7 @@ def build_plan(
     ``cases_per_cell == 0`` the plan holds only the references of those base tasks. ``base_tasks``
     keeps only those base tasks (``run.tasks``); ``case_ids`` plays exactly those cases
     (``run.cases``: no sample), each of which must be in the selection the other filters make.
+    ``conflict_suite`` (``name version``) marks the conflict episodes as the suite's.
     """
     if cases_per_cell is not None and cases_per_cell < 0:
         raise UserError(f"run.cases_per_cell must be >= 0 or 'all', got {cases_per_cell}")
@@ -209,7 +216,7 @@ def build_plan(
         base = base_instructions[(case.suite, case.task_id)]
         for state in states:
             for prompt in prompts:
-                spec = EpisodeSpec(case.suite, case.task_id, state, prompt, base, case)
+                spec = EpisodeSpec(case.suite, case.task_id, state, prompt, base, case, conflict_suite)
                 conflicts.append(spec)
                 reference_keys.add(spec.reference_key)
     if cases_per_cell == 0:

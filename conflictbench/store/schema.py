@@ -48,6 +48,7 @@ SCHEMA = pa.schema(
         ("raw_actions", pa.list_(_ACTION)),
         # context
         ("episode_id", pa.string()),
+        ("conflict_suite", pa.string()),
         ("base_instruction", pa.string()),
         ("prompt_text", pa.string()),
         ("max_steps", pa.int32()),

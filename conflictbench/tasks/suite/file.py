@@ -42,6 +42,11 @@ class Suite:
     cases: tuple[ConflictCase, ...]
     path: str = ""
 
+    @property
+    def label(self) -> str:
+        """``name version`` (a file without a header: its name), as stored with each of its conflict episodes."""
+        return f"{self.name} {self.version}".strip()
+
     def accepted(self) -> list[ConflictCase]:
         """The usable cases: accepted, or revised in review (removed and pending ones are not)."""
         return [c for c in self.cases if c.status in USABLE]
