@@ -91,3 +91,11 @@ def test_a_plugin_upgrade_or_a_new_post_processor_plays_the_episodes_again(tmp_p
     assert {pin.split(" files=")[0] for pin in demo_pins} == {"conflictbench-demo==0.3.1", "conflictbench-demo==0.3.2"}
     assert len(demo_pins) == 3  # 0.3.1, and 0.3.2 before and after the edit
     assert sum("(in-process)==" in pin for r in records for pin in r.code_versions) == 2  # the post-processor
+    # The three older identities are superseded by the last: prune removes them, and the store still holds the
+    # episode today's code plays.
+    from conflictbench.store.prune import superseded
+
+    assert {s.episode_id for s in superseded(store)} == {r.episode_id for r in records} - {edited.episode_id}
+    for item in superseded(store):
+        item.path.unlink()
+    assert play(new, store, monkeypatch, Halve()) == 0

@@ -5,6 +5,7 @@
     conflictbench report DIR          report.py   tables from an episode store, running nothing
     conflictbench view DIR            view.py     a static HTML site of the store's pairs, videos by replay
     conflictbench merge OUT SHARD...  merge.py    one store from stores written on different machines
+    conflictbench prune DIR           prune.py    the superseded episodes, listed or removed
     conflictbench suite ...           suite.py    validate, inspect, sample, export or rebuild the conflict suite
     conflictbench train-subject       train_subject.py   the learned default policy, trained from scratch
 
@@ -33,6 +34,7 @@ VERBS = {
     "suite": "suite",
     "view": "view",
     "merge": "merge",
+    "prune": "prune",
     "train-subject": "train_subject",
 }  # verb -> module; anything else is a run
 USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noop suite=physical prompt=p1
@@ -41,6 +43,7 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench report DIR            tables from the episode store in DIR
        conflictbench view DIR              a web page per pair (videos, paths, measures): DIR/view/index.html
        conflictbench merge OUT SHARD...    one store from stores written on different machines
+       conflictbench prune DIR [--delete]  the episodes stored again under a newer identity, listed or removed
        conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
        conflictbench train-subject [--out DIR]   train the learned default policy from scratch (--help)
        conflictbench --disable-plugins A,B ...   leave these installed plugins out (not imported); also

@@ -286,6 +286,10 @@ class EpisodeRecord:
     robosuite_version: str = ""
     mujoco_version: str = ""
     numpy_version: str = ""
+    policy_identity: str = ""
+    """What the policy declared of itself beyond its settings (``identity``, JSON, the model stack apart: a
+    checkpoint's fingerprint, a server's batch shape); empty where it declared nothing and in stores written before
+    the column. With ``policy_settings`` it tells variants of one policy apart (``conflictbench prune``)."""
     config_hash: str = ""
     policy_settings: str = ""
     """The policy's settings as JSON (those in its identity: not a server's address or timeouts), so that

@@ -32,6 +32,9 @@ def light_records(store: EpisodeStore, episode_ids: Iterable[str] | None = None)
         row["target_names"] = tuple(row["target_names"] or ())
         row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # stores written before the column
         row["policy_settings"] = row["policy_settings"] or ""  # stores written before the column
+        row["policy_identity"] = row["policy_identity"] or ""  # the same
+        row["code_versions"] = tuple(row["code_versions"] or ())  # the same
+        row["model_stack"] = tuple(row["model_stack"] or ())  # the same
     return [EpisodeRecord(**row) for row in rows]
 
 

@@ -108,6 +108,7 @@ def episode_record(
     simulator: dict[str, str],
     wall_time_s: float,
     model_stack: tuple[str, ...] = (),
+    policy_identity: str = "",
 ) -> EpisodeRecord:
     """The stored row: the episode's keys and provenance from the run, the rest from the worker's outcome."""
     planned, job = item.spec, item.job
@@ -135,6 +136,7 @@ def episode_record(
         plugin_version=spec.plugin_version,
         code_versions=code_versions,
         model_stack=model_stack,
+        policy_identity=policy_identity,
         config_hash=config_hash,
         policy_settings=settings_json(config),
         created_at=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),

@@ -9,6 +9,7 @@ stored episodes of the same settings were played under another identity, one lin
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import dataclass, field
 from typing import Any
@@ -52,8 +53,16 @@ class RunIdentity:
     """``config_hash`` with the code by ``distribution==version``: seeds sampling (``Observation.sampling_key``)."""
     code_versions: tuple[str, ...]
     model_stack: tuple[str, ...]
+    policy_identity: str = ""
+    """The policy's declared ``identity`` but the model stack, as JSON (``EpisodeRecord.policy_identity``)."""
     manifests: dict[str, dict[str, str]] = field(default_factory=dict)
     """Each code pin's files and their digests (kept in the store to say which files changed)."""
+
+
+def identity_json(identity: dict[str, Any]) -> str:
+    """A policy's declared identity as the store keeps it: JSON, sorted, without the model stack (its own column)."""
+    rest = {key: value for key, value in identity.items() if key != "model_stack"}
+    return json.dumps(rest, sort_keys=True, default=repr) if rest else ""
 
 
 def run_identity(plugins: Plugins, policy: str, config: Any, traits: PolicyTraits) -> RunIdentity:
@@ -64,6 +73,7 @@ def run_identity(plugins: Plugins, policy: str, config: Any, traits: PolicyTrait
         sampling_hash=config_hash(policy, config, traits, versions),
         code_versions=code_versions,
         model_stack=stack_pins(traits.identity.get("model_stack")),  # in config_hash through the traits
+        policy_identity=identity_json(traits.identity),
         manifests=manifests,
     )
 

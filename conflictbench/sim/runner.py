@@ -76,6 +76,7 @@ class Runner:
         self.sampling_hash = ""
         self.code_versions: tuple[str, ...] = ()
         self.model_stack: tuple[str, ...] = ()
+        self.policy_identity = ""
         self.progress, self.on_episode = progress, on_episode
         self._bar: Any = _progress(0, spec.name, enabled=False)
         self._pool: WorkerPool | None = None
@@ -109,6 +110,7 @@ class Runner:
         identity = run_identity(self.plugins, self.spec.name, self.config, traits)
         self.config_hash, self.sampling_hash = identity.config_hash, identity.sampling_hash
         self.code_versions, self.model_stack = identity.code_versions, identity.model_stack
+        self.policy_identity = identity.policy_identity
         missing = sorted({s.suite for s in plan} - set(traits.max_steps))
         if missing:
             raise UserError(f"policy {self.spec.name!r} declares no max_steps for {', '.join(missing)}")
@@ -378,6 +380,7 @@ class Runner:
             config_hash=self.config_hash,
             code_versions=self.code_versions,
             model_stack=self.model_stack,
+            policy_identity=self.policy_identity,
             simulator=self._pool.versions,
             wall_time_s=time.time() - slot.started,
         )

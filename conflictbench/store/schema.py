@@ -63,6 +63,7 @@ SCHEMA = pa.schema(
         ("robosuite_version", pa.string()),
         ("mujoco_version", pa.string()),
         ("numpy_version", pa.string()),
+        ("policy_identity", pa.string()),
         ("config_hash", pa.string()),
         ("policy_settings", pa.string()),
         ("wall_time_s", pa.float64()),
@@ -153,6 +154,7 @@ def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
         row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # the same
         row["model_stack"] = tuple(row["model_stack"] or ())  # the same
         row["policy_settings"] = row["policy_settings"] or ""  # the same
+        row["policy_identity"] = row["policy_identity"] or ""  # the same
         for name in ARRAY_COLUMNS:
             row[name] = arrays[name][i]
         records.append(EpisodeRecord(**row))

@@ -1,0 +1,47 @@
+"""``conflictbench prune DIR [--delete]``: the episodes played again under a newer identity, listed or removed."""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+
+from conflictbench.cli.args import Parser
+from conflictbench.core import UserError
+from conflictbench.core.plugins import Plugins
+
+
+def command(argv: Sequence[str], plugins: Plugins) -> int:
+    parser = Parser(
+        prog="conflictbench prune",
+        description="List the store's superseded episodes: an episode (same policy, settings, checkpoint, task, "
+        "initial state, prompt, case) stored again under a newer identity (other code, simulator, model stack or "
+        "budget) supersedes the older ones, which no run or report of today's code reads. Lists them; --delete "
+        "removes them.",
+    )
+    parser.add_argument("store", metavar="DIR", help="the run.out directory of earlier runs")
+    parser.add_argument("--delete", action="store_true", help="remove the superseded episodes' files")
+    args = parser.parse_args(argv)
+    from conflictbench.store import EpisodeStore
+    from conflictbench.store.prune import superseded
+
+    root = Path(args.store)
+    if not root.is_dir():
+        raise UserError(f"no such directory: {root}")
+    store = EpisodeStore(root)
+    old = superseded(store)
+    total = len(store)
+    size = sum(s.bytes for s in old) / 1e6
+    by_policy = ", ".join(f"{policy} {n}" for policy, n in sorted(Counter(s.policy for s in old).items()))
+    if not old:
+        print(f"conflictbench: none of the {total} episodes in {root} is superseded", file=sys.stderr)
+        return 0
+    for item in old:
+        print(item.path)
+    verb = "removed" if args.delete else "superseded (--delete removes them)"
+    print(f"conflictbench: {len(old)} of {total} episodes {verb}: {by_policy}; {size:.1f} MB", file=sys.stderr)
+    if args.delete:
+        for item in old:
+            item.path.unlink(missing_ok=True)
+    return 0

@@ -1,0 +1,47 @@
+"""Superseded episodes: those played again under a newer identity, which no run or report of today's code reads.
+
+Episodes are compared by what a user chose, not by how it was played: the policy, its settings and declared
+identity (a checkpoint's fingerprint: two checkpoints are two models, never each other's successor), the episode
+itself (LIBERO suite, task, initial state, prompt condition, the case, its suite, the prompt text, seed). Of the
+episodes that agree on all of it, those of the identity played last (the newest ``created_at``) are current; the
+others, played under other code, another simulator or model stack, or another step budget, are superseded. An
+episode waiting to be played again (``replay/``) is superseded the same way.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+from .episodes import SUFFIX, EpisodeStore
+
+#: What a user chose for an episode; episodes agreeing on these are one episode played under several identities.
+CHOSEN = ("policy", "policy_settings", "policy_identity", "suite", "task_id", "init_state", "prompt", "case_id",
+          "conflict_suite", "prompt_text", "seed")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Superseded:
+    policy: str
+    episode_id: str
+    path: Path
+    bytes: int
+
+
+def superseded(store: EpisodeStore) -> list[Superseded]:
+    """The store's superseded episodes, by policy and id."""
+    files = {p.name[: -len(SUFFIX)]: p for p in store.files()}
+    if not files:
+        return []
+    rows = store.read_table(columns=["episode_id", "config_hash", "created_at", *CHOSEN]).to_pylist()
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for row in rows:
+        groups[tuple("" if row[c] is None else row[c] for c in CHOSEN)].append(row)  # null: an older store
+    out = []
+    for group in groups.values():
+        current = max(group, key=lambda r: r["created_at"] or "")["config_hash"]
+        for row in group:
+            if row["config_hash"] != current and (path := files.get(row["episode_id"])) is not None:
+                out.append(Superseded(row["policy"], row["episode_id"], path, path.stat().st_size))
+    return sorted(out, key=lambda s: (s.policy, s.episode_id))
