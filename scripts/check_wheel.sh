@@ -6,7 +6,7 @@
 # import paths, imports without the simulator), not the whole selection again;
 # then add the simulator and, from an empty directory, run `conflictbench list`, a real run of the default model
 # (one reference and one conflict episode of libero_spatial, about 25 s) and the viewer on it; last, each model
-# plugin installed alone (not editable) by pip beside it, as `pip install . ./serving ./plugins/NAME` would.
+# plugin installed alone (not editable) beside it, as `pip install . ./serving ./plugins/NAME` would.
 #
 #   scripts/check_wheel.sh          PYTHON=... picks the interpreter (default: .venv's)
 set -euo pipefail
@@ -51,8 +51,12 @@ py=$work/venv/bin/python
 mkdir "$work/run"
 cd "$work/run"
 say "installing the wheel with the test tools, without the simulator"
-install() {  # the heavy installs through set-up's uv where there is one (it links from its cache), else pip
-  if [ -x "$repo/.venv/bin/uv" ]; then "$repo/.venv/bin/uv" pip install -q --python "$py" "$@"; else "$py" -m pip install -q "$@"; fi
+uv=$repo/.venv/bin/uv
+install() {  # through set-up's uv where there is one (it links from its cache), else pip
+  if [ -x "$uv" ]; then "$uv" pip install -q --python "$py" "$@"; else "$py" -m pip install -q "$@"; fi
+}
+uninstall() {
+  if [ -x "$uv" ]; then "$uv" pip uninstall -q --python "$py" "$@"; else "$py" -m pip uninstall -q -y "$@"; fi
 }
 install "$wheel[test]"
 if "$py" -c 'import libero' 2>/dev/null; then
@@ -86,10 +90,10 @@ grep -q "1 pair page, 2 videos rendered" "$work/view.log" && [ -s results/view/a
 # 6. Each model plugin as a user installs it (not editable), alone beside the wheel and the server half: a plugin
 #    needs conflictbench and conflictbench-serving, never another plugin (pip brings none, and it loads alone).
 say "each model plugin alone, not editable"
-"$py" -m pip install -q "$work/src/serving"
+install "$work/src/serving"
 for plugin in "$work"/src/plugins/*/; do
   dist=$(sed -n 's/^name = "\(.*\)"$/\1/p' "$plugin/pyproject.toml" | head -n 1)
-  "$py" -m pip install -q "$plugin"
+  install "$plugin"
   "$py" - "$dist" <<'PY'
 import importlib.metadata as metadata
 import sys
@@ -108,7 +112,7 @@ if not mine:
     sys.exit(f"[check_wheel] {dist} alone registers no policy")
 print(f"[check_wheel] {dist} alone: {', '.join(mine)}", file=sys.stderr)
 PY
-  "$py" -m pip uninstall -q -y "$dist"
+  uninstall "$dist"
 done
 say "ok: the installed wheel passes the tests without a simulator, lists its plugins, plays real episodes and shows" \
   "them, and each model plugin installs and loads alone"
