@@ -1,5 +1,6 @@
 """A run cannot hang: a worker that stops answering is replaced and its episode stored as the simulator's failure;
-a policy call that never returns stops the run with one line, every finished episode stored."""
+a policy call that never returns stops the run with one line, every finished episode stored. On the local backend
+and on Ray (actors on a cluster started here; a frozen actor is stopped and replaced the same way)."""
 
 from __future__ import annotations
 
@@ -57,11 +58,26 @@ class StuckPlugin:
         register("stuck", load=Stuck)
 
 
-def runner(tmp_path, stall_s: float) -> tuple[Runner, EpisodeStore]:
+@pytest.fixture(scope="module", params=["local", pytest.param("ray", marks=pytest.mark.cluster)])
+def backend(request):
+    """Where the workers run: processes here, or Ray actors on a two-node cluster (Ray's test cluster, here)."""
+    if request.param == "local":
+        yield {}
+        return
+    pytest.importorskip("ray", reason="the cluster extra: pip install -e '.[cluster]'")
+    from test_ray_backend import start_cluster
+
+    cluster = start_cluster(2)
+    yield {"backend": "ray", "ray_address": cluster.address}
+    cluster.shutdown()
+
+
+def runner(tmp_path, stall_s: float, backend: dict) -> tuple[Runner, EpisodeStore]:
     plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[StuckPlugin()])
     spec = plugins.policy("stuck")
     store = EpisodeStore(tmp_path / "store")
-    run = Runner(plugins, spec, spec.make_config({}), store=store, workers=1, progress=False, stall_timeout_s=stall_s)
+    run = Runner(plugins, spec, spec.make_config({}), store=store, workers=1, progress=False, stall_timeout_s=stall_s,
+                 **backend)  # fmt: skip
     Stuck.runner = run
     return run, store
 
@@ -69,9 +85,10 @@ def runner(tmp_path, stall_s: float) -> tuple[Runner, EpisodeStore]:
 SPECS = [reference_spec("libero_spatial", 0, 0), reference_spec("libero_spatial", 0, 1)]
 
 
-def test_a_policy_call_that_never_returns_stops_the_run_with_the_finished_episodes_stored(tmp_path):
+def test_a_policy_call_that_never_returns_stops_the_run_with_the_finished_episodes_stored(tmp_path, backend):
     Stuck.how = "hang"
-    run, store = runner(tmp_path, stall_s=STALL_S)
+    RELEASE.clear()
+    run, store = runner(tmp_path, stall_s=STALL_S, backend=backend)
     started = time.monotonic()
     try:
         with pytest.raises(PolicyStalled, match="a call of policy 'stuck' has not returned in 1[56] s"):
@@ -84,9 +101,9 @@ def test_a_policy_call_that_never_returns_stops_the_run_with_the_finished_episod
     assert not list((tmp_path / "store" / "claims").glob("*.claim"))
 
 
-def test_a_worker_that_stops_answering_is_replaced_and_the_run_goes_on(tmp_path):
-    Stuck.how = "freeze"
-    run, store = runner(tmp_path, stall_s=STALL_S)
+def test_a_worker_that_stops_answering_is_replaced_and_the_run_goes_on(tmp_path, backend):
+    Stuck.how = "freeze"  # SIGSTOP: a local process, or the actor's process on its node (this machine)
+    run, store = runner(tmp_path, stall_s=STALL_S, backend=backend)
     result = run.run([*SPECS, reference_spec("libero_spatial", 0, 2)])
     assert (result.played, result.errors) == (3, 1)
     records = {r.init_state: r for r in store.records()}
