@@ -3,6 +3,8 @@ server, the simulator. Only the model's own answers are scored; the rest are lef
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 
@@ -98,3 +100,82 @@ def test_a_records_kind_decides_whether_it_is_left_out(error, kind, left_out):
         assert record.failure_kind == (
             "simulator" if "simulator" in error else "server" if "500" in error else "policy"
         )
+
+
+# -- one run through every kind, then the runs after it ------------------------------------------------------------
+MARK = 0.123  # the action dim the post-processor below refuses
+
+
+class Faulty:
+    """Each episode fails its own way, the same way every time it is played (by the order it was first seen)."""
+
+    needs_images = False
+    max_steps = dict.fromkeys(("libero_spatial", "libero_object", "libero_goal", "libero_10"), 5)
+    ways: dict[str, str] = {}
+    WAYS = ("fine", "policy", "client", "server", "plugin")
+
+    def __init__(self, cfg=None):
+        pass
+
+    def reset(self, instruction):
+        pass
+
+    def act(self, observation):
+        way = Faulty.ways.setdefault(observation.episode_id, Faulty.WAYS[len(Faulty.ways) % len(Faulty.WAYS)])
+        if way == "policy":
+            raise RuntimeError("the model's own bug")
+        if way == "client":
+            raise ClientError("our encode could not pack the image")
+        if way == "server":
+            raise InfrastructureError("the server ran out of memory")
+        return np.array([0, 0, 0, MARK if way == "plugin" else 0, 0, 0, -1.0])
+
+
+class FaultyPlugin:
+    @hookimpl
+    def conflictbench_register_policies(self, register):
+        register("faulty", load=Faulty)
+
+    @hookimpl
+    def conflictbench_postprocess_action(self, action, context):
+        if action[3] == MARK:
+            raise KeyError("a lab's post-processor bug")
+        return None
+
+
+@pytest.mark.sim
+@pytest.mark.e2e
+def test_every_failure_kind_through_real_runs_only_the_models_is_scored_the_rest_played_again(tmp_path):
+    """A real run (LIBERO episodes, workers): the model's failure is stored and scored; a plugin's, our client's and
+    the server's are stored apart, counted in the report, played again by the next run, left waiting after two
+    identical failures, and played again on run.retry=true."""
+    from testing_support import reference_spec
+
+    from conflictbench.report import report_store
+    from conflictbench.sim.runner import Runner
+    from conflictbench.store import EpisodeStore
+
+    plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[FaultyPlugin()])
+    spec, store = plugins.policy("faulty"), EpisodeStore(tmp_path / "store")
+    episodes = [reference_spec("libero_goal", 0, state) for state in range(5)]
+    Faulty.ways = {}
+
+    def run(retry: bool = False):
+        return Runner(plugins, spec, spec.make_config({}), store=store, progress=False, retry=retry).run(episodes)
+
+    first = run()
+    assert (first.played, first.errors) == (5, 4)
+    kinds = {Faulty.ways[r.episode_id]: r.error_kind for r in store.records()}
+    assert kinds == {"fine": None, "policy": "policy", "client": "client", "server": "server", "plugin": "plugin"}
+    kept = {Faulty.ways[eid] for eid in store.stored_ids()}
+    assert kept == {"fine", "policy"}  # scored: the model's failure counts as a failed episode
+    assert {Faulty.ways[eid] for eid in store.replay_ids()} == {"client", "server", "plugin"}
+    report = io.StringIO()
+    report_store(store, plugins, stream=report, figures=False)
+    assert "3 episode(s) left out, with their pairs, and played again by the next run: 1 plugin, 1 client, 1 server" \
+        in report.getvalue()  # fmt: skip
+
+    assert run().played == 3  # the next run plays the three again; they fail the same way
+    third = run()
+    assert (third.played, third.failed_twice) == (0, 3)  # left waiting, said in one line
+    assert run(retry=True).played == 3
