@@ -286,6 +286,10 @@ class EpisodeRecord:
     robosuite_version: str = ""
     mujoco_version: str = ""
     numpy_version: str = ""
+    sim_stack: tuple[str, ...] = ()
+    """The rest of the stack below the policy, ``key=value``: for a policy that sees images the renderer
+    (``gl_backend``, ``gl_vendor``, ``gl_renderer``, ``gl_version``) and the image libraries (``pillow``, ...);
+    empty for a state-only policy and in stores written before the column. Part of the identity."""
     policy_identity: str = ""
     """What the policy declared of itself beyond its settings (``identity``, JSON, the model stack apart: a
     checkpoint's fingerprint, a server's batch shape); empty where it declared nothing and in stores written before

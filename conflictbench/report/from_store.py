@@ -35,6 +35,7 @@ def light_records(store: EpisodeStore, episode_ids: Iterable[str] | None = None)
         row["policy_identity"] = row["policy_identity"] or ""  # the same
         row["code_versions"] = tuple(row["code_versions"] or ())  # the same
         row["model_stack"] = tuple(row["model_stack"] or ())  # the same
+        row["sim_stack"] = tuple(row["sim_stack"] or ())  # the same
     return [EpisodeRecord(**row) for row in rows]
 
 

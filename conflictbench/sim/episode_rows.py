@@ -18,6 +18,7 @@ from conflictbench.tasks.libero.base_tasks import base_task
 from .messages import EpisodeJob, EpisodeOutcome
 from .plan import EpisodeSpec, episode_id, settings_json
 from .pool import Item
+from .stack import extra_stack, simulator_columns
 
 #: Episodes read at most for a fresh run's time estimate (the policy's latest in the store).
 ESTIMATE_SAMPLE = 200
@@ -141,7 +142,8 @@ def episode_record(
         policy_settings=settings_json(config),
         created_at=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         wall_time_s=wall_time_s,
-        **simulator,
+        **simulator_columns(simulator),
+        sim_stack=extra_stack(simulator),
         **outcome.record_fields(),
     )
 

@@ -12,7 +12,8 @@ from pathlib import Path
 
 from conflictbench.store import EpisodeStore
 
-SIMULATOR_COLUMNS = ("mujoco_version", "robosuite_version", "libero_version", "numpy_version")
+from .stack import SIMULATOR_COLUMNS, extra_stack
+
 #: The newest episodes of the policy that are compared (as the time estimate reads them).
 SAMPLE = 20
 #: Files named at most, per distribution.
@@ -113,7 +114,8 @@ def identity_changes(
     files = sorted(folder.glob("*.parquet"), key=lambda p: p.stat().st_mtime)[-SAMPLE:]
     if not files:
         return None
-    columns = ["episode_id", "config_hash", "code_versions", "model_stack", "policy_settings", *SIMULATOR_COLUMNS]
+    columns = ["episode_id", "config_hash", "code_versions", "model_stack", "policy_settings", "sim_stack",
+               *SIMULATOR_COLUMNS]  # fmt: skip
     rows = {r["episode_id"]: r for r in store.read_table(columns, [f.stem for f in files]).to_pylist()}
     alike = [rows[f.stem] for f in files if f.stem in rows and (rows[f.stem]["policy_settings"] or "") == settings]
     if not alike or any(r["config_hash"] == config_hash for r in alike):
@@ -123,6 +125,11 @@ def identity_changes(
     for column in SIMULATOR_COLUMNS:
         if newest[column] and simulator.get(column) and newest[column] != simulator[column]:
             changes.append(f"{column.removesuffix('_version')} {newest[column]} -> {simulator[column]}")
+    was = dict(pin.split("=", 1) for pin in newest["sim_stack"] or ())
+    now = dict(pin.split("=", 1) for pin in extra_stack(dict(simulator)))
+    if was or newest["sim_stack"] is not None:  # stores written before the column say nothing of it
+        changes += [f"{key} {was.get(key) or '(none)'} -> {now.get(key) or '(none)'}" for key in sorted(
+            was.keys() | now.keys()) if was.get(key) != now.get(key)]  # fmt: skip
     if newest["model_stack"] and tuple(newest["model_stack"]) != tuple(model_stack):
         changes.append(f"model stack changed: {stack_changes(tuple(newest['model_stack']), tuple(model_stack))}")
     return changes or ["the model's identity or declared traits changed (its checkpoint, model stack, or budgets)"]

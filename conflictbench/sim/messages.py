@@ -91,7 +91,7 @@ assert {f.name for f in dataclasses.fields(EpisodeOutcome)} <= _RECORD_FIELDS, (
 # -- worker -> main process ------------------------------------------------------------------
 @dataclass(frozen=True)
 class Ready:
-    """The simulator imported; these are its versions (recorded with every episode)."""
+    """The simulator imported; this is its stack (``stack.stack_probe``: recorded with every episode)."""
 
     versions: dict[str, str]
 

@@ -88,12 +88,15 @@ def settings_json(config: Any) -> str:
     return json.dumps(identity_settings(config), sort_keys=True, default=repr)
 
 
-def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str, ...] = ()) -> str:
+def config_hash(
+    policy: str, config: Any, traits: PolicyTraits, code: tuple[str, ...] = (), simulator: dict[str, str] | None = None
+) -> str:
     """Identifies everything besides the episode itself that can change a rollout: the policy, its
     settings and declared traits, the code behind it (``code``: ``distribution==version files=DIGEST`` of
     conflictbench's rollout packages, the policy's plugin, every plugin implementing a global per-episode
     hook and the conflictbench distributions they require, see ``code_identity.code_pins``) and the
-    simulator stack (a store never mixes MuJoCo versions)."""
+    simulator stack (``simulator``: what a worker's ``stack.stack_probe`` said, the renderer included for a policy
+    that sees images; default: the simulator's versions here; a store never mixes MuJoCo versions)."""
     settings = identity_settings(config)  # a served policy's address and timeouts are not (ServingConfig)
     blob = json.dumps(
         {
@@ -101,7 +104,7 @@ def config_hash(policy: str, config: Any, traits: PolicyTraits, code: tuple[str,
             "config": settings,
             "traits": traits.as_dict(),
             "code": list(code),
-            "simulator": simulator_versions(),
+            "simulator": simulator if simulator is not None else simulator_versions(),
         },
         sort_keys=True,
         default=repr,

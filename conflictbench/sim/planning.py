@@ -21,9 +21,9 @@ from conflictbench.store.episodes import EpisodeStore
 from .code_identity import code_identity
 from .episode_rows import stack_pins
 from .identity_change import identity_changes, keep_manifests
-from .libero_env import simulator_versions
 from .plan import config_hash, settings_json
 from .pool import Item
+from .stack import simulator_columns
 
 CHANGED = "this policy's newest episodes in the store were played under another identity and are not reused"
 
@@ -53,6 +53,8 @@ class RunIdentity:
     """``config_hash`` with the code by ``distribution==version``: seeds sampling (``Observation.sampling_key``)."""
     code_versions: tuple[str, ...]
     model_stack: tuple[str, ...]
+    stack: dict[str, str] = field(default_factory=dict)
+    """The simulator's stack (``stack.stack_probe``) the run's workers must all have."""
     policy_identity: str = ""
     """The policy's declared ``identity`` but the model stack, as JSON (``EpisodeRecord.policy_identity``)."""
     manifests: dict[str, dict[str, str]] = field(default_factory=dict)
@@ -65,12 +67,16 @@ def identity_json(identity: dict[str, Any]) -> str:
     return json.dumps(rest, sort_keys=True, default=repr) if rest else ""
 
 
-def run_identity(plugins: Plugins, policy: str, config: Any, traits: PolicyTraits) -> RunIdentity:
+def run_identity(
+    plugins: Plugins, policy: str, config: Any, traits: PolicyTraits, stack: dict[str, str]
+) -> RunIdentity:
+    """``stack``: what a worker's probe said (``stack.probe_in_worker``), the renderer included where images count."""
     versions = plugins.provenance(policy)
     code_versions, manifests = code_identity(versions)  # the code by content
     return RunIdentity(
-        config_hash=config_hash(policy, config, traits, code_versions),
-        sampling_hash=config_hash(policy, config, traits, versions),
+        config_hash=config_hash(policy, config, traits, code_versions, stack),
+        sampling_hash=config_hash(policy, config, traits, versions, simulator_columns(stack)),
+        stack=dict(stack),
         code_versions=code_versions,
         model_stack=stack_pins(traits.identity.get("model_stack")),  # in config_hash through the traits
         policy_identity=identity_json(traits.identity),
@@ -91,7 +97,7 @@ def left_to_play(
     keep_manifests(store.root, identity.manifests)
     settings = settings_json(config)
     if todo and (changed := identity_changes(store, policy, identity.config_hash, identity.code_versions, settings,
-                                             simulator_versions(), identity.model_stack)):  # fmt: skip
+                                             identity.stack, identity.model_stack)):  # fmt: skip
         print(f"conflictbench: {CHANGED}: {'; '.join(changed)}", file=sys.stderr)
     if not retry and (repeated := store.repeated_failure_ids() & {i.job.episode_id for i in todo}):
         todo = [i for i in todo if i.job.episode_id not in repeated]

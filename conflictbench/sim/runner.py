@@ -38,6 +38,7 @@ from .plan import EpisodeSpec
 from .planning import RunResult, left_to_play, run_identity
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
 from .progress import plan_line
+from .stack import probe_in_worker
 from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
 
 
@@ -107,7 +108,8 @@ class Runner:
         traits = PolicyTraits(policy)
         if self.max_steps is not None:  # a shorter budget is other episodes: the traits enter the identity
             traits.max_steps = {suite: min(steps, self.max_steps) for suite, steps in traits.max_steps.items()}
-        identity = run_identity(self.plugins, self.spec.name, self.config, traits)
+        settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
+        identity = run_identity(self.plugins, self.spec.name, self.config, traits, probe_in_worker(settings))
         self.config_hash, self.sampling_hash = identity.config_hash, identity.sampling_hash
         self.code_versions, self.model_stack = identity.code_versions, identity.model_stack
         self.policy_identity = identity.policy_identity
@@ -124,9 +126,9 @@ class Runner:
         if not todo:
             return result
 
-        settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
         # The pool first (Ray: connecting to the cluster), so a wrong address costs no model server's start.
         pool = self._pool = self._make_pool(settings, size=min(self.workers, len(todo)))
+        pool.versions = dict(identity.stack)  # a worker on another stack than the probe's stops the run
         try:
             start_policy(
                 self.spec, policy

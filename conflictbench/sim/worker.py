@@ -225,12 +225,13 @@ def worker_main(conn, settings) -> None:
 
     try:
         from . import libero_env
+        from .stack import stack_probe
 
         libero_env.configure_process(settings)
         player = EpisodePlayer(settings)
         import libero.libero.envs  # noqa: F401  (import the simulator now, not inside the first episode)
 
-        conn.send(Ready(libero_env.simulator_versions()))
+        conn.send(Ready(stack_probe(settings.needs_images)))
     except SimulatorUnavailable as exc:
         conn.send(Fatal(str(exc)))
         return

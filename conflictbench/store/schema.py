@@ -63,6 +63,7 @@ SCHEMA = pa.schema(
         ("robosuite_version", pa.string()),
         ("mujoco_version", pa.string()),
         ("numpy_version", pa.string()),
+        ("sim_stack", pa.list_(pa.string())),
         ("policy_identity", pa.string()),
         ("config_hash", pa.string()),
         ("policy_settings", pa.string()),
@@ -107,7 +108,7 @@ def records_to_table(records: Iterable[EpisodeRecord]) -> pa.Table:
                 columns[name] = _nested(values, width, ndim=3 if name == "target_pos" else 2)
             except ValueError as exc:
                 raise ValueError(f"column {name}: {exc}") from None
-        elif name in ("target_names", "code_versions", "model_stack", "sim_warnings"):
+        elif name in ("target_names", "code_versions", "model_stack", "sim_stack", "sim_warnings"):
             columns[name] = pa.array([list(v) for v in values], type=SCHEMA.field(name).type)
         else:
             columns[name] = pa.array(values, type=SCHEMA.field(name).type)
@@ -153,6 +154,7 @@ def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
         row["code_versions"] = tuple(row["code_versions"] or ())  # null in stores written before the column
         row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # the same
         row["model_stack"] = tuple(row["model_stack"] or ())  # the same
+        row["sim_stack"] = tuple(row["sim_stack"] or ())  # the same
         row["policy_settings"] = row["policy_settings"] or ""  # the same
         row["policy_identity"] = row["policy_identity"] or ""  # the same
         for name in ARRAY_COLUMNS:
