@@ -77,11 +77,14 @@ def _probe_main(conn, settings: EnvSettings) -> None:
 
 def probe_in_worker(settings: EnvSettings) -> dict[str, str]:
     """:func:`stack_probe` in a fresh process set up as a simulator worker is (the driver's own imports and GL state
-    are not a worker's)."""
+    are not a worker's); born ignoring Ctrl-C as the workers are (the run stops it)."""
+    from .pool import sigint_ignored
+
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe()
     process = ctx.Process(target=_probe_main, args=(child, settings), daemon=True, name="conflictbench-stack-probe")
-    process.start()
+    with sigint_ignored():
+        process.start()
     child.close()
     try:
         if not parent.poll(PROBE_TIMEOUT_S):
@@ -89,6 +92,9 @@ def probe_in_worker(settings: EnvSettings) -> dict[str, str]:
         said = parent.recv()
     except EOFError:
         raise SimulatorUnavailable(f"the simulator's stack probe died (exit code {process.exitcode})") from None
+    except BaseException:  # Ctrl-C, a stop: no need to wait for it
+        process.kill()
+        raise
     finally:
         process.join(5)
         if process.is_alive():
