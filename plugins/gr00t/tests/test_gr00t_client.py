@@ -75,7 +75,9 @@ def test_traits_follow_gr00ts_evaluation_and_a_shorter_budget_counts_for_every_s
 def test_nvidias_server_says_nothing_about_its_model_so_the_given_name_is_the_identity(standin):
     named = [load("gr00t", Gr00tConfig(server=standin, checkpoint=name)) for name in ("a", "b")]
     try:
-        assert [p.identity for p in named] == [{"checkpoint": "a", "max_batch": 1}, {"checkpoint": "b", "max_batch": 1}]
+        assert [p.identity for p in named] == [
+            {"checkpoint": name, "max_batch": 1, "model_stack": "unreported"} for name in ("a", "b")
+        ]  # NVIDIA's server says nothing of its stack either
     finally:
         for policy in named:
             policy.close()

@@ -174,7 +174,7 @@ def test_our_client_reads_what_is_hosted_and_executes_eight_actions():
             actions = policy.act(obs)
             expected = env_actions({key: value[None] for key, value in chunk_for(backend.calls[-1][0]).items()})
             np.testing.assert_allclose(actions, expected[:8], rtol=1e-6)
-            assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1}
+            assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1, "model_stack": "unreported"}
         finally:
             policy.close()
 

@@ -203,8 +203,8 @@ def test_against_a_running_server_its_own_word_on_the_model_is_the_identity(tmp_
         named = [load("pi05", PiConfig(server=url, checkpoint=name, connect_retries=0)) for name in ("a", "b")]
         try:
             assert [p.identity for p in named] == [
-                {"checkpoint": "a", "max_batch": 1},
-                {"checkpoint": "b", "max_batch": 1},
+                {"checkpoint": "a", "max_batch": 1, "model_stack": "unreported"},
+                {"checkpoint": "b", "max_batch": 1, "model_stack": "unreported"},
             ]
         finally:
             for p in named:

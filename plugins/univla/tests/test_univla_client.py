@@ -122,7 +122,7 @@ def test_traits_follow_univlas_evaluation(standin):
         traits = PolicyTraits(policy)
         assert traits.warmup_steps == 10 and traits.needs_images
         assert traits.max_steps == {"libero_spatial": 240, "libero_object": 300, "libero_goal": 320, "libero_10": 550}
-        assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1}
+        assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1, "model_stack": "unreported"}
     finally:
         policy.close()
 

@@ -137,7 +137,7 @@ def test_our_client_takes_the_statistics_and_chunk_length_from_our_servers_metad
             expected = env_actions(chunk_for(backend.calls[-1][0]).astype(np.float64),
                                    ActionStatistics.from_mapping(ACTION_STATS), CHUNK)  # fmt: skip
             np.testing.assert_allclose(actions, expected, rtol=1e-6)
-            assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1}
+            assert policy.identity == {"checkpoint": "sha256:standin", "max_batch": 1, "model_stack": "unreported"}
         finally:
             policy.close()
 
