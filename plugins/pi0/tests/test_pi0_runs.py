@@ -53,7 +53,7 @@ def test_a_checkpoint_gets_its_own_server_for_the_run_and_real_episodes_play(tmp
     records = list(EpisodeStore(tmp_path / "results").records())
     for record in records:
         assert record.steps == STEPS and record.error is None and record.prompt == "p1"
-        # the model environment's stack, read before the server started (model.device=auto decided then)
+        # the model environment's stack, read from its files before the server started
         assert record.model_stack[0] == "device=cpu" and any(p.startswith("lerobot==") for p in record.model_stack)
         assert np.ptp(record.raw_actions[:, :6], axis=0).min() > 0  # the model's actions move, step to step
     assert not np.allclose(records[0].raw_actions, records[1].raw_actions)  # the prompt reached the model
