@@ -243,13 +243,16 @@ SERVED_MODULE = textwrap.dedent(
             raise CheckpointError(f"{folder} is not an echo checkpoint (see {naming}{policy})")
 
     class Echo:
-        def __init__(self, weight):
-            self.weight, self.metadata = weight, {"policy_type": "echo"}
+        def __init__(self, folder):
+            self.folder, self.metadata = folder, {"policy_type": "echo"}
+            self.weight = float((folder / "weights.txt").read_text())
 
     def load(checkpoint, device):
-        return Echo(float((pathlib.Path(checkpoint) / "weights.txt").read_text()))
+        return Echo(pathlib.Path(checkpoint))
 
     def serve(backend, host, port, max_batch, on_ready):
+        if (backend.folder / "upgraded").exists():  # a package upgraded between the run's probe and the server's start
+            backend.metadata["model_stack"]["packages"]["echo-served"] = "9.9"
         class Handler(http.server.BaseHTTPRequestHandler):
             protocol_version = "HTTP/1.1"
             def log_message(self, *a):
@@ -383,3 +386,20 @@ def test_a_server_that_does_not_say_its_stack_is_counted_unreported_and_the_run_
         policy.close()
     said = capsys.readouterr().err
     assert said.count("does not say what model stack it runs") == 1 and url in said
+
+
+def test_a_started_server_on_another_stack_than_the_probe_said_is_refused(tmp_path, served_env):
+    """The identity counted the stack before the server started; a server that then runs on another one would store
+    its episodes under the wrong identity."""
+    pytest.importorskip("json_numpy")
+    from conflictbench.hosting.rest import JsonNumpyTransport
+
+    class ReadsMetadata(served_echo()):  # deploy.py's REST client: it reads our server's GET /metadata on connecting
+        transport = JsonNumpyTransport
+
+    folder = checkpoint(tmp_path / "ckpt", upgraded="")
+    policy = ReadsMetadata.load("echo", EchoConfig(checkpoint=str(folder), python=str(served_env)))
+    said = r"another stack than its environment's files said \(echo-served 1.0 -> 9.9\): its episodes would be stored"
+    with pytest.raises(UserError, match=said):
+        policy.start()
+    assert not policy.server.running  # stopped

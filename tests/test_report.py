@@ -326,3 +326,12 @@ def test_a_report_shows_the_current_suites_conflict_episodes_and_counts_the_othe
     assert report_command([str(tmp_path / "run"), "--all-suites"], plugins) == 0
     assert sorted(set(pd.read_csv(tmp_path / "run" / "report" / "pairs.csv")["model"])) == ["alpha", "beta"]
     assert "not shown" not in capsys.readouterr().out
+
+
+def test_conflict_episodes_stored_before_the_suite_was_recorded_are_shown_and_said_so(tmp_path, plugins, capsys):
+    stored(tmp_path, two_models())  # no conflict_suite: a store written before the column
+    assert report_command([str(tmp_path / "run")], plugins) == 0
+    assert sorted(set(pd.read_csv(tmp_path / "run" / "report" / "pairs.csv")["model"])) == ["alpha", "beta"]
+    assert "4 conflict episode(s) were stored before their suite was recorded and are shown as this suite's" in (
+        capsys.readouterr().out
+    )

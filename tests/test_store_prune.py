@@ -49,3 +49,14 @@ def test_the_older_identities_of_one_chosen_episode_are_superseded_and_removed_w
     assert not store.replay_ids() and superseded(store) == []
     assert prune_command([str(store.root)], None) == 0
     assert "none of the 4 episodes" in capsys.readouterr().err
+
+
+def test_a_capped_run_supersedes_no_full_one_and_rows_from_before_the_columns_join_their_successors(tmp_path):
+    store = EpisodeStore(tmp_path / "results")
+    store.write(episode("full", "h1", "2026-11-01T10:00:00+00:00", max_steps=300))
+    store.write(episode("capped", "h2", "2026-11-02T10:00:00+00:00", max_steps=40))  # run.max_steps=40: a smoke test
+    assert superseded(store) == []
+    older = EpisodeStore(tmp_path / "older")  # written before policy_identity and conflict_suite: null there
+    older.write(episode("before-columns", "h0", "2026-10-01T10:00:00+00:00", conflict_suite=None))
+    older.write(episode("today", "h3", "2026-11-03T10:00:00+00:00", policy_identity='{"checkpoint": "a1"}'))
+    assert [s.episode_id for s in superseded(older)] == ["before-columns"]

@@ -22,8 +22,9 @@ What it owns, the same for every model:
   server only when the run has episodes to play (the runner calls it); ``close()`` stops it.
 - **Identity by content.** With a checkpoint, ``identity`` is its fingerprint, the server's ``max_batch`` (float
   rounding follows the batch shape) and the model stack (``conflictbench_serving.stack``: the device kind, ``auto``
-  decided now, and every distribution's version in the model environment, read from its files before the run
-  plans); against a running server, what its metadata says (``checkpoint_fingerprint``, ``max_batch``,
+  decided now by the model environment's torch, and every distribution's version there, read from their files by
+  the environment's probe before the run plans; the started server must then report the same); against a running
+  server, what its metadata says (``checkpoint_fingerprint``, ``max_batch``,
   ``model_stack``), else the name given in ``model.checkpoint`` and "unreported", said once.
 - **The right model.** A server whose metadata names another ``policy_type`` is refused; a checkpoint
   changed while its server was loading it is refused.
@@ -53,17 +54,26 @@ from .transport import Transport
 #: Set for every model process unless the user set it: bfloat16 kernels beyond AVX512 kill some CPUs' VMs
 #: (SIGILL), and CPU inference of these models never needs them.
 MODEL_PROCESS_ENV: Mapping[str, str] = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"}
-#: What a model environment's probe prints last: its distributions' versions (JSON), read from their files.
-_VERSIONS_PROBE = """
+#: What a model environment's probe prints last (JSON): its distributions' versions, read from their files, and the
+#: device the server will run on, ``auto`` decided as the server decides it (torch's word), so both are known before
+#: the run plans.
+_STACK_PROBE = """
+import json, sys
 try:
     from conflictbench_serving.stack import installed_versions
 except ImportError:  # a plugin's own server, without the serving half: its stack is not known
     installed_versions = dict
-import json
-print(json.dumps(installed_versions()))
+device = sys.argv[1]
+if device == "auto":
+    try:
+        import torch
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    except ImportError:
+        device = "cpu"
+print(json.dumps({"versions": installed_versions(), "device": device}))
 """
-#: The versions each probed model environment reported, by interpreter (probed once a process).
-_ENVIRONMENT_VERSIONS: dict[str, dict[str, str]] = {}
+#: What the last probe of each model environment said, by interpreter and device setting.
+_ENVIRONMENT_STACKS: dict[tuple[str, str], dict[str, Any]] = {}
 UNREPORTED = "unreported"
 
 
@@ -243,25 +253,28 @@ class HostedPolicy(ServedPolicy):
             probe = f"from conflictbench_serving.command import served_model; served_model({name!r})"
         else:
             probe = f"import {cls.server_module}"
-        done = subprocess.run([str(python), "-c", probe + _VERSIONS_PROBE], capture_output=True, text=True)
+        done = subprocess.run([str(python), "-c", probe + _STACK_PROBE, cfg.device], capture_output=True, text=True)
         if done.returncode != 0:
             last = (done.stderr.strip().splitlines() or ["?"])[-1]
             raise UserError(f"{python} cannot run the {environment} server ({last}): build it with {setup}")
-        _ENVIRONMENT_VERSIONS[str(python)] = json.loads(done.stdout.strip().splitlines()[-1])
+        try:
+            _ENVIRONMENT_STACKS[(str(python), cfg.device)] = json.loads(done.stdout.strip().splitlines()[-1])
+        except (IndexError, ValueError):  # something in the environment printed over it: the stack is not known
+            _ENVIRONMENT_STACKS.pop((str(python), cfg.device), None)
         return python
 
     def _environment_stack(self, python: Path | None) -> dict[str, Any] | str:
-        """The model stack of the environment the server will run in (its versions as the probe read them) and the
-        device, ``auto`` decided here so that it is known before the run plans; ``unreported`` where not known."""
-        versions = _ENVIRONMENT_VERSIONS.get(str(python)) if python is not None else None
-        if not versions:
+        """The model stack of the environment the server will run in, as its probe said it (``model_python``): the
+        device kind and every distribution's version; ``unreported`` where not known."""
+        said = _ENVIRONMENT_STACKS.get((str(python), self.cfg.device)) if python is not None else None
+        if not said or not said.get("versions"):
             return UNREPORTED
         try:
-            from conflictbench_serving.stack import model_stack, resolve_device
+            from conflictbench_serving.stack import model_stack
         except ImportError:  # a plugin's own client without the serving half here
             return UNREPORTED
-        self.device = resolve_device(self.cfg.device, versions)
-        return model_stack(self.device, versions)
+        self.device = said["device"]
+        return model_stack(self.device, said["versions"])
 
     def start(self) -> None:
         if self.checkpoint is None or self.client is not None:
@@ -275,6 +288,13 @@ class HostedPolicy(ServedPolicy):
         if self.metadata.get("checkpoint_fingerprint", self.identity["checkpoint"]) != self.identity["checkpoint"]:
             self.close()
             raise UserError(f"the checkpoint at {self.checkpoint} changed while its server was loading it")
+        reported, counted = self.metadata.get("model_stack"), self.identity.get("model_stack")
+        if reported is not None and isinstance(counted, dict) and reported != counted:
+            self.close()
+            raise UserError(
+                f"the {self.name} server started for this run runs on another stack than its environment's files "
+                f"said ({_stack_difference(counted, reported)}): its episodes would be stored under the wrong identity"
+            )
 
     def _start_server(self, python: Path) -> tuple[ServerProcess, str]:
         port = free_port()
@@ -334,3 +354,15 @@ class HostedPolicy(ServedPolicy):
         finally:
             if self.server is not None:
                 self.server.stop()
+
+
+def _stack_difference(counted: Mapping[str, Any], reported: Mapping[str, Any]) -> str:
+    """The first few ways two model stacks differ, in words."""
+    words = []
+    if counted.get("device") != reported.get("device"):
+        words.append(f"device {counted.get('device')} -> {reported.get('device')}")
+    old, new = counted.get("packages") or {}, reported.get("packages") or {}
+    for name in sorted(old.keys() | new.keys()):
+        if old.get(name) != new.get(name):
+            words.append(f"{name} {old.get(name, '(none)')} -> {new.get(name, '(none)')}")
+    return ", ".join(words[:3]) + (f" and {len(words) - 3} more" if len(words) > 3 else "")

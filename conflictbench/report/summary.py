@@ -103,14 +103,15 @@ class EpisodeCounts:
     """Episodes the serving infrastructure ended (a policy server's error reply, a broken connection)."""
     other_suites: Counter = field(default_factory=Counter)
     """Conflict episodes not shown, by the suite they are of (a report of one suite)."""
+    unrecorded_suite: int = 0
+    """Conflict episodes of a store written before the suite was recorded, shown as the reported suite's."""
 
 
 def other_suites_line(other: Counter) -> str | None:
     """``412 conflict episode(s) of suite conflictvla 1.0.0 not shown ...``: what a report of one suite left out."""
     if not other:
         return None
-    parts = ", ".join(f"{n} of suite {label}" if label else f"{n} of an unrecorded suite" for label, n in sorted(
-        other.items(), key=lambda item: item[0] or ""))  # fmt: skip
+    parts = ", ".join(f"{n} of suite {label}" for label, n in sorted(other.items()))
     return f"conflict episodes not shown: {parts} (conflictbench report --all-suites shows them)"
 
 
@@ -132,12 +133,15 @@ def pair_up(records: Iterable[EpisodeRecord], suite: str | None = None) -> tuple
     serving-infrastructure failure says nothing about the policy, so such episodes are left out with their pairs.
     With ``suite`` (``name version``), only that suite's conflict episodes, and the others counted."""
     records = list(records)
-    other = Counter()
-    if suite is not None:
-        other = Counter(r.conflict_suite for r in records if not r.is_reference and r.conflict_suite != suite)
-        records = [r for r in records if r.is_reference or r.conflict_suite == suite]
+    other, unrecorded = Counter(), 0
+    if suite is not None:  # a store written before the column: its conflict episodes are shown, and said so
+        conflicts = [r for r in records if not r.is_reference]
+        other = Counter(r.conflict_suite for r in conflicts if r.conflict_suite not in (suite, None))
+        unrecorded = sum(r.conflict_suite is None for r in conflicts)
+        records = [r for r in records if r.is_reference or r.conflict_suite in (suite, None)]
     counts = EpisodeCounts(
         other_suites=other,
+        unrecorded_suite=unrecorded,
         episodes=len(records),
         references=sum(r.is_reference for r in records),
         policy_errors=[r for r in records if r.error is not None and not r.infrastructure_failed],
@@ -217,6 +221,9 @@ def report_frame(
         print(line, file=stream)
     if line := other_suites_line(counts.other_suites):
         print(line, file=stream)
+    if counts.unrecorded_suite:
+        print(f"{counts.unrecorded_suite} conflict episode(s) were stored before their suite was recorded and are "
+              "shown as this suite's", file=stream)  # fmt: skip
     if counts.orphans:
         print(f"{counts.orphans} conflict episode(s) have no usable stored reference yet and are left out", file=stream)
     if (line := tar_undefined_line(frame, names)) is not None:

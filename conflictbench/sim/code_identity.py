@@ -47,6 +47,8 @@ NOT_ROLLOUT = {
 }
 _PIN = re.compile(r"^(?P<name>[A-Za-z0-9._-]+)==(?P<version>\S+)$")
 _SKIPPED_PARTS = {"__pycache__", ".pytest_cache"}
+#: Files no import reads: an editor's swap and backup files, a patch's leftovers (they must not replay a store).
+_NOT_CODE = (".pyc", ".swp", ".swo", ".orig", ".rej", ".bak", "~")
 
 
 def file_hashes(files: Iterable[tuple[str, Path]]) -> dict[str, str]:
@@ -85,7 +87,8 @@ def _package_files(package: str, dist: metadata.Distribution | None = None) -> l
     for root in roots:
         for path in root.rglob("*"):
             parts = path.relative_to(root).parts
-            if path.is_file() and not _SKIPPED_PARTS & set(parts) and path.suffix != ".pyc":
+            if (path.is_file() and not _SKIPPED_PARTS & set(parts) and not path.name.endswith(_NOT_CODE)
+                    and not path.name.startswith(".")):  # fmt: skip
                 found.append(("/".join([*package.split("."), *parts]), path))
     return found
 

@@ -141,9 +141,9 @@ class WorkerPool:
         if self.versions and versions != self.versions:
             differ = sorted(k for k in set(versions) | set(self.versions) if versions.get(k) != self.versions.get(k))
             raise VersionMismatch(
-                "simulator workers run different versions ("
+                "simulator workers run different stacks ("
                 + ", ".join(f"{k}: {self.versions.get(k)} vs {versions.get(k)}" for k in differ)
-                + "); install the same everywhere"
+                + "); install the same simulator, GL stack and image libraries everywhere"
             )
 
     def lost_reason(self, slot: Slot) -> str:

@@ -137,3 +137,8 @@ def duration(seconds: float) -> str:
     if hours:
         return f"{hours} h {minutes:02d} min"
     return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
+
+
+def run_progress(total: int, name: str, enabled: bool) -> RunProgress:
+    """A run's bar over its episodes (``enabled=False``: silent)."""
+    return RunProgress(total, name, enabled=enabled)

@@ -27,6 +27,7 @@ from conflictbench.core import SimulatorUnavailable, UserError
 
 from .libero_env import EnvSettings
 from .pool import STOP_TIMEOUT_S, Slot, VersionMismatch, WorkerPool
+from .stack import PROBE_TIMEOUT_S
 from .worker import worker_main
 
 #: How long a restart waits for the cluster to show a free CPU (a crashed actor's takes a moment to
@@ -45,6 +46,50 @@ def import_ray():
     except ImportError:
         raise UserError(INSTALL_HINT) from None
     return ray
+
+
+#: Ray was connected by the stack probe (``probe_on_cluster``): the pool that follows owns the connection.
+_probe_connected = False
+
+
+def probe_on_cluster(settings: EnvSettings, address: str | None) -> dict[str, str]:
+    """``stack.stack_probe`` as a Ray task on the cluster (a node that plays episodes, not the driver's), connecting
+    to Ray if nothing has yet; the connection is the run's pool's to keep (:func:`release_probe_connection`)."""
+    global _probe_connected
+    ray = import_ray()
+    if not ray.is_initialized():
+        connect(ray, address)
+        _probe_connected = True
+    task = ray.remote(num_cpus=1, max_retries=0)(_probe_task)
+    try:
+        said = ray.get(task.remote(settings), timeout=PROBE_TIMEOUT_S)
+    except Exception as exc:  # a timeout, a lost task: Ray's own exception types
+        release_probe_connection()
+        raise SimulatorUnavailable(f"the simulator's stack probe on the Ray cluster failed: {type(exc).__name__}: "
+                                   f"{exc}") from None  # fmt: skip
+    if isinstance(said, str):
+        release_probe_connection()
+        raise SimulatorUnavailable(f"cannot start the simulator's stack on the Ray cluster: {said}")
+    return said
+
+
+def _probe_task(settings: EnvSettings) -> dict[str, str] | str:
+    try:
+        from . import libero_env
+        from .stack import stack_probe
+
+        libero_env.configure_process(settings)
+        return stack_probe(settings.needs_images)
+    except Exception as exc:  # said as text: the driver says it in one line
+        return f"{type(exc).__name__}: {exc}"
+
+
+def release_probe_connection() -> None:
+    """Disconnect from Ray where the stack probe connected and no pool took the connection over."""
+    global _probe_connected
+    if _probe_connected:
+        _probe_connected = False
+        import_ray().shutdown()
 
 
 class SimulatorActor:
@@ -112,8 +157,10 @@ class RayWorkerPool(WorkerPool):
 
     def __init__(self, settings: EnvSettings, size: int, address: str | None = None):
         super().__init__(settings, size)
+        global _probe_connected
         ray = self._ray = import_ray()
-        self._owns_ray = not ray.is_initialized()
+        self._owns_ray = not ray.is_initialized() or _probe_connected
+        _probe_connected = False  # this pool keeps (and ends) the connection the stack probe made
         self._server: socket.socket | None = None
         self._closing = False
         if self._owns_ray:

@@ -37,8 +37,8 @@ from .messages import Abort, Done, EpisodeOutcome, Play, Query
 from .plan import EpisodeSpec
 from .planning import RunResult, left_to_play, run_identity
 from .pool import EpisodeQueue, Item, Slot, WorkerPool
-from .progress import plan_line
-from .stack import probe_in_worker
+from .progress import plan_line, run_progress
+from .stack import probe_stack
 from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
 
 
@@ -79,7 +79,7 @@ class Runner:
         self.model_stack: tuple[str, ...] = ()
         self.policy_identity = ""
         self.progress, self.on_episode = progress, on_episode
-        self._bar: Any = _progress(0, spec.name, enabled=False)
+        self._bar: Any = run_progress(0, spec.name, enabled=False)
         self._pool: WorkerPool | None = None
         self._policy: Any = None
         self._calls: PolicyCalls | None = None
@@ -103,13 +103,19 @@ class Runner:
             close = getattr(policy, "close", None)
             if callable(close):
                 close()
+            if self.backend == "ray":  # the probe's connection, where no pool took it over
+                from .ray_pool import release_probe_connection
+
+                release_probe_connection()
 
     def _run_with(self, policy: Any, plan: list[EpisodeSpec]) -> RunResult:
         traits = PolicyTraits(policy)
         if self.max_steps is not None:  # a shorter budget is other episodes: the traits enter the identity
             traits.max_steps = {suite: min(steps, self.max_steps) for suite, steps in traits.max_steps.items()}
         settings = EnvSettings(needs_images=traits.needs_images, image_size=traits.image_size)
-        identity = run_identity(self.plugins, self.spec.name, self.config, traits, probe_in_worker(settings))
+        identity = run_identity(
+            self.plugins, self.spec.name, self.config, traits, probe_stack(settings, self.backend, self.ray_address)
+        )
         self.config_hash, self.sampling_hash = identity.config_hash, identity.sampling_hash
         self.code_versions, self.model_stack = identity.code_versions, identity.model_stack
         self.policy_identity = identity.policy_identity
@@ -140,7 +146,7 @@ class Runner:
         self._calls = PolicyCalls(policy, traits)
         stall_s = self.stall_timeout_s or stall_bound(i.job.max_steps for i in todo)
         self._watch = StallWatch(stall_s, call_bound(self.config, stall_s))
-        self._bar = _progress(len(todo), self.spec.name, enabled=self.progress)
+        self._bar = run_progress(len(todo), self.spec.name, enabled=self.progress)
         self._claims = ClaimKeeper(self.store)
         try:
             with self._claims:  # renews the claims of the episodes being played, from a thread
@@ -400,9 +406,3 @@ class Runner:
         self._bar.set_postfix(success=result.succeeded, errors=result.errors)
         if self.on_episode is not None and item.job.episode_id not in self._claims.lost:
             self.on_episode(record)
-
-
-def _progress(total: int, name: str, enabled: bool):
-    from .progress import RunProgress
-
-    return RunProgress(total, name, enabled=enabled)

@@ -1,5 +1,6 @@
 """The stack below the policy that a rollout depends on, probed where the rollouts run: one function, which every
-worker reports when it starts, a run reads from a worker of its own before it plans, and ``doctor`` prints.
+worker reports when it starts and a run reads from a worker of its own before it plans (and what a ``doctor``
+command is to print).
 
 The simulator (LIBERO, robosuite, MuJoCo, numpy) always; for a policy that sees images also the renderer (the GL
 backend and the vendor, renderer and version strings of the context it gets: Mesa's llvmpipe and an NVIDIA driver
@@ -63,6 +64,16 @@ def extra_stack(stack: dict[str, str]) -> tuple[str, ...]:
 def simulator_columns(stack: dict[str, str]) -> dict[str, str]:
     """The part of a stack the ``*_version`` columns hold."""
     return {key: stack.get(key, "") for key in SIMULATOR_COLUMNS}
+
+
+def probe_stack(settings: EnvSettings, backend: str = "local", ray_address: str | None = None) -> dict[str, str]:
+    """The stack below the policy where a run's workers will run: a worker-like process here, or a Ray task on the
+    cluster (the driver's machine need not be one of its nodes)."""
+    if backend == "ray":
+        from .ray_pool import probe_on_cluster
+
+        return probe_on_cluster(settings, ray_address)
+    return probe_in_worker(settings)
 
 
 def _probe_main(conn, settings: EnvSettings) -> None:

@@ -2,7 +2,8 @@
 
 Episodes are compared by what a user chose, not by how it was played: the policy, its settings and declared
 identity (a checkpoint's fingerprint: two checkpoints are two models, never each other's successor), the episode
-itself (LIBERO suite, task, initial state, prompt condition, the case, its suite, the prompt text, seed). Of the
+itself (LIBERO suite, task, initial state, prompt condition, the case, its suite, the prompt text, seed) and its step
+budget (``run.max_steps``: a capped smoke test does not supersede a full run). Of the
 episodes that agree on all of it, those of the identity played last (the newest ``created_at``) are current; the
 others, played under other code, another simulator or model stack, or another step budget, are superseded. An
 episode waiting to be played again (``replay/``) is superseded the same way.
@@ -17,8 +18,10 @@ from pathlib import Path
 from .episodes import SUFFIX, EpisodeStore
 
 #: What a user chose for an episode; episodes agreeing on these are one episode played under several identities.
-CHOSEN = ("policy", "policy_settings", "policy_identity", "suite", "task_id", "init_state", "prompt", "case_id",
-          "conflict_suite", "prompt_text", "seed")  # fmt: skip
+CHOSEN = ("policy", "policy_settings", "max_steps", "policy_identity", "suite", "task_id", "init_state", "prompt",
+          "case_id", "conflict_suite", "prompt_text", "seed")  # fmt: skip
+#: Columns stores written before them hold as null: such an episode joins the one group that otherwise matches.
+LATER_COLUMNS = ("policy_identity", "conflict_suite")
 
 
 @dataclass(frozen=True)
@@ -37,7 +40,8 @@ def superseded(store: EpisodeStore) -> list[Superseded]:
     rows = store.read_table(columns=["episode_id", "config_hash", "created_at", *CHOSEN]).to_pylist()
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for row in rows:
-        groups[tuple("" if row[c] is None else row[c] for c in CHOSEN)].append(row)  # null: an older store
+        groups[tuple("" if row[c] is None else row[c] for c in CHOSEN)].append(row)
+    _join_older_rows(groups)
     out = []
     for group in groups.values():
         current = max(group, key=lambda r: r["created_at"] or "")["config_hash"]
@@ -45,3 +49,17 @@ def superseded(store: EpisodeStore) -> list[Superseded]:
             if row["config_hash"] != current and (path := files.get(row["episode_id"])) is not None:
                 out.append(Superseded(row["policy"], row["episode_id"], path, path.stat().st_size))
     return sorted(out, key=lambda s: (s.policy, s.episode_id))
+
+
+def _join_older_rows(groups: dict[tuple, list[dict]]) -> None:
+    """Rows of a store written before ``LATER_COLUMNS`` existed (null there) join the one group that matches them on
+    every other column, where there is exactly one: the same episode, played again since under today's code."""
+    later = [CHOSEN.index(c) for c in LATER_COLUMNS]
+
+    def rest(key: tuple) -> tuple:
+        return tuple(v for i, v in enumerate(key) if i not in later)
+
+    for key in [k for k in groups if all(k[i] == "" for i in later)]:
+        matches = [k for k in groups if k != key and rest(k) == rest(key)]
+        if len(matches) == 1:
+            groups[matches[0]].extend(groups.pop(key))

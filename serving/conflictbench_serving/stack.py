@@ -2,8 +2,10 @@
 kind of device.
 
 Read from the distributions' metadata on disk, without importing them, so a run knows it before it plans (a model
-server takes minutes to start): for a local checkpoint the client reads the model environment's ``site-packages``,
-and a server of ours says the same in its metadata (``model_stack``) for a run given ``model.server=``. Every
+server takes minutes to start): for a local checkpoint a short probe in the model environment's interpreter prints
+it (``conflictbench.hosting.hosted``; it also decides ``--device auto`` as the server would), and a server of
+``conflictbench-serve`` says the same in its metadata (``model_stack``), which the run checks against it, and for a
+run given ``model.server=``. Every
 distribution counts, not a list of known ones: a model's numbers can move with torch, its CUDA kernels,
 transformers or the model's own library alike. The installers (pip, setuptools, wheel, uv) do not run a model.
 """
@@ -33,23 +35,6 @@ def installed_versions(paths: Iterable[str | Path] | None = None) -> dict[str, s
         if name and canonical_name(name) not in INSTALLERS:
             versions.setdefault(canonical_name(name), dist.version)
     return dict(sorted(versions.items()))
-
-
-def environment_site_packages(python: Path) -> list[Path]:
-    """The ``site-packages`` folders of the virtual environment or installation whose interpreter is ``python``
-    (``<root>/bin/python`` -> ``<root>/lib/python3.X/site-packages``); empty where the layout is another."""
-    root = Path(python).parent.parent
-    return sorted(p for p in root.glob("lib/python3*/site-packages") if p.is_dir())
-
-
-def resolve_device(device: str, versions: Mapping[str, str]) -> str:
-    """``device`` with ``auto`` decided before a server starts, as the server would decide it: ``cuda`` where this
-    machine has an NVIDIA driver and the environment's torch is a CUDA build, else ``cpu``."""
-    if device != "auto":
-        return device
-    cuda_build = "+cu" in versions.get("torch", "") or any(name.startswith("nvidia-") for name in versions)
-    driver = Path("/dev/nvidiactl").exists() or any(Path("/proc/driver/nvidia/gpus").glob("*"))
-    return "cuda" if cuda_build and driver else "cpu"
 
 
 def model_stack(device: str, versions: Mapping[str, str]) -> dict[str, object]:

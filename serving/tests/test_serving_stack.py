@@ -4,12 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from conflictbench_serving.stack import (
-    environment_site_packages,
-    installed_versions,
-    model_stack,
-    resolve_device,
-)
+from conflictbench_serving.stack import installed_versions, model_stack
 
 
 def install(site: Path, name: str, version: str) -> None:
@@ -25,21 +20,6 @@ def test_versions_are_read_from_the_files_first_on_the_path_winning_without_inst
     install(second, "lerobot", "0.5.0")  # shadowed, as on import
     install(second, "Torch_Vision", "0.20.1")
     assert installed_versions([first, second]) == {"lerobot": "0.6.1", "torch-vision": "0.20.1"}
-
-
-def test_a_virtual_environments_site_packages_are_found_from_its_interpreter(tmp_path):
-    site = tmp_path / "env" / "lib" / "python3.12" / "site-packages"
-    install(site, "torch", "2.5.1+cpu")
-    assert environment_site_packages(tmp_path / "env" / "bin" / "python") == [site]
-    assert installed_versions(environment_site_packages(tmp_path / "env" / "bin" / "python")) == {"torch": "2.5.1+cpu"}
-    assert environment_site_packages(tmp_path / "elsewhere" / "python") == []
-
-
-def test_auto_is_decided_before_a_server_starts_and_a_chosen_device_is_kept():
-    assert resolve_device("cuda:1", {}) == "cuda:1" and resolve_device("cpu", {"torch": "2.5.1+cu124"}) == "cpu"
-    assert resolve_device("auto", {"torch": "2.5.1+cpu"}) == "cpu"  # a CPU build never runs on CUDA
-    has_driver = Path("/dev/nvidiactl").exists()
-    assert resolve_device("auto", {"torch": "2.5.1", "nvidia-cublas-cu12": "12.4"}) == ("cuda" if has_driver else "cpu")
 
 
 def test_the_stack_counts_the_device_kind_and_every_version():
