@@ -178,3 +178,12 @@ class WorkerPool:
                 slot.process.join(timeout=max(0.0, deadline - time.monotonic()))
                 if slot.process.is_alive():
                     slot.process.kill()
+
+
+def make_pool(settings: EnvSettings, size: int, backend: str = "local", ray_address: str | None = None) -> WorkerPool:
+    """A run's workers: processes here, or Ray actors on a cluster (``run.backend``)."""
+    if backend == "ray":
+        from .ray_pool import RayWorkerPool
+
+        return RayWorkerPool(settings, size, address=ray_address)
+    return WorkerPool(settings, size)

@@ -36,7 +36,7 @@ from .libero_env import EnvSettings
 from .messages import Abort, Done, EpisodeOutcome, Play, Query
 from .plan import EpisodeSpec
 from .planning import RunResult, left_to_play, run_identity
-from .pool import EpisodeQueue, Item, Slot, WorkerPool
+from .pool import EpisodeQueue, Item, Slot, WorkerPool, make_pool
 from .progress import plan_line, run_progress
 from .stack import probe_stack
 from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
@@ -133,12 +133,10 @@ class Runner:
             return result
 
         # The pool first (Ray: connecting to the cluster), so a wrong address costs no model server's start.
-        pool = self._pool = self._make_pool(settings, size=min(self.workers, len(todo)))
+        pool = self._pool = make_pool(settings, min(self.workers, len(todo)), self.backend, self.ray_address)
         pool.versions = dict(identity.stack)  # a worker on another stack than the probe's stops the run
         try:
-            start_policy(
-                self.spec, policy
-            )  # only now that there is something to play (a model server loads for minutes)
+            start_policy(self.spec, policy)  # only now that there is something to play
         except BaseException:
             pool.stop()
             raise
@@ -163,13 +161,6 @@ class Runner:
             pool.stop()
             self._bar.close()
         return result
-
-    def _make_pool(self, settings: EnvSettings, size: int) -> WorkerPool:
-        if self.backend == "ray":
-            from .ray_pool import RayWorkerPool
-
-            return RayWorkerPool(settings, size, address=self.ray_address)
-        return WorkerPool(settings, size)
 
     def _next_item(
         self, slot: Slot, queue: EpisodeQueue, deferred: list[Item], stored: set[str], busy: set, result: RunResult
