@@ -159,11 +159,12 @@ class RayWorkerPool(WorkerPool):
         super().__init__(settings, size)
         global _probe_connected
         ray = self._ray = import_ray()
-        self._owns_ray = not ray.is_initialized() or _probe_connected
+        connected = ray.is_initialized()
+        self._owns_ray = not connected or _probe_connected
         _probe_connected = False  # this pool keeps (and ends) the connection the stack probe made
         self._server: socket.socket | None = None
         self._closing = False
-        if self._owns_ray:
+        if not connected:
             connect(ray, address)
         cpus = ray.cluster_resources().get("CPU", 0)
         if cpus < size:

@@ -23,7 +23,13 @@ def test_served_actions_are_lerobots_own_sampling_and_processing(tiny_groot_chec
     policy = load("gr00t", Gr00tConfig(checkpoint=str(tiny_groot_checkpoint), max_batch=2, device="cpu"))
     try:
         policy.start()
-        assert policy.identity == {"checkpoint": fingerprint(tiny_groot_checkpoint), "max_batch": 2}
+        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
+            "checkpoint": fingerprint(tiny_groot_checkpoint),
+            "max_batch": 2,
+        }
+        assert (
+            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
+        )
         observations = [camera_observation(step, text) for step, text in [(0, "pick up the bowl"), (7, "open it")]]
         served = [policy.act(obs) for obs in observations]
         requests = [policy.encode(obs)["data"] for obs in observations]

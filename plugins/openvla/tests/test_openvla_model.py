@@ -37,7 +37,13 @@ def test_served_actions_are_the_checkpoints_own_predict_action(tiny_checkpoint, 
     policy = load("openvla", OpenVlaConfig(checkpoint=str(tiny_checkpoint), device="cpu"))
     try:
         policy.start()
-        assert policy.identity == {"checkpoint": fingerprint(tiny_checkpoint), "max_batch": 2}
+        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
+            "checkpoint": fingerprint(tiny_checkpoint),
+            "max_batch": 2,
+        }
+        assert (
+            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
+        )
         assert policy.metadata["unnorm_keys"] == ["libero_10", "libero_goal", "libero_object", "libero_spatial"]
         observations = [camera_observation(0, "Pick up the bowl", suite="libero_goal"),
                         camera_observation(3, "open the drawer", suite="libero_10", stream=1)]  # fmt: skip

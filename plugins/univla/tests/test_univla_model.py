@@ -40,7 +40,13 @@ def test_each_query_is_the_checkpoints_own_seeded_sample_and_the_loop_is_univlas
     observations = [camera_observation(step, "Put the bowl on the plate") for step in range(4)]
     try:
         policy.start()
-        assert policy.identity == {"checkpoint": fingerprint(tiny_checkpoint), "max_batch": 2}
+        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
+            "checkpoint": fingerprint(tiny_checkpoint),
+            "max_batch": 2,
+        }
+        assert (
+            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
+        )
         assert policy.window == 12
         requests, served = [], []
         for obs in observations:

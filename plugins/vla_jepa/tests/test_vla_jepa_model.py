@@ -41,7 +41,13 @@ def test_served_actions_are_lerobots_own_sampling_and_postprocessing(tiny_checkp
     try:
         policy.start()
         assert policy.metadata["chunk_length"] == 7 and policy.chunk_length == 7
-        assert policy.identity == {"checkpoint": fingerprint(tiny_checkpoint), "max_batch": MAX_BATCH}
+        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
+            "checkpoint": fingerprint(tiny_checkpoint),
+            "max_batch": MAX_BATCH,
+        }
+        assert (
+            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
+        )
         observations = [camera_observation(step, text) for step, text in [(0, "pick up the bowl"), (5, "open it")]]
         served = [policy.act(obs) for obs in observations]
         payloads = [policy.encode(obs)["payload"] for obs in observations]
