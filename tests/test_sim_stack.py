@@ -11,7 +11,7 @@ from testing_support import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, Plugins, PolicyTraits, SimulatorUnavailable
-from conflictbench.sim import runner as runner_module
+from conflictbench.sim import stack as stack_module
 from conflictbench.sim.libero_env import EnvSettings, simulator_versions
 from conflictbench.sim.plan import config_hash
 from conflictbench.sim.stack import probe_in_worker
@@ -67,12 +67,12 @@ def test_records_carry_the_renderer_of_an_image_policy_and_a_worker_on_another_s
     stack = dict(pin.split("=", 1) for pin in record.sim_stack)
     assert stack["gl_backend"] == "egl" and stack["gl_renderer"]
 
-    probed = runner_module.probe_in_worker
+    probed = stack_module.probe_in_worker
 
     def elsewhere(settings):  # what the probe says on a machine whose workers then render with another GPU
         return {**probed(settings), "gl_renderer": "NVIDIA H200/PCIe/SSE2"}
 
-    monkeypatch.setattr(runner_module, "probe_in_worker", elsewhere)
+    monkeypatch.setattr(stack_module, "probe_in_worker", elsewhere)
     with pytest.raises(SimulatorUnavailable, match=r"gl_renderer: NVIDIA H200/PCIe/SSE2 vs "):
         play("still", [reference_spec("libero_goal", 0, 1)], settings={"images": True}, plugin_set=plugins,
              store_dir=tmp_path / "mixed")  # fmt: skip

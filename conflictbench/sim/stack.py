@@ -86,9 +86,21 @@ def _probe_main(conn, settings: EnvSettings) -> None:
         conn.send(f"{type(exc).__name__}: {exc}")
 
 
+#: What the probe said in this process, by settings: a machine's installation and GL stack do not change while a
+#: process lives, and a process that plays many runs (a notebook, a test session) need not start one per run.
+_probed: dict[EnvSettings, dict[str, str]] = {}
+
+
 def probe_in_worker(settings: EnvSettings) -> dict[str, str]:
     """:func:`stack_probe` in a fresh process set up as a simulator worker is (the driver's own imports and GL state
-    are not a worker's); born ignoring Ctrl-C as the workers are (the run stops it)."""
+    are not a worker's), once a process for each settings; born ignoring Ctrl-C as the workers are (the run stops
+    it)."""
+    if settings not in _probed:
+        _probed[settings] = _probe_once(settings)
+    return dict(_probed[settings])
+
+
+def _probe_once(settings: EnvSettings) -> dict[str, str]:
     from .pool import sigint_ignored
 
     ctx = mp.get_context("spawn")
