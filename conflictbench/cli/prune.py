@@ -5,10 +5,8 @@ from __future__ import annotations
 import sys
 from collections import Counter
 from collections.abc import Sequence
-from pathlib import Path
 
-from conflictbench.cli.args import Parser
-from conflictbench.core import UserError
+from conflictbench.cli.args import Parser, store_dir
 from conflictbench.core.plugins import Plugins
 
 
@@ -26,9 +24,7 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     from conflictbench.store import EpisodeStore
     from conflictbench.store.prune import superseded
 
-    root = Path(args.store)
-    if not root.is_dir():
-        raise UserError(f"no such directory: {root}")
+    root = store_dir(args.store)
     store = EpisodeStore(root)
     old = superseded(store)
     total = len(store)

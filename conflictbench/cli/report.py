@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from conflictbench.cli.args import Parser
+from conflictbench.cli.args import Parser, store_dir
 from conflictbench.core import UserError
 from conflictbench.core.plugins import Plugins
 
@@ -28,9 +28,7 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     from conflictbench.report import report_store
     from conflictbench.store import EpisodeStore
 
-    root = Path(args.store)
-    if not root.is_dir():
-        raise UserError(f"no such directory: {root}")
+    root = store_dir(args.store)
     store = EpisodeStore(root)
     if len(store) == 0:
         raise UserError(f"{root} holds no stored episodes (expected {root}/episodes/<policy>/*.parquet)")

@@ -6,7 +6,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from conflictbench.cli.args import Parser
+from conflictbench.cli.args import Parser, store_dir
 from conflictbench.core import UserError
 from conflictbench.core.plugins import Plugins
 
@@ -44,9 +44,7 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     args = parser.parse_args(argv)
     from conflictbench.view import Selection, build_site
 
-    root = Path(args.store)
-    if not root.is_dir():
-        raise UserError(f"no such directory: {root}")
+    root = store_dir(args.store)
     if args.workers < 1:
         raise UserError("--workers must be at least 1")
     if args.suite and not Path(args.suite).is_file():
