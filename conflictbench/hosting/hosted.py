@@ -356,13 +356,24 @@ class HostedPolicy(ServedPolicy):
                 self.server.stop()
 
 
+def version_changes(old: Mapping[str, str], new: Mapping[str, str]) -> list[str]:
+    """Each name whose value differs, in words: ``name a -> b``, ``name added``, ``name removed`` (``device`` first,
+    then by name). What a run says of two stacks, the model's or the simulator's."""
+    words = []
+    for name in sorted(old.keys() | new.keys(), key=lambda n: (n != "device", n)):
+        if name not in new:
+            words.append(f"{name} removed")
+        elif name not in old:
+            words.append(f"{name} added")
+        elif old[name] != new[name]:
+            words.append(f"{name} {old[name]} -> {new[name]}")
+    return words
+
+
 def _stack_difference(counted: Mapping[str, Any], reported: Mapping[str, Any]) -> str:
     """The first few ways two model stacks differ, in words."""
-    words = []
-    if counted.get("device") != reported.get("device"):
-        words.append(f"device {counted.get('device')} -> {reported.get('device')}")
-    old, new = counted.get("packages") or {}, reported.get("packages") or {}
-    for name in sorted(old.keys() | new.keys()):
-        if old.get(name) != new.get(name):
-            words.append(f"{name} {old.get(name, '(none)')} -> {new.get(name, '(none)')}")
+    words = version_changes(
+        {"device": counted.get("device"), **(counted.get("packages") or {})},
+        {"device": reported.get("device"), **(reported.get("packages") or {})},
+    )
     return ", ".join(words[:3]) + (f" and {len(words) - 3} more" if len(words) > 3 else "")

@@ -10,6 +10,7 @@ import json
 from collections.abc import Mapping
 from pathlib import Path
 
+from conflictbench.hosting.hosted import version_changes
 from conflictbench.store import EpisodeStore
 
 from .stack import SIMULATOR_COLUMNS, extra_stack
@@ -85,15 +86,7 @@ def stack_changes(before: tuple[str, ...], now: tuple[str, ...]) -> str:
         return f"{'unreported' if 'unreported' in before else 'reported'} -> " + (
             "unreported" if "unreported" in now else "reported"
         )
-    old, new = _stack_parts(before), _stack_parts(now)
-    words = []
-    for name in sorted(old.keys() | new.keys(), key=lambda n: (n != "device", n)):
-        if name not in new:
-            words.append(f"{name} removed")
-        elif name not in old:
-            words.append(f"{name} added")
-        elif old[name] != new[name]:
-            words.append(f"{name} {old[name]} -> {new[name]}")
+    words = version_changes(_stack_parts(before), _stack_parts(now))
     more = f" and {len(words) - NAMED_FILES} more" if len(words) > NAMED_FILES else ""
     return ", ".join(words[:NAMED_FILES]) + more
 
@@ -128,8 +121,7 @@ def identity_changes(
     was = dict(pin.split("=", 1) for pin in newest["sim_stack"] or ())
     now = dict(pin.split("=", 1) for pin in extra_stack(dict(simulator)))
     if was or newest["sim_stack"] is not None:  # stores written before the column say nothing of it
-        changes += [f"{key} {was.get(key) or '(none)'} -> {now.get(key) or '(none)'}" for key in sorted(
-            was.keys() | now.keys()) if was.get(key) != now.get(key)]  # fmt: skip
+        changes += version_changes(was, now)
     if newest["model_stack"] and tuple(newest["model_stack"]) != tuple(model_stack):
         changes.append(f"model stack changed: {stack_changes(tuple(newest['model_stack']), tuple(model_stack))}")
     return changes or ["the model's identity or declared traits changed (its checkpoint, model stack, or budgets)"]
