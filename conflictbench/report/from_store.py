@@ -17,7 +17,7 @@ from conflictbench.core import EpisodeRecord, Pair
 from conflictbench.core.plugins import Plugins
 from conflictbench.metrics import evaluate_pairs
 from conflictbench.store import EpisodeStore
-from conflictbench.store.schema import ARRAY_COLUMNS, SCHEMA
+from conflictbench.store.schema import ARRAY_COLUMNS, SCHEMA, normalize_scalars
 
 from .summary import pair_up, report_frame, select_metrics
 
@@ -29,13 +29,7 @@ def light_records(store: EpisodeStore, episode_ids: Iterable[str] | None = None)
     """Every episode's keys, outcome and provenance, without its arrays."""
     rows = store.read_table(columns=KEY_COLUMNS, episode_ids=episode_ids).to_pylist()
     for row in rows:
-        row["target_names"] = tuple(row["target_names"] or ())
-        row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # stores written before the column
-        row["policy_settings"] = row["policy_settings"] or ""  # stores written before the column
-        row["policy_identity"] = row["policy_identity"] or ""  # the same
-        row["code_versions"] = tuple(row["code_versions"] or ())  # the same
-        row["model_stack"] = tuple(row["model_stack"] or ())  # the same
-        row["sim_stack"] = tuple(row["sim_stack"] or ())  # the same
+        normalize_scalars(row)
     return [EpisodeRecord(**row) for row in rows]
 
 

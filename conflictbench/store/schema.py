@@ -139,6 +139,20 @@ def _column_arrays(column: pa.ChunkedArray, inner: tuple[int, ...]) -> list[np.n
     return out
 
 
+LIST_COLUMNS = ("target_names", "code_versions", "sim_warnings", "model_stack", "sim_stack")
+TEXT_COLUMNS = ("policy_settings", "policy_identity")
+
+
+def normalize_scalars(row: dict[str, Any]) -> dict[str, Any]:
+    """A row's scalar columns as :class:`EpisodeRecord` holds them: lists as tuples, and the columns stores written
+    before them hold as null as empty."""
+    for name in LIST_COLUMNS:
+        row[name] = tuple(row[name] or ())
+    for name in TEXT_COLUMNS:
+        row[name] = row[name] or ""
+    return row
+
+
 def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
     table = table.select(SCHEMA.names)
     arrays = {
@@ -150,13 +164,7 @@ def table_to_records(table: pa.Table) -> list[EpisodeRecord]:
     scalars = table.drop_columns(list(ARRAY_COLUMNS)).to_pylist()
     records = []
     for i, row in enumerate(scalars):
-        row["target_names"] = tuple(row["target_names"] or ())
-        row["code_versions"] = tuple(row["code_versions"] or ())  # null in stores written before the column
-        row["sim_warnings"] = tuple(row["sim_warnings"] or ())  # the same
-        row["model_stack"] = tuple(row["model_stack"] or ())  # the same
-        row["sim_stack"] = tuple(row["sim_stack"] or ())  # the same
-        row["policy_settings"] = row["policy_settings"] or ""  # the same
-        row["policy_identity"] = row["policy_identity"] or ""  # the same
+        normalize_scalars(row)
         for name in ARRAY_COLUMNS:
             row[name] = arrays[name][i]
         records.append(EpisodeRecord(**row))
