@@ -13,7 +13,7 @@ import pytest
 from conflictbench.core import LEVELS
 from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.operators import spatial
-from conflictbench.tasks.scene.facts import DIRECTIONS, load_scene_facts
+from conflictbench.tasks.scene.facts import DIRECTIONS, FOOTPRINT_GAP, load_scene_facts
 from conflictbench.tasks.scene.task_model import build_model
 from conflictbench.tasks.suite.build import _to_case
 from conflictbench.tasks.validation.rules import new_context, validate_case
@@ -72,7 +72,7 @@ def test_drafts_pass_every_rule_and_directions_carry_their_margin(level, ctx):
             assert validate_case(case, ctx) == [], (case.instruction, validate_case(case, ctx))
             for r in case.witness["relations"]:
                 if r["relation"] in ("left_of", "right_of", "in_front_of", "behind"):
-                    assert r["margin_m"] >= 0.06
+                    assert r["margin_m"] >= FOOTPRINT_GAP  # the footprints' gap along the axis
             produced += 1
     assert produced >= 10
 
@@ -86,16 +86,6 @@ def test_no_relation_is_about_what_an_earlier_step_moved():
                     earlier = {e for s in acted[: r["step"] - 1] for e in s}
                     named = set(r["subject"]["entities"]) | {e for lm in r["landmarks"] for e in lm["entities"]}
                     assert not named & earlier, (case.instruction, r)
-
-
-def test_a_split_pick_up_never_describes_its_object_by_its_own_destination():
-    # once: "first pick up the yellow and white mug that is inside the microwave, next place it in the microwave"
-    for case in cases(("libero_10", 9), "L3", limit=200) + cases(("libero_object", 5), "L4", limit=200):
-        goals = [g for gs in case.witness["step_goals"] for g in gs if g[0] in ("on", "in")]
-        for r in case.witness["relations"]:
-            own = {g[2] for g in goals if g[1] in r["subject"]["entities"]}  # where this object is to go
-            if r["relation"] in ("on", "in"):
-                assert not {e for lm in r["landmarks"] for e in lm["entities"]} & own, case.instruction
 
 
 def test_an_added_step_never_moves_what_the_base_name_describes_by():
@@ -132,32 +122,6 @@ def test_a_landmark_an_earlier_step_moves_is_rejected():
     rejected(planted, "which an earlier step moves or operates")
 
 
-def test_the_split_pick_up_then_a_relation_to_the_picked_object_is_rejected():
-    case = find(
-        ("libero_10", 4), "L3", lambda c: len(c.witness["steps"]) == 3 and c.witness["relations"][0]["step"] == 3
-    )
-    steps = case.witness["steps"]
-    text = "the right plate next to the white mug"
-    planted = dataclasses.replace(
-        case,
-        instruction=f"{steps[0]}, then {steps[1]}, then put the yellow and white mug on {text}",
-        witness={
-            **case.witness,
-            "steps": [steps[0], steps[1], f"put the yellow and white mug on {text}"],
-            "relations": [
-                {
-                    "step": 3,
-                    "text": text,
-                    "relation": "next_to",
-                    "subject": {"phrase": "right plate", "entities": ["plate_2"]},
-                    "landmarks": [{"phrase": "white mug", "entities": ["porcelain_mug_1"]}],
-                }
-            ],
-        },
-    )
-    rejected(planted, "porcelain_mug_1, which an earlier step moves")
-
-
 def test_a_landmark_the_same_step_moves_is_rejected():
     case = find(("libero_object", 4), "L1", lambda c: c.witness["relations"][0]["subject"]["phrase"] == "basket")
     text = "the basket that is next to the ketchup"
@@ -184,7 +148,24 @@ def test_a_direction_false_by_less_than_the_camera_margin_is_rejected():
     pos = {k: v.copy() for k, v in m.facts.positions.items()}
     pos[subject][:, 1] = pos[landmark][:, 1] - sign * 0.04
     m.facts = dataclasses.replace(m.facts, positions=pos)
-    rejected(case, "is false by only 0.040 m; a camera needs", m)  # max(6 cm, the subject's radius)
+    rejected(case, "is false by only 0.040 m between centres; a camera needs", m)  # max(6 cm, the subject's radius)
+
+
+def test_a_direction_false_by_less_than_the_footprints_is_rejected():
+    """Suite 2.0's moka pots: centres past the 6 cm floor, footprints overlapping along the axis."""
+    key = ("libero_object", 4)
+    case = find(key, "L1", lambda c: c.witness["relations"][0]["relation"] in ("left_of", "right_of"))
+    r = case.witness["relations"][0]
+    m = model(key)
+    subject, landmark = r["subject"]["entities"][0], r["landmarks"][0]["entities"][0]
+    sign = -1.0 if r["relation"] == "left_of" else 1.0
+    pos = {k: v.copy() for k, v in m.facts.positions.items()}
+    centres = max(0.061, m.facts.direction_margin(subject))
+    pos[subject][:, 1] = pos[landmark][:, 1] - sign * centres
+    entities = dict(m.facts.entities)
+    entities[landmark] = dataclasses.replace(entities[landmark], radius=0.09)
+    m.facts = dataclasses.replace(m.facts, positions=pos, entities=entities)
+    rejected(case, "their footprints are", m)
 
 
 def test_a_misstated_or_missing_margin_is_rejected():
@@ -323,7 +304,7 @@ def test_a_direction_false_by_five_centimetres_is_now_too_close_to_see():
     pos = {k: v.copy() for k, v in m.facts.positions.items()}
     pos[subject][:, axis] = pos[landmark][:, axis] - sign * 0.054  # the 5.0-5.4 cm readers called borderline
     m.facts = dataclasses.replace(m.facts, positions=pos)
-    rejected(case, "is false by only 0.054 m; a camera needs 0.060 m", m)
+    rejected(case, "is false by only 0.054 m between centres; a camera needs 0.060 m", m)
 
 
 # -- round 1b review: a bare relation reads as a destination; a twin's bare noun is no landmark ----------

@@ -46,7 +46,7 @@ def test_directions_follow_the_camera_view_with_a_margin():
     assert f.holds("right_of", "a", "b") == {1, 2}
     assert f.false_states("left_of", "a", "b") == {2}
     assert f.holds("in_front_of", "a", "b") == {0, 1, 2}  # same x: neither clearly in front nor behind
-    f = _facts({"a": [[0.1, 0, 0]], "b": [[0, 0, 0]]})
+    f = _facts({"a": [[0.12, 0, 0]], "b": [[0, 0, 0]]})
     assert f.holds("behind", "a", "b") == set() and f.holds("in_front_of", "a", "b") == {0}
 
 
@@ -62,8 +62,9 @@ def test_between_is_lenient_about_overshoot_but_not_about_the_side():
 
 
 def test_between_is_false_only_clearly_beyond_an_end():
-    # a short b-c segment (20 cm): 15 % is 3 cm, so the 6 cm margin decides; 5 cm past c still counts
-    f = _facts({"a": [[0.25, 0, 0], [0.27, 0, 0]], "b": [[0, 0, 0]] * 2, "c": [[0.2, 0, 0]] * 2}, radius=0.0)
+    # a short b-c segment (20 cm): 15 % is 3 cm, so the footprints decide: radii 3 cm, so a must lie
+    # 3 + 3 + 1 cm past c's centre; 5 cm past still counts as between, 8 cm does not
+    f = _facts({"a": [[0.25, 0, 0], [0.28, 0, 0]], "b": [[0, 0, 0]] * 2, "c": [[0.2, 0, 0]] * 2}, radius=0.03)
     assert f.holds("between", "a", "b", "c") == {0}
 
 
@@ -88,14 +89,24 @@ def test_directional_margin_is_stated_in_code():
     assert DIRECTION_MARGIN == pytest.approx(0.06)  # 5 cm, the issue's minimum, and a centimetre of headroom
 
 
-def test_a_direction_is_false_only_by_max_of_5_cm_and_the_subject_radius():
-    # a lies 4, 6 and 9 cm to the RIGHT of b's centre: "a left of b" is false from 5 cm (radius 3 cm) ...
+def test_a_direction_is_false_only_with_the_footprints_a_centimetre_apart_along_its_axis():
+    # a lies 4, 6 and 9 cm to the RIGHT of b's centre, both of radius 3 cm: "a left of b" is false
+    # only where the footprints are apart (9 - 3 - 3 = 3 cm), not at 6 cm (they touch) ...
     f = _facts({"a": [[0, 0.04, 0], [0, 0.06, 0], [0, 0.09, 0]], "b": [[0, 0, 0]] * 3}, radius=0.03)
-    assert f.false_states("left_of", "a", "b") == {1, 2}
-    assert np.allclose(f.clearance("left_of", "a", "b"), [0.04, 0.06, 0.09])
-    # ... but a subject of radius 8 cm must lie past b's centre by its own half-extent
-    f = _facts({"a": [[0, 0.04, 0], [0, 0.06, 0], [0, 0.09, 0]], "b": [[0, 0, 0]] * 3}, radius=0.08)
     assert f.false_states("left_of", "a", "b") == {2}
+    assert np.allclose(f.clearance("left_of", "a", "b"), [0.04, 0.06, 0.09])
+    assert np.allclose(f.footprint_gap("left_of", "a", "b"), [-0.02, 0.0, 0.03])
+    # ... and things of radius 8 cm need 17 cm between centres
+    f = _facts({"a": [[0, 0.09, 0], [0, 0.16, 0], [0, 0.17, 0]], "b": [[0, 0, 0]] * 3}, radius=0.08)
+    assert f.false_states("left_of", "a", "b") == {2}
+
+
+def test_the_moka_pots_readers_flagged_are_not_in_front_of_each_other_by_a_margin():
+    """Suite 2.0: "the right moka pot in front of the left moka pot", the right pot 63-95 mm BEHIND
+    the left one and a pot's radius 91 mm: centres far enough apart, footprints overlapping."""
+    f = _facts({"right": [[-0.063, 0.1, 0], [-0.095, 0.1, 0]], "left": [[0, -0.1, 0]] * 2}, radius=0.091)
+    assert f.holds("in_front_of", "right", "left") == {0, 1}
+    assert (f.clearance("in_front_of", "right", "left") >= 0.06).all()
 
 
 # -- the shipped file -------------------------------------------------------------------------------

@@ -38,7 +38,13 @@ import random
 from conflictbench.core import ConflictCase
 from conflictbench.tasks.scene.facts import DIRECTIONS
 from conflictbench.tasks.scene.task_model import TaskModel
-from conflictbench.tasks.validation.spatial import MIN_STATES, check_relation, riders
+from conflictbench.tasks.validation.spatial import (
+    MIN_STATES,
+    check_relation,
+    frame_independent,
+    referent_combos,
+    riders,
+)
 from conflictbench.tasks.validation.structure import check_structure
 from conflictbench.tasks.validation.text import names_in
 
@@ -61,14 +67,14 @@ NEGATED = {
 
 def _subject_of(model: TaskModel, slot: Slot, part: str) -> str | None:
     if part == "object":
-        if len(slot.objects) != 1 or slot.kind not in ("place", "push", "pick", "move_aside"):
+        if len(slot.objects) != 1 or slot.kind not in ("place", "push", "move_aside"):
             return None
         if slot.objects[0] in model.goal_twins():
             # "the black bowl between the plate and the ramekin that is left of the stove": readers
             # attach the clause to the ramekin as often as to the bowl. A twin gets no spatial claim.
             return None
         return slot.objects[0]
-    if part == "dest" and slot.dest and slot.kind in ("place", "place_it", "push"):
+    if part == "dest" and slot.dest and slot.kind in ("place", "push"):
         holder = model.parent(slot.dest)
         return holder if holder in model.names and holder in model.facts.entities else None
     if part == "target" and slot.kind in ("open", "close", "turn_on", "turn_off"):
@@ -130,13 +136,14 @@ def _premise(model: TaskModel, claim: dict) -> str:
 
 
 def _margin(model: TaskModel, claim: dict, states: frozenset) -> float | None:
-    """The smallest clearance past the landmark's centre over the paired states (directions only)."""
+    """The smallest gap between the footprints along the relation's axis over the paired states
+    (directions only): how far the claim is false."""
     if claim["relation"] not in DIRECTIONS:
         return None
     idx = sorted(states)
     return round(
         min(
-            float(model.facts.clearance(claim["relation"], a, b)[idx].min())
+            float(model.facts.footprint_gap(claim["relation"], a, b)[idx].min())
             for a in claim["candidates"]
             for b in claim["landmark_groups"][0]
         ),
@@ -200,9 +207,7 @@ def _usable(model: TaskModel, frame: list[Slot], index: int, part: str) -> bool:
 def _avoid(model: TaskModel, frame: list[Slot], index: int, subject: str) -> tuple[frozenset, frozenset]:
     slot = frame[index]
     avoid = _touched(model, frame[: index + 1]) - {subject}
-    if slot.kind == "pick" and index + 1 < len(frame):  # the object it lifts is the next step's
-        avoid |= _touched(model, [frame[index + 1]]) - {subject}
-    dest = slot.step.dest if slot.kind in ("pick", "place", "place_it", "push") else None
+    dest = slot.step.dest if slot.kind in ("place", "push") else None
     holder_avoid = frozenset({dest, model.parent(dest)} - {None}) if dest else frozenset()
     if dest and not model.dest_phrases[dest][0]:  # "to the right of the plate": no claim about the plate
         avoid |= {e for e in model.names if names_in(model.dest_phrases[dest][1], {model.name(e)})}
@@ -254,6 +259,9 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
             "subject": {"phrase": bare(c["subject"]), "entities": sorted(c["candidates"])},
             "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in c["landmark_phrases"]],
             **({"margin_m": _margin(model, c, states)} if c["relation"] in DIRECTIONS else {}),
+            "frame_independent": frame_independent(
+                model, c["relation"], referent_combos([sorted(c["candidates"]), *c["landmark_groups"]]), states
+            ),
         }
         for i, part, c, text in chosen
     ]
@@ -265,7 +273,12 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
             step_label(level, i, f"{part} relation ({c['relation'].replace('_', ' ')})") for i, part, c, _ in chosen
         ),
         premise="; ".join(_premise(model, c) for _, _, c, _ in chosen),
-        witness={"type": "false_relation", **frame_witness(model, frame, steps), "relations": relations},
+        witness={
+            "type": "false_relation",
+            **frame_witness(model, frame, steps),
+            "relations": relations,
+            "frame_independent": all(r["frame_independent"] for r in relations),
+        },
         init_states=None if states == model.facts.states() else tuple(sorted(states)),
         operator="spatial.false_relation",
     )

@@ -36,10 +36,15 @@ SHIPPED = "scene_facts.jsonl"
 DIRECTION_MARGIN = 0.06
 """``a left of b`` counts as false only where a's centre lies on the OTHER side of b's centre (to
 its right) by at least ``max(DIRECTION_MARGIN, radius of a)``: 6 cm, or a's own horizontal
-half-extent where a is larger, so that a's whole footprint is past b's centre. 5 cm is the least a
-256-px camera image shows; 6 cm keeps a centimetre of headroom over what a reader measures from
-rounded positions (readers flagged 5.0-5.4 cm as borderline). Closer than that, the lenient
-reading counts the relation as (possibly) true."""
+half-extent where a is larger. 5 cm is the least a 256-px camera image shows; 6 cm keeps a
+centimetre of headroom over what a reader measures from rounded positions (readers flagged
+5.0-5.4 cm as borderline). Closer than that, the lenient reading counts the relation as (possibly) true."""
+FOOTPRINT_GAP = 0.01
+"""...and only where the two FOOTPRINTS are apart along the relation's axis by at least this: the
+centre distance along the axis minus both radii. Centres alone are not enough: two moka pots of
+radius 91 mm whose centres are 63-95 mm apart overlap along the axis, and readers called "the right
+pot in front of the left one" a matter of opinion (suite 2.0's review). Suite 2.1 asks for a
+visible centimetre between the footprints."""
 NEAR_GAP = 0.10
 """``a next to b`` holds leniently when the gap between their footprints is at most this."""
 FAR_GAP = 0.25
@@ -48,8 +53,9 @@ FAR_GAP = 0.25
 so a claimed-false one needs things clearly apart: a quarter metre between their footprints."""
 BETWEEN_OVERSHOOT = 0.15
 """``a between b and c``: the projection of a on segment b-c may overshoot either end by this
-fraction of the segment, and by at least ``max(DIRECTION_MARGIN, radius of a)``, and still count as
-between (lenient): "between" is false only where a is clearly beyond an end or off the line."""
+fraction of the segment, and until a's footprint is ``FOOTPRINT_GAP`` past that end's footprint
+along the line, and still count as between (lenient): "between" is false only where a is clearly
+beyond an end or off the line."""
 BETWEEN_OFFSET = 0.25
 """``a between b and c``: a may sit this far (plus its own radius) off the b-c line (lenient). Readers
 of suite 2.0 still called a thing 15-20 cm off the line, but between the two from the camera's side,
@@ -132,9 +138,11 @@ class TaskFacts:
                 raise SceneFactsError(f"{self.suite} task {self.task_id} has no entity {name!r}")
         if relation in DIRECTIONS:
             clear = self.clearance(relation, args[0], args[1])
-            return frozenset(int(i) for i in np.flatnonzero(clear < self.direction_margin(args[0])))
+            apart = self.footprint_gap(relation, args[0], args[1])
+            near = (clear < self.direction_margin(args[0])) | (apart < FOOTPRINT_GAP)
+            return frozenset(int(i) for i in np.flatnonzero(near))
         if relation == "next_to":
-            gap = self._gap(args[0], args[1])
+            gap = self.footprint_distance(args[0], args[1])
             return frozenset(int(i) for i in np.flatnonzero(gap <= FAR_GAP))
         if relation == "between":
             return self._between(*args)
@@ -154,9 +162,18 @@ class TaskFacts:
         axis, sign = DIRECTIONS[relation]
         return -sign * (self.positions[a][:, axis] - self.positions[b][:, axis])
 
-    def _gap(self, a: str, b: str) -> np.ndarray:
+    def footprint_gap(self, relation: str, a: str, b: str) -> np.ndarray:
+        """Per state: how far a's footprint lies past b's on the side OPPOSITE to ``relation``, along
+        its axis (metres): the centre clearance minus both radii; negative where they overlap."""
+        return self.clearance(relation, a, b) - self._radius(a) - self._radius(b)
+
+    def _radius(self, name: str) -> float:
+        return self.entities[name].radius or 0.0
+
+    def footprint_distance(self, a: str, b: str) -> np.ndarray:
+        """Per state: the horizontal gap between the two footprints (metres; negative where they overlap)."""
         dist = np.linalg.norm(self.positions[a][:, :2] - self.positions[b][:, :2], axis=1)
-        return dist - (self.entities[a].radius or 0.0) - (self.entities[b].radius or 0.0)
+        return dist - self._radius(a) - self._radius(b)
 
     def _between(self, a: str, b: str, c: str) -> frozenset:
         pa, pb, pc = (self.positions[n][:, :2] for n in (a, b, c))
@@ -165,8 +182,10 @@ class TaskFacts:
         t = ((pa - pb) * seg).sum(axis=1) / length2
         length = np.sqrt(length2)
         off = np.abs(seg[:, 0] * (pa - pb)[:, 1] - seg[:, 1] * (pa - pb)[:, 0]) / length
-        over = np.maximum(BETWEEN_OVERSHOOT, self.direction_margin(a) / length)  # as a fraction of b-c
-        ok = (t > -over) & (t < 1 + over) & (off <= BETWEEN_OFFSET + (self.entities[a].radius or 0.0))
+        ra = self._radius(a)
+        past_b = np.maximum(BETWEEN_OVERSHOOT * length, ra + self._radius(b) + FOOTPRINT_GAP)  # metres past b
+        past_c = np.maximum(BETWEEN_OVERSHOOT * length, ra + self._radius(c) + FOOTPRINT_GAP)
+        ok = (t * length > -past_b) & ((t - 1) * length < past_c) & (off <= BETWEEN_OFFSET + ra)
         return frozenset(int(i) for i in np.flatnonzero(ok))
 
     def _support(self, relation: str, a: str, b: str) -> frozenset:

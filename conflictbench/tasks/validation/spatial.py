@@ -10,8 +10,14 @@ and, for a direction, ``margin_m``. A relation is valid when:
   :meth:`.scene.facts.TaskFacts.holds`, for no combination of the entities its words could denote,
   in no initial state the case is paired with (all 50, or at least ``MIN_STATES`` listed ones).
 - **Visibly false**: a direction (left/right of, in front of, behind) is false by at least
-  ``max(6 cm, the subject's radius)`` past the landmark's centre, as recomputed from the scene
-  facts; the witness's ``margin_m`` is that smallest clearance over the paired states.
+  ``max(6 cm, the subject's radius)`` past the landmark's centre AND with the two footprints a
+  centimetre apart along its axis (``FOOTPRINT_GAP``), in every paired state, as recomputed from the
+  scene facts; the witness's ``margin_m`` is that smallest footprint gap. "Between" is false only
+  past an end by the footprints too; "next to" is measured between footprints already.
+- **In LIBERO's frame, and said whether the robot's agrees**: directions are the agentview camera's
+  (LIBERO's own task language: left = the image's left, -y; front = toward the camera, +x). Each
+  relation records ``frame_independent``: whether it is also false read from the robot's side
+  (left and right, front and behind swapped); the witness's flag is whether all are.
 - **Still false when reached**: no entity of the relation (subject or landmark, or their parent
   fixture) is moved or operated by an EARLIER step (the witness's ``step_entities`` and what the
   steps' goals imply), nor rests on or in a thing such a step moves (:func:`riders`: a bowl on the
@@ -36,7 +42,7 @@ from __future__ import annotations
 
 from conflictbench.core import ConflictCase
 from conflictbench.tasks.scene.affordances import category
-from conflictbench.tasks.scene.facts import DIRECTIONS, RELATIONS
+from conflictbench.tasks.scene.facts import DIRECTIONS, FOOTPRINT_GAP, RELATIONS
 from conflictbench.tasks.scene.task_model import TaskModel
 
 from .text import names_in
@@ -65,6 +71,10 @@ SAME_AXIS_WORDS = {
 RIDER_RISE = 0.005
 """A thing touching another counts as resting on it when its origin is this much higher (metres): a
 bowl on the cookie box sits 8 mm above the box's origin, a plate merely grazing a bowl 3 mm."""
+ROBOT_FRAME = {"left_of": "right_of", "right_of": "left_of", "in_front_of": "behind", "behind": "in_front_of"}
+"""A direction read from the robot's side of the table, as LIBERO's (the camera's) frame says it: the
+robot faces the camera, so its left is the image's right and its front (nearer the robot) the
+camera's behind."""
 MARGIN_SLACK = 0.0015
 """Positions are stored in millimetres: a witness margin may differ from the recomputed one by this."""
 
@@ -79,7 +89,19 @@ def check_relation(case: ConflictCase, model: TaskModel, states: frozenset) -> l
     for r in relations:
         out += _one_relation(case, model, states, r, steps, acted)
     out += _claims_and_level(case, relations)
+    every = all(isinstance(r, dict) and r.get("frame_independent") is True for r in relations)
+    if case.witness.get("frame_independent") is not every:
+        out.append(f"witness frame_independent must be {every}: whether every relation is false in both frames")
     return out
+
+
+def frame_independent(model: TaskModel, rel: str, combos: list[list[str]], states: frozenset) -> bool:
+    """Is the claim also false read from the robot's side (:data:`ROBOT_FRAME`), in every paired
+    state and for every combination of what its words could denote? Relations without a direction
+    read the same from anywhere."""
+    if rel not in ROBOT_FRAME:
+        return True
+    return not any(model.facts.holds(ROBOT_FRAME[rel], *combo) & states for combo in combos)
 
 
 def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: list[set[str]]) -> list[str]:
@@ -118,9 +140,15 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
     out += _landmarks_single(model, r)
     out += _holder(model, rel, groups)
     out += _when_reached(r, groups, acted, model)
-    combos = _product(groups)
+    combos = referent_combos(groups)
     if rel in DIRECTIONS:
         out += _margin(r, rel, combos, model, states)
+    independent = frame_independent(model, rel, combos, states)
+    if r.get("frame_independent") is not independent:
+        out.append(
+            f"witness frame_independent {r.get('frame_independent')!r} for {rel}: the claim is "
+            f"{'also' if independent else 'not'} false read from the robot's side ({independent})"
+        )
     for combo in combos:
         true_in = facts.holds(rel, *combo) & states
         if true_in:
@@ -129,7 +157,8 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
 
 
 def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states: frozenset) -> list[str]:
-    """A direction must be false by what a camera shows: recomputed here, and the witness must agree."""
+    """A direction must be false by what a camera shows, measured between FOOTPRINTS along the
+    relation's axis in every paired state: recomputed here, and the witness's margin_m must agree."""
     facts, out = model.facts, []
     idx = sorted(states)
     smallest = None
@@ -137,13 +166,19 @@ def _margin(r: dict, rel: str, combos: list[list[str]], model: TaskModel, states
         clear = float(facts.clearance(rel, a, b)[idx].min())
         need = facts.direction_margin(a)
         if clear < need:
-            out.append(f"{rel}({a}, {b}) is false by only {clear:.3f} m; a camera needs {need:.3f} m")
-        smallest = clear if smallest is None else min(smallest, clear)
+            out.append(f"{rel}({a}, {b}) is false by only {clear:.3f} m between centres; a camera needs {need:.3f} m")
+        apart = float(facts.footprint_gap(rel, a, b)[idx].min())
+        if apart < FOOTPRINT_GAP:
+            out.append(
+                f"{rel}({a}, {b}): their footprints are {apart:.3f} m apart along the axis (overlapping where "
+                f"negative); a false direction needs {FOOTPRINT_GAP:.3f} m"
+            )
+        smallest = apart if smallest is None else min(smallest, apart)
     said = r.get("margin_m")
     if not isinstance(said, int | float):
         out.append(f"a {rel.replace('_', ' ')} relation needs its margin_m in the witness")
     elif smallest is not None and abs(said - smallest) > MARGIN_SLACK:
-        out.append(f"witness margin_m {said} does not match the scene facts ({smallest:.3f} m)")
+        out.append(f"witness margin_m {said} does not match the scene facts' footprint gap ({smallest:.3f} m)")
     return out
 
 
@@ -260,10 +295,9 @@ def _when_reached(r: dict, groups: list[list[str]], acted: list[set[str]], model
 
 def acted_per_step(case: ConflictCase, model: TaskModel) -> list[set[str]]:
     """Per step, the entities it moves or operates: what the witness's ``step_entities`` says, what
-    the step's goals imply (the moved objects; the operated region and its fixture), the object a
-    pick-up step lifts (the next step's), for an added step everything it names outside its
-    relation phrases (a step the goals do not describe is read conservatively), and whatever rests
-    on or in any of those."""
+    the step's goals imply (the moved objects; the operated region and its fixture), for an added
+    step everything it names outside its relation phrases (a step the goals do not describe is read
+    conservatively), and whatever rests on or in any of those."""
     w = case.witness
     steps = w.get("steps", [])
     said = w.get("step_entities") or [[] for _ in steps]
@@ -286,8 +320,6 @@ def acted_per_step(case: ConflictCase, model: TaskModel) -> list[set[str]]:
     for i in range(len(steps)):
         here = set(map(str, said[i] if i < len(said) else [])) | moved(goals[i] if i < len(goals) else [])
         role = roles[i] if i < len(roles) else "original"
-        if role == "original" and not (goals[i] if i < len(goals) else []) and i + 1 < len(goals):
-            here |= moved(goals[i + 1])  # "pick up the bowl", then "place it on the plate"
         if role == "added":
             rest = steps[i]
             for t in texts.get(i + 1, []):
@@ -324,7 +356,7 @@ def _claims_and_level(case: ConflictCase, relations: list) -> list[str]:
     return out
 
 
-def _product(groups: list[list[str]]) -> list[list[str]]:
+def referent_combos(groups: list[list[str]]) -> list[list[str]]:
     combos: list[list[str]] = [[]]
     for g in groups:
         combos = [c + [x] for c in combos for x in g if x not in c]
