@@ -14,6 +14,7 @@ import pytest
 
 from conflictbench.tasks.operators.contradictions import explain, why_not
 from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.validation.factors import factor_components
 
 BOWL_ON_PLATE = ("libero_goal", 8)  # put the bowl on the plate
 MIDDLE_DRAWER = ("libero_goal", 0)  # open the middle drawer of the cabinet
@@ -110,11 +111,17 @@ def _case(key, level, ctx, where=lambda d: True):
     return _to_case(base_task(*key), next(d for d in _drafts(key, level, ctx) if where(d)))
 
 
+def _recount(case):
+    """The case with its factor_components derived again from its edited witness."""
+    witness = {**case.witness, "factor_components": factor_components(case.witness, "contradiction")}
+    return dataclasses.replace(case, witness=witness)
+
+
 def _planted(case, constraint_text, literal, mode="simultaneous"):
     """The case's step goal with a different constraint, written into the instruction."""
     goal = case.witness["requirements"][0]
     body = case.witness["steps"][0]
-    return dataclasses.replace(
+    planted = dataclasses.replace(
         case,
         instruction=f"{body} {constraint_text}",
         witness={
@@ -123,6 +130,7 @@ def _planted(case, constraint_text, literal, mode="simultaneous"):
             "conflicts": [[goal["id"], "r9", mode]],
         },
     )
+    return _recount(planted)
 
 
 def _reasons(case, ctx):
@@ -170,22 +178,8 @@ def test_a_constraint_on_another_entity_is_rejected(ctx):
 
 @pytest.mark.sim
 def test_not_grasping_is_rejected(ctx):
-    case = _case(BOWL_ON_PLATE, "L3", ctx, where=lambda d: d.witness["requirements"][0]["literal"][0] == "do")
-    goal = case.witness["requirements"][0]
-    text = "without grasping the bowl"
-    planted = dataclasses.replace(
-        case,
-        instruction=case.instruction.replace(goal["text"], f"{goal['text']} {text}", 1),
-        witness={
-            **case.witness,
-            "requirements": [
-                goal,
-                {"id": "r9", "step": goal["step"], "text": text, "literal": ["keep", "ungrasped", BOWL]},
-            ],
-            "conflicts": [[goal["id"], "r9", "simultaneous"]],
-        },
-    )
-    _rejected(planted, ctx, "scooped")
+    case = _case(BOWL_ON_PLATE, "L1", ctx)
+    _rejected(_planted(case, "without grasping the bowl", ["keep", "ungrasped", BOWL]), ctx, "scooped")
 
 
 @pytest.mark.sim
@@ -249,49 +243,13 @@ def test_l4_needs_factors_in_two_steps(ctx):
     _rejected(planted, ctx, "does not match the witness")
 
 
-def _on_pick_half(d):
-    steps = d.witness["steps"]
-    return (
-        len(steps) == 2
-        and steps[0].startswith(("pick up", "lift"))
-        and any(r["step"] == 1 and r["literal"][:2] == ["keep", "still"] for r in d.witness["requirements"])
-    )
-
-
 def _moved_constraint(case, step, literal=None):
     reqs = [dict(r) for r in case.witness["requirements"]]
     constraint = next(r for r in reqs if r["literal"][0] == "keep")
     constraint["step"] = step
     if literal:
         constraint["literal"] = literal
-    return dataclasses.replace(case, witness={**case.witness, "requirements": reqs})
-
-
-@pytest.mark.sim
-@pytest.mark.parametrize("robot", [False, True])
-def test_any_constraint_on_the_placing_half_of_a_split_is_rejected(ctx, robot):
-    case = _case(BOWL_ON_PLATE, "L3", ctx, where=_on_pick_half)
-    assert _reasons(case, ctx) == []  # a still object against lifting it
-    moved = _moved_constraint(case, 2)
-    if robot:
-        reqs = moved.witness["requirements"]
-        arm = "without moving the robot arm"
-        constraint = next(r for r in reqs if r["literal"][0] == "keep")
-        instruction = moved.instruction.replace(constraint["text"], arm, 1)
-        constraint.update(text=arm, literal=["keep", "still", "robot"])
-        moved = dataclasses.replace(moved, instruction=instruction)
-    _rejected(moved, ctx, "placing half of a split")
-
-
-@pytest.mark.sim
-def test_a_still_object_against_grabbing_it_is_rejected(ctx):
-    case = _case(BOWL_ON_PLATE, "L3", ctx, where=_on_pick_half)
-    verb = case.witness["steps"][0].split(" the ")[0]  # "pick up" or "lift"
-    steps = ["grab" + case.witness["steps"][0][len(verb) :], *case.witness["steps"][1:]]
-    planted = dataclasses.replace(
-        case, instruction=case.instruction.replace(verb, "grab", 1), witness={**case.witness, "steps": steps}
-    )
-    _rejected(planted, ctx, "need not move")
+    return _recount(dataclasses.replace(case, witness={**case.witness, "requirements": reqs}))
 
 
 @pytest.mark.sim
@@ -306,7 +264,7 @@ def test_untouched_on_a_pushing_step_is_rejected(ctx):
     from conflictbench.tasks.libero.base_tasks import base_task
     from conflictbench.tasks.suite.build import _to_case
 
-    key = ("libero_object", 0)
+    key = ("libero_spatial", 0)  # the cookie box stands by the bowl: "push the cookie box aside" is true
     case = _to_case(base_task(*key), next(d for d in _drafts(key, "L3", ctx, limit=400) if pushed_still(d)))
     assert _reasons(case, ctx) == []  # keeping the pushed thing still contradicts pushing it
     literal = next(r["literal"] for r in case.witness["requirements"] if r["literal"][0] == "keep")

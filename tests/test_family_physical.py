@@ -97,12 +97,15 @@ def test_undecided_or_held_affordances_are_not_violations(ctx):
     rejected(with_violations(good, [{**v, "text": "fold the plate in half"}]), ctx, "is not in the instruction")
 
 
-def test_size_comes_from_the_table_sizes(ctx):
-    good = one(("libero_10", 5), "L3", lambda c: c.witness["violations"][0]["kind"] == "size")
-    v = good.witness["violations"][0]
-    assert v["entity"] == "black_book_1" and v["holder"] == "white_yellow_mug_1"
+def test_size_comes_from_the_table_sizes():
+    from conflictbench.tasks.validation.physical import _denied
+
+    m = model(("libero_10", 5))
+    present = set(m.problem.objects) | set(m.problem.fixtures)
+    v = {"kind": "size", "needs": "fits_in", "entity": "black_book_1", "holder": "white_yellow_mug_1"}
+    assert _denied(m, {**v, "text": "put the black book inside the yellow and white mug"}, present) == []
     swapped = {**v, "entity": "white_yellow_mug_1", "holder": "black_book_1"}  # a mug is smaller than a book
-    rejected(with_violations(good, [swapped]), ctx, "may fit inside")
+    assert any("may fit inside" in r for r in _denied(m, {**swapped, "text": "x"}, present))
 
 
 def test_level_shapes(ctx):
@@ -215,32 +218,26 @@ def test_pouring_and_boxes_as_holders_are_rejected(ctx):
     rejected(with_violations(good, [boxed]), ctx, "invites opening")
 
 
-@pytest.mark.parametrize("level", ["L1", "L2"])
-def test_a_size_manner_names_the_object_again(ctx, level):
-    """'squeeze the black bowl into the ramekin and put the black bowl on the plate': after a holder,
-    'it' could mean the ramekin, so the object is named in full; the holder is a plain, smaller container."""
-    sized = [c for c in cases(("libero_spatial", 8), level) if "size" in physical_kinds(c)]
-    assert sized
-    for case in sized:
-        assert validate_case(case, ctx) == [], case.instruction
-        v = next(v for v in case.witness["violations"] if v["kind"] == "size")
-        assert v["holder"] == "glazed_rim_porcelain_ramekin_1" and v["entity"] == "akita_black_bowl_1"
-        assert " it " not in f" {case.instruction} " and "inside the ramekin and" not in case.instruction
-        assert case.instruction.index("the ramekin") < case.instruction.rindex("on the plate")
-    # the ramekin is in the object's own name here: never the holder ("the bowl next to the ramekin into the ramekin")
-    assert not [c for lv in ("L1", "L2") for c in cases(("libero_spatial", 1), lv) if "size" in physical_kinds(c)]
+def test_a_too_small_holder_inside_an_original_step_is_rejected(ctx):
+    """'squeeze the black bowl into the ramekin and set the black bowl down on the plate' is two
+    placements (suite 2.0's readers): a size violation is an added step of its own, never a manner."""
+    good = one(("libero_spatial", 8), "L1", lambda c: c.witness["steps"][0].startswith("pick up"))
+    body = good.witness["steps"][0]
+    verb = body.split(" the ")[0]
+    squeezed = body.replace(verb, "squeeze", 1).replace(" and ", " into the ramekin and ", 1)
+    size = {
+        "step": 1,
+        "kind": "size",
+        "needs": "fits_in",
+        "entity": "akita_black_bowl_1",
+        "holder": "glazed_rim_porcelain_ramekin_1",
+        "text": squeezed.split(" and ")[0],
+    }
+    rejected(replaced_text(good, body, squeezed, [size]), ctx, "a step of its own, not a manner")
 
 
 def physical_kinds(case):
     return {v["kind"] for v in case.witness["violations"]}
-
-
-def test_a_size_manner_followed_by_it_is_rejected(ctx):
-    good = one(("libero_spatial", 8), "L1", lambda c: "size" in physical_kinds(c))
-    body = good.witness["steps"][0]
-    named = body[body.rindex(" and ") + 1 :].split(" on the plate")[0]  # "set the black bowl down"
-    pronoun = named.replace("the black bowl", "it")
-    rejected(replaced_text(good, named, pronoun, good.witness["violations"]), ctx, "pronoun")
 
 
 def test_a_box_is_never_a_size_holder():
@@ -269,28 +266,6 @@ def test_no_step_grasps_what_it_or_the_step_before_grasped(ctx, key):
             assert grasps_again(case, ctx) == [], case.instruction
 
 
-def test_a_switch_on_the_placing_half_names_the_object_and_grasps_nothing(ctx):
-    """After 'take the bowl', the placing half is 'switch on the bowl and put the bowl on the plate':
-    no second pick-up, and no 'it' after a verb that grasps nothing."""
-    key = ("libero_spatial", 0)
-    split = [
-        c
-        for level in ("L3", "L4")
-        for c in cases(key, level)
-        if any(v["kind"] == "switch" for v in c.witness["violations"])
-    ]
-    found = 0
-    for case in split:
-        for i, body in enumerate(case.witness["steps"][1:], start=1):
-            if body.startswith(("switch on", "turn on")) and case.witness["steps"][i - 1].startswith(
-                ("pick up", "take", "grab", "lift")
-            ):
-                found += 1
-                assert " it " not in f" {body} ", body
-                assert validate_case(case, ctx) == [], case.instruction
-    assert found
-
-
 def test_a_repeated_grasp_is_rejected(ctx):
     key = ("libero_spatial", 0)
     good = one(key, "L1", lambda c: c.witness["steps"][0].startswith("pick up"))
@@ -298,8 +273,3 @@ def test_a_repeated_grasp_is_rejected(ctx):
     twice = body.replace(", switch on the black bowl", ", switch on the black bowl, lift the black bowl")
     assert twice != body
     rejected(replaced_text(good, body, twice, good.witness["violations"]), ctx, "twice")
-    split = one(key, "L3", lambda c: len(c.witness["steps"]) == 2 and c.witness["steps"][0].startswith("take"))
-    first, second = split.witness["steps"]
-    again = f"pick up the black bowl between the plate and the ramekin, then {second}"
-    assert not grasps_again(split, ctx)
-    rejected(replaced_text(split, second, again, split.witness["violations"]), ctx, "again right after step 1")

@@ -9,6 +9,7 @@ import dataclasses
 import pytest
 
 from conflictbench.core import ConflictCase
+from conflictbench.tasks.validation.factors import factor_components
 from conflictbench.tasks.validation.rules import new_context, validate_case, validate_cases
 
 pytestmark = pytest.mark.sim  # LIBERO's base tasks
@@ -47,6 +48,7 @@ def case(key, instruction, steps, roles, goals, *, family="instruction", level=N
         "conflicts": [["r1", "r2", "simultaneous"]],
         **witness,
     }
+    witness.setdefault("factor_components", factor_components(witness, "contradiction"))
     from conflictbench.tasks.libero.base_tasks import base_task
 
     return ConflictCase(
@@ -72,7 +74,7 @@ def test_a_whole_observable_case_passes(ctx):
         [[], [["on", BOWL, "plate_1"]]],
     )
     assert validate_case(good, ctx) == []
-    # the same constraint on the placing half of a split pick-and-place is refused (the bowl is in hand)
+    # a split pick-and-place is one step written twice
     split = case(
         ("libero_goal", 8),
         "pick up the bowl, then put it on the plate without moving the robot arm",
@@ -80,7 +82,7 @@ def test_a_whole_observable_case_passes(ctx):
         ["original", "original"],
         [[], [["on", BOWL, "plate_1"]]],
     )
-    assert any("placing half" in r for r in validate_case(split, ctx)), validate_case(split, ctx)
+    assert any("has no goal of its own" in r for r in validate_case(split, ctx)), validate_case(split, ctx)
 
 
 def test_an_added_step_after_the_original_task_is_rejected(ctx):
@@ -107,6 +109,7 @@ def test_an_added_step_after_the_original_task_is_rejected(ctx):
             ],
         },
     )
+    late = _recount(late)
     reasons = validate_case(late, ctx)
     assert any("come after the original task's first step" in r for r in reasons), reasons
     # The same steps with the added one first are observable.
@@ -130,7 +133,7 @@ def test_an_added_step_after_the_original_task_is_rejected(ctx):
             ],
         },
     )
-    assert validate_case(early, ctx) == []
+    assert validate_case(_recount(early), ctx) == []
 
 
 def test_a_dropped_subgoal_is_rejected(ctx):
@@ -160,6 +163,12 @@ def test_a_step_that_does_not_name_its_goal_is_rejected(ctx):
     assert any(f"does not name {BOWL}" in r for r in reasons), reasons
 
 
+def _recount(c: ConflictCase) -> ConflictCase:
+    """The case with its factor_components derived again from its (edited) witness."""
+    witness = {**c.witness, "factor_components": factor_components(c.witness, "contradiction")}
+    return dataclasses.replace(c, witness=witness)
+
+
 def test_a_step_marked_original_that_achieves_nothing_is_rejected(ctx):
     sneaky = case(
         ("libero_goal", 8),
@@ -169,7 +178,120 @@ def test_a_step_marked_original_that_achieves_nothing_is_rejected(ctx):
         [[], [["on", BOWL, "plate_1"]]],
     )
     reasons = validate_case(sneaky, ctx)
-    assert any("marked original but achieves nothing" in r for r in reasons), reasons
+    assert any("step 1 has no goal of its own" in r for r in reasons), reasons
+
+
+# -- suite 2.1: what a step is, and L4's factors (each pattern of suite 2.0's review, planted) -------
+def test_a_split_pick_and_place_is_one_step_not_two(ctx):
+    """Pattern 1: "grab the bowl, then put it on the plate" is LIBERO's one manipulation written twice;
+    labelled L3 it is an L1 case."""
+    split = case(
+        ("libero_goal", 8),
+        "grab the bowl, then put it on the plate without moving the robot arm",
+        ["grab the bowl", "put it on the plate"],
+        ["original", "original"],
+        [[], [["on", BOWL, "plate_1"]]],
+    )
+    reasons = validate_case(split, ctx)
+    assert any("step 1 has no goal of its own: reaching for an object and placing it is one step" in r for r in reasons)
+    whole = case(
+        ("libero_goal", 8),
+        "put the bowl on the plate without moving the robot arm",
+        ["put the bowl on the plate"],
+        ["original"],
+        [[["on", BOWL, "plate_1"]]],
+    )
+    assert validate_case(whole, ctx) == []
+
+
+def _two_step_robot_still(second: list) -> ConflictCase:
+    """libero_goal 8 as an L4: open the top drawer (added) then the bowl on the plate, each step with
+    a constraint; ``second`` is the second step's constraint literal."""
+    steps = ["open the top drawer of the cabinet", "put the bowl on the plate"]
+    texts = {
+        ("keep", "still", "robot"): "without moving the robot arm",
+        ("keep", "untouched", BOWL): "without touching the bowl",
+    }
+    instruction = f"{steps[0]} without moving the robot arm, then {steps[1]} {texts[tuple(second)]}"
+    drawer = "wooden_cabinet_1_top_region"
+    witness = {
+        "requirements": [
+            {"id": "r1", "step": 1, "text": steps[0], "literal": ["goal", "open", drawer]},
+            {"id": "r2", "step": 1, "text": "without moving the robot arm", "literal": ["keep", "still", "robot"]},
+            {"id": "r3", "step": 2, "text": steps[1], "literal": ["goal", "on", BOWL, "plate_1"]},
+            {"id": "r4", "step": 2, "text": texts[tuple(second)], "literal": second},
+        ],
+        "conflicts": [["r1", "r2", "simultaneous"], ["r3", "r4", "simultaneous"]],
+        "step_entities": [[drawer, "wooden_cabinet_1"], [BOWL]],
+    }
+    c = case(
+        ("libero_goal", 8),
+        instruction,
+        steps,
+        ["added", "original"],
+        [[], [["on", BOWL, "plate_1"]]],
+        level="L4",
+        **witness,
+    )
+    return _recount(c)
+
+
+def test_l4_needs_two_distinct_factors_not_one_constraint_repeated(ctx):
+    """Pattern 2: "... without the robot arm moving at all" after each step is one global conflict."""
+    repeated = _two_step_robot_still(["keep", "still", "robot"])
+    reasons = validate_case(repeated, ctx)
+    assert any("L4 needs two distinct factors in different steps" in r for r in reasons), reasons
+    distinct = _two_step_robot_still(["keep", "untouched", BOWL])
+    assert not [r for r in validate_case(distinct, ctx) if "distinct factors" in r]
+    components = distinct.witness["factor_components"]
+    assert [(c["step"], c["entities"]) for c in components] == [
+        (1, ["robot", "wooden_cabinet_1_top_region"]),
+        (2, [BOWL, "plate_1"]),
+    ]
+
+
+def test_an_added_step_may_not_claim_a_far_thing_is_in_the_way(ctx):
+    """Pattern 4: "move the cookie box out of the way" where the box stands apart from all the task
+    touches; the same step worded without the claim passes."""
+    key = ("libero_object", 0)
+    model = ctx.model(key)
+    far = "salad_dressing_1"
+    assert not model.in_the_way(far)
+    name = model.name(far)
+    task = "pick up the alphabet soup and place it in the basket"
+    for wording, claims in ((f"move {name} out of the way", True), (f"pick up {name} and set it back down", False)):
+        c = case(
+            key,
+            f"{wording}, then {task} without moving the robot arm",
+            [wording, task],
+            ["added", "original"],
+            [[], [["in", "alphabet_soup_1", "basket_1_contain_region"]]],
+            step_entities=[[far], ["alphabet_soup_1"]],
+        )
+        reasons = [r for r in validate_case(c, ctx) if "claims" in r]
+        assert bool(reasons) == claims, (wording, reasons)
+    # where the thing does stand by what the task touches, the claim is allowed
+    assert ctx.model(("libero_spatial", 0)).in_the_way("cookies_1")
+
+
+def test_a_base_task_of_two_manipulations_has_no_single_step_case(ctx):
+    """Pattern 5: "put both the soup and the sauce in the basket" is two manipulations: not L1."""
+    key = ("libero_object", 0)
+    from conflictbench.tasks.libero.base_tasks import all_base_tasks
+
+    task = next(t for t in all_base_tasks() if t.language.startswith("put both"))
+    a, b = sorted({atom[1] for atom in task.goal})
+    dest = next(iter({atom[2] for atom in task.goal}))
+    c = case(
+        task.key,
+        f"{task.language} without moving the robot arm",
+        [task.language],
+        ["original"],
+        [[list(atom) for atom in task.goal]],
+        step_entities=[[a, b]],
+    )
+    reasons = validate_case(c, ctx)
+    assert any("a single-step level on a base task of 2 manipulations" in r for r in reasons), (key, dest, reasons)
 
 
 @pytest.mark.parametrize(

@@ -11,6 +11,7 @@ import pytest
 from conflictbench.core import FAMILIES, LEVELS
 from conflictbench.tasks.libero.base_tasks import all_base_tasks
 from conflictbench.tasks.scene.facts import load_scene_facts
+from conflictbench.tasks.suite.build import SUITE_VERSION
 from conflictbench.tasks.suite.file import load_suite
 from conflictbench.tasks.validation.rules import Context, new_context, normalise, validate_case, validate_cases
 
@@ -308,4 +309,4 @@ def test_no_old_case_id_is_reused_for_new_text(suite):
     shared = [c for c in suite.cases if c.case_id in old]
     for c in shared:
         assert hashlib.sha256(c.instruction.encode()).hexdigest()[:16] == old[c.case_id], c.case_id
-    assert suite.version == "2.0.0"
+    assert suite.version == SUITE_VERSION == "2.1.0"

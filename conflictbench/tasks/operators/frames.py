@@ -6,13 +6,18 @@ An operator is ``generate(model, level, rng) -> iterable of Draft``: given a bas
 - L1: one step, one conflict factor;
 - L2: one step, several factors on that same requirement;
 - L3: several ordered steps, one factor in one step, the other steps plausible;
-- L4: several steps, factors in at least two of them.
+- L4: several steps, two distinct factors in different steps.
+
+A *step* is a manipulation with its own goal: an object moved to a place, an articulated fixture
+changed, a device switched. Reaching for an object and placing it is ONE step (suite 2.0 wrote
+"grab the bowl, then put it on the plate" as two; readers in every family counted it as one).
 
 A *frame* is the list of steps an instruction will have; every frame asks for the WHOLE base task.
-The single-step frame is the base task's one step (tasks of two subgoals have none); multi-step
-frames take all base steps when there are several, split a pick-and-place into "pick up X" then
-"place it ...", or put a plausible extra step the scene allows BEFORE the base task (open a closed
-drawer, switch on a stove that is off, move a bystander object out of the way).
+The single-step frame is the base task's one step of one object (a task of two subgoals, such as
+"put both X and Y in the basket", has none); multi-step frames take all base steps when there are
+several, give each object of a two-object placing its own step, or put a plausible extra step the
+scene allows BEFORE the base task (open a closed drawer, switch on a stove that is off, move a
+bystander object: "out of the way" only where it stands near what the task touches).
 
 Built-in operators register through the ``conflictbench_register_conflict_operators`` hook like
 any plugin's (:mod:`conflictbench.tasks` holds the implementation).
@@ -49,13 +54,12 @@ class Draft:
 @dataclass
 class Slot:
     kind: str
-    """Clause kind: place, push, pick, place_it, open, close, turn_on, turn_off, move_aside."""
+    """Clause kind: place, push, open, close, turn_on, turn_off, move_aside."""
     step: Step
     objects: tuple[str, ...]
     dest: str | None = None
     prep: str | None = None
     aux: bool = False
-    pronoun: bool = False
 
 
 @dataclass
@@ -116,30 +120,24 @@ def _carries(model: TaskModel, entity: str) -> bool:
 
 
 def single_frames(model: TaskModel) -> list[list[Slot]]:
-    """One step asking for the whole base task: only a base task of one step has one (a task of two
-    subgoals cannot be asked whole in a single step, so its L1 and L2 cells stay empty)."""
-    return [[slot_of(model.steps[0])]] if len(model.steps) == 1 else []
+    """One step asking for the whole base task: only a base task of one manipulation has one (a task
+    of two subgoals, "put both X and Y in the basket" included, is two manipulations, so its L1 and
+    L2 cells stay empty)."""
+    one = len(model.steps) == 1 and len(model.steps[0].goal) == 1
+    return [[slot_of(model.steps[0])]] if one else []
 
 
 def multi_frames(model: TaskModel) -> list[list[Slot]]:
-    """Several steps that together ask for the whole base task. Added steps only ever come FIRST:
-    an episode ends as soon as the original goal holds, so a step after the original ones is never
-    reached and a conflict there could not be observed."""
+    """Several steps, each a manipulation with its own goal, that together ask for the whole base
+    task. Added steps only ever come FIRST: an episode ends as soon as the original goal holds, so a
+    step after the original ones is never reached and a conflict there could not be observed."""
     frames: list[list[Slot]] = []
     if len(model.steps) >= 2:
         frames.append([slot_of(s) for s in model.steps])
     for i, step in enumerate(model.steps):
-        rest_before = [slot_of(s) for s in model.steps[:i]]
-        rest_after = [slot_of(s) for s in model.steps[i + 1 :]]
-        if step.kind == "place" and len(step.objects) == 1:
-            split = [
-                Slot("pick", step, step.objects),
-                Slot("place_it", step, step.objects, step.dest, step.prep, pronoun=True),
-            ]
-            frames.append(rest_before + split + rest_after)
-        elif step.kind == "place" and len(step.objects) == 2:
+        if step.kind == "place" and len(step.objects) == 2:
             one = [Slot("place", step, (o,), step.dest, step.prep) for o in step.objects]
-            frames.append(rest_before + one + rest_after)
+            frames.append([slot_of(s) for s in model.steps[:i]] + one + [slot_of(s) for s in model.steps[i + 1 :]])
     if len(model.steps) == 1:
         for aux in aux_steps(model):
             frames.append([aux, slot_of(model.steps[0])])
@@ -147,14 +145,10 @@ def multi_frames(model: TaskModel) -> list[list[Slot]]:
 
 
 def step_goals(slot: Slot) -> list[list[str]]:
-    """The base task's goal literals a step of a frame achieves (none for a pick-up or an added step)."""
-    if slot.aux or slot.kind == "pick":
+    """The base task's goal literals a step of a frame achieves (none for an added step)."""
+    if slot.aux:
         return []
-    return [
-        list(atom)
-        for atom in slot.step.goal
-        if slot.kind not in ("place", "push", "place_it") or atom[1] in slot.objects
-    ]
+    return [list(atom) for atom in slot.step.goal if slot.kind not in ("place", "push") or atom[1] in slot.objects]
 
 
 def acted_on(model: TaskModel, slot: Slot) -> list[str]:
@@ -182,6 +176,9 @@ def frames_for_level(model: TaskModel, level: str) -> list[list[Slot]]:
 
 
 AUX_FRAMES = {"move_aside": ("move {o} out of the way", "push {o} aside", "slide {o} to one side")}
+"""Wordings of an added step that claim something of the scene: only where it is true (``in_the_way``)."""
+PLAIN_AUX_FRAMES = {"move_aside": ("pick up {o} and set it back down", "lift {o} and put it back down")}
+"""The same added step, claiming nothing: for a bystander far from what the task touches."""
 
 
 def realise(
@@ -197,16 +194,14 @@ def realise(
         dest = m.dest if m.dest is not None else (model.dest_text(slot.dest, slot.prep) if slot.dest else None)
         frame_text = m.frame
         if frame_text is None and slot.kind in AUX_FRAMES:
-            frame_text = AUX_FRAMES[slot.kind][rng.randrange(len(AUX_FRAMES[slot.kind]))]
+            wordings = AUX_FRAMES if model.in_the_way(slot.objects[0]) else PLAIN_AUX_FRAMES
+            frame_text = wordings[slot.kind][rng.randrange(len(wordings[slot.kind]))]
         clause = Clause(
             slot.kind,
             obj,
             dest,
             plural=len(slot.objects) > 1,
             frame=frame_text,
-            # "pick up X, then put it ..." only as the first two steps: after any earlier step "it"
-            # could be what that step handled ("lift the stove, then fold the bottle, then place it")
-            pronoun=slot.pronoun and m.obj is None and i == 1 and frame[0].kind == "pick",
             extras=list(m.extras),
             locating=m.locating or (m.obj is None and bool(set(slot.objects) & model.goal_twins())),
         )

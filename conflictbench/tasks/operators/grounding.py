@@ -21,9 +21,7 @@ out-of-domain referents:
 - ``out_of_domain``: an item of ``data/absent_referents.jsonl`` absent here: "the banana".
 
 A receptacle referent is never a word a reader could map onto an open receptacle present
-(:func:`.lexicon.receptacle_problem`: no "bucket" beside a desk caddy). When the object of a split's
-pick-up half is replaced, the placing half refers to it by "it" ("take the avocado, then put it in
-the top drawer"); frames whose placing half would name the original object instead do not replace it.
+(:func:`.lexicon.receptacle_problem`: no "bucket" beside a desk caddy).
 
 Levels: L1 one step, one referent; L2 one step, the object AND its destination or receptacle
 (two different roles, so both change what can be grounded); L3 several steps, one referent in an
@@ -119,9 +117,7 @@ def _dest_role(model: TaskModel, slot: Slot) -> str | None:
 def _roles(model: TaskModel, slot: Slot) -> list[str]:
     if slot.kind in ("place", "push"):
         return ["object"] + ([_dest_role(model, slot)] if _dest_role(model, slot) else [])
-    if slot.kind == "place_it":
-        return [_dest_role(model, slot)] if _dest_role(model, slot) else []
-    if slot.kind in ("pick", "move_aside", "open", "close", "turn_on", "turn_off"):
+    if slot.kind in ("move_aside", "open", "close", "turn_on", "turn_off"):
         return ["object"]
     return []
 
@@ -146,7 +142,7 @@ def _fits(model: TaskModel, slot: Slot, picks: dict[str, tuple[str, Referent]]) 
     """Sizes agree: what goes in is smaller than the receptacle (or that is large); a surface is at
     least as large as what goes on it."""
     dest_role = _dest_role(model, slot)
-    if slot.kind not in ("place", "push", "place_it") or dest_role is None:
+    if slot.kind not in ("place", "push") or dest_role is None:
         return True
     if "object" in picks:
         obj_size = picks["object"][1].size
@@ -233,17 +229,8 @@ def _premise(refs: list[Referent]) -> str:
     return "the scene holds no " + ", no ".join(names[:-1]) + f" and no {names[-1]}"
 
 
-def _usable(frame: list[Slot], index: int, role: str) -> bool:
-    """The object of a split's pick-up half only where the placing half says "it" (the first two
-    steps): a placing half that names the object again would name the ORIGINAL one, so the absent
-    thing would never be needed."""
-    if role != "object" or frame[index].kind != "pick":
-        return True
-    return index == 0 and len(frame) > 1 and frame[1].kind == "place_it" and frame[1].pronoun
-
-
 def _combos(model: TaskModel, level: str, frame: list[Slot]) -> list[list[tuple[int, str]]]:
-    slot_roles = [(i, r) for i, slot in enumerate(frame) for r in _roles(model, slot) if _usable(frame, i, r)]
+    slot_roles = [(i, r) for i, slot in enumerate(frame) for r in _roles(model, slot)]
     original = [(i, r) for i, r in slot_roles if not frame[i].aux]
     if level in ("L1", "L3"):
         return [[sr] for sr in original]

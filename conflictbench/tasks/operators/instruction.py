@@ -5,17 +5,11 @@ Rules (suite 2.0), each enforced again by :mod:`conflictbench.tasks.validation.i
 - Every contradiction is SIMULTANEOUS: a constraint that holds throughout a step against the
   step's own goal. Per step kind:
 
-  * moving steps (place, push, pick up, move aside): keep the moved object still, never touch
+  * moving steps (place, push, move aside): keep the moved object still, never touch
     the moved object, or keep the robot arm still, except:
   * pushing steps (push, slide, shove, move aside), "move X onto Y" and closing a drawer or door:
     never "untouched", since the thing can be pushed with another held object; a place step constrained "untouched" is
     written with a carrying verb (put, place, pick up ... and put), never "move";
-  * the pick-up half of a split: a still or untouched object only with a verb that entails
-    lifting ("pick up", "lift"): grabbing or taking need not move the object;
-  * the placing half of a split ("pick up X, then place it ..."): NO constraint at all; every
-    wording is disputable there ("put it down without touching the sauce" reads as releasing it,
-    "while keeping the book fixed" as setting it down securely, and a still arm can be met by
-    carrying X over the destination while picking it up);
   * state steps (open, close, turn on): keep the operated drawer, door or stove in the opposite
     state the whole time, never touch the operated thing itself, or keep the robot arm still.
 
@@ -43,6 +37,7 @@ from dataclasses import dataclass
 from conflictbench.tasks.scene.affordances import category, load_table
 from conflictbench.tasks.scene.lexicon import words as _words
 from conflictbench.tasks.scene.task_model import TaskModel
+from conflictbench.tasks.validation.factors import distinct_spread, factors_of
 
 from .contradictions import EXCLUSIVE, already
 from .frames import Draft, Mods, Slot, frame_witness, frames_for_level, realise, step_label
@@ -84,11 +79,9 @@ KEEP = {  # the state kept, against a step that must bring about the opposite
         ("keep {x} switched on the whole time", "make sure {x} stays on throughout"),
     ),
 }
-MOVING = ("place", "push", "pick", "move_aside")
+MOVING = ("place", "push", "move_aside")
 PUSHING = ("push", "move_aside")
 """Steps an "untouched" constraint does not contradict: the thing can be pushed with a held object."""
-LIFTING = ("pick up {o}", "lift {o}")
-"""Pick-up frames for a still or untouched object: "grab"/"take" need not move it."""
 STATES = ("open", "close", "turn_on", "turn_off")
 LABELS = {
     "still": "goal vs. keeping the moved object still",
@@ -167,8 +160,6 @@ def constraint_name(model: TaskModel, entity: str, rng: random.Random) -> str | 
 
 
 def _goal(slot: Slot, obj: str) -> list:
-    if slot.kind == "pick":
-        return ["do", "lift", obj]
     if slot.kind == "move_aside":
         return ["goal", "moved", obj]
     return ["goal", *next(a for a in slot.step.goal if obj in a[1:2])]
@@ -182,7 +173,9 @@ def _constraint(model: TaskModel, slot: Slot, kind: str, rng: random.Random) -> 
         goal = _goal(slot, obj)
         noun = bare(_full_name(model, obj))
         where = model.dest_text(slot.dest, slot.prep) if slot.dest else ""
-        must = {"pick": "be picked up", "move_aside": "be moved out of the way"}.get(slot.kind, f"go {where}")
+        # as the added step is worded (frames.realise): "out of the way" only where that is true
+        aside = "be moved out of the way" if model.in_the_way(obj) else "be picked up"
+        must = {"move_aside": aside}.get(slot.kind, f"go {where}")
         x = constraint_name(model, obj, rng)
         if x is None and kind != "robot":
             return None
@@ -251,11 +244,9 @@ def _phrase(made: list[Constraint], rng: random.Random) -> list[str]:
 
 
 def _frame(model: TaskModel, slot: Slot, made: list[Constraint], rng: random.Random) -> str | None:
-    """A verb frame the constraints need: a lifting verb for a still or untouched pick-up, a carrying
-    verb (never "move X onto Y", which pushing meets) for an untouched place step; else ``None``."""
+    """A verb frame the constraints need: a carrying verb (never "move X onto Y", which pushing meets)
+    for an untouched place step; else ``None``."""
     kinds = {c.kind for c in made}
-    if slot.kind == "pick" and kinds & {"still", "untouched"}:
-        return choose(rng, LIFTING)
     if slot.kind == "place" and "untouched" in kinds:
         obj = model.name(slot.objects[0]) if slot.objects[0] in model.names else ""
         options = [f for f in frames_for("place", slot.prep, slot.dest, obj) if not f.startswith("move ")]
@@ -310,6 +301,9 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
         rid = f"r{len(requirements) + 1}"
         requirements.append({"id": rid, "step": index + 1, "text": text, "literal": constraint.literal})
         conflicts.append([goal_ids[key], rid, "simultaneous"])
+    witness = {"requirements": requirements, "conflicts": conflicts}
+    if level == "L4" and not distinct_spread(factors_of(witness, "contradiction")):
+        return None  # "... without moving the arm" after each step is one global conflict, not two factors
     return Draft(
         family="instruction",
         level=level,
@@ -319,8 +313,7 @@ def _draft(model: TaskModel, level: str, frame: list[Slot], combo, rng: random.R
         witness={
             "type": "contradiction",
             **frame_witness(model, frame, steps),
-            "requirements": requirements,
-            "conflicts": conflicts,
+            **witness,
         },
         operator="instruction.contradiction",
     )

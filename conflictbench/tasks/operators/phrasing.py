@@ -24,8 +24,6 @@ PLACE = (
 PLACE_ON = ("set {o} {d}",)
 PLACE_IN = ("drop {o} {d}", "stow {o} {d}")
 PUSH = ("push {o} {d}", "slide {o} {d}", "shove {o} {d}")
-PICK = ("pick up {o}", "grab {o}", "lift {o}", "take {o}")
-PLACE_IT = ("place {it} {d}", "put {it} {d}", "set {it} down {d}")
 OPEN = ("open {o}", "pull open {o}")
 OPEN_DOOR = ("open {o}", "swing open the door of {o}")
 CLOSE = ("close {o}", "shut {o}", "push {o} closed")
@@ -60,8 +58,6 @@ class Clause:
     plural: bool = False
     frame: str | None = None
     """Fixed frame (physical verb swaps); otherwise one is chosen for ``kind``."""
-    pronoun: bool = False
-    """Refer to the object as it/them (it was named by the previous step)."""
     locating: bool = False
     """The object phrase carries a locating modifier ("the bowl behind the stove"): only frames
     that close the object phrase before the destination ("pick up X and put it ...") are used, so
@@ -75,17 +71,14 @@ class Clause:
         frame = self.frame
         if frame is None:
             options = frames_for(self.kind, prep, self.dest, self.obj)
-            if self.kind == "place_it" and not self.pronoun:  # the object named again, not "it"
-                options = tuple(f.replace("{it}", "{o}") for f in options)
             if self.locating:
                 options = tuple(f for f in options if "{o} and" in f) or options
             frame = choose(rng, options)
         it = "them" if self.plural or self.obj.startswith("both ") else "it"
-        obj = it if self.pronoun else self.obj
         dest = self.dest or ""
         if frame.startswith(("move ", "slide ", "shove ")) and dest.startswith(("on the ", "in the ")):
             dest = ("onto " if dest.startswith("on ") else "into ") + dest[3:]  # "move the cup onto the plate"
-        self.body = frame.format(o=obj, d=dest, it=it).replace("  ", " ").strip()
+        self.body = frame.format(o=self.obj, d=dest, it=it).replace("  ", " ").strip()
         self.text = " ".join([self.body, *self.extras]).replace(" ,", ",")
         return self.text
 
@@ -102,10 +95,6 @@ def frames_for(kind: str, prep: str | None, dest: str | None, obj: str) -> tuple
         return ("put {o} {d}", "place {o} {d}", "move {o} {d}")
     if kind == "push":
         return PUSH
-    if kind == "pick":
-        return PICK
-    if kind == "place_it":
-        return PLACE_IT
     if kind == "open":
         return OPEN if "drawer" in obj else OPEN_DOOR if "microwave" in obj else ("open {o}",)
     if kind == "close":

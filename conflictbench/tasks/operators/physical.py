@@ -22,9 +22,8 @@ Rules of the family (re-checked by :mod:`conflictbench.tasks.validation.physical
   bottle mouth, a box sits on a carton laid down): the ``support`` kind is never generated. A fixed
   fixture is always MOVED (lifted, carried, put somewhere with the object), never only held or
   touched: gripping a fixture in place is possible.
-- **One pick-up per object.** No step grasps its object twice, nor grasps what the step before just
-  picked up: after "take the bowl", the placing half is "switch on the bowl and put the bowl on the
-  plate", never "pick up the bowl, switch on the bowl and ...".
+- **One pick-up per object.** No step grasps its object twice: a switch that follows another
+  manner is "switch on the bowl", never "pick up the bowl, switch on the bowl and ...".
 - **Readable.** One step never repeats a connective: two fixtures added to one step are
   coordinated ("together with the cabinet and the stove"), not chained.
 - **Levels.** L1: one violation in the one step. L2: two violations of that one step, each
@@ -55,10 +54,8 @@ from .physical_wordings import (
     MANNERS,
     NAMED_TAILS,
     OPEN_ALONE,
-    PICK_INTO,
     PREMISES,
     RIGID_ALONE,
-    SQUEEZE_INTO,
     SWITCH_ALONE,
     SWITCH_HELD,
     TAILS,
@@ -142,16 +139,6 @@ def _too_big(model: TaskModel, item: str, holder: str) -> bool:
     return bool(holds) and fits_inside(model.category_of(item), model.category_of(holder)) is False
 
 
-def _small_holders(model: TaskModel, item: str) -> list[str]:
-    """Plain containers of the scene too small for the task's own object, never a target or landmark of
-    the task ("the bowl next to the ramekin into the ramekin") nor a box, carton, bag or package."""
-    return [
-        h
-        for h in _objects(model, _exclusions(model))
-        if _too_big(model, item, h) and not any(w in model.name(h) for w in NOT_HOLDERS)
-    ]
-
-
 def _exclusions(model: TaskModel) -> set[str]:
     """What an added step never acts on: the task's own objects and destinations (with their
     fixtures and landmarks, also those in a locating name), so no step's goal is touched."""
@@ -185,17 +172,12 @@ def slot_options(model: TaskModel, index: int, slot: Slot, second: bool = False)
             denied = _opens_never(model, o) if kind == "articulation" else info.lacks(needs)
             if not denied:
                 continue
-            if kind in GRASPING_KINDS or slot.kind in ("pick", "place_it") or second:
-                # the placing half of a split is never "pick up X, switch on X ...": its object was
-                # just picked up, so a second grasp would repeat the step before
+            if kind in GRASPING_KINDS or second:
                 out.append(Option(index, kind, needs, "manner", MANNERS[kind], o))
             else:
                 out.append(Option(index, kind, needs, "manner", SWITCH_HELD, o))
-        for h in _small_holders(model, o):
-            if slot.kind == "pick":
-                out.append(Option(index, "size", "fits_in", "body", PICK_INTO, o, h))
-            else:
-                out.append(Option(index, "size", "fits_in", "manner", SQUEEZE_INTO, o, h))
+        # No size manner ("squeeze X into H and put X on the plate"): putting X into H is a placement
+        # with its own goal, a step of its own (suite 2.1); a too-small holder stays an added step.
     if slot.kind in LIFT_FIRST and one and _heavy_fixture(model, model.parent(o)):
         out.append(Option(index, "fixed", "graspable", "body", LIFT_FIRST[slot.kind], model.parent(o)))
     return out
@@ -250,14 +232,6 @@ def _fill(model: TaskModel, text: str, slot: Slot, option: Option) -> str:
     return text.format(O=o, S=short, X=model.name(x), H=model.name(h) if h else "", P=p, d=d)
 
 
-def _rename_next(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], index: int) -> None:
-    """After a rewritten pick-up, the next step names its object: "it" only follows a plain pick-up
-    of that one object ("put the bowl inside the ramekin, then place it ...": bowl or ramekin?)."""
-    after = index + 1
-    if frame[index].kind == "pick" and after < len(frame) and frame[after].pronoun:
-        mods.setdefault(after, Mods()).obj = _object_name(model, frame[after].objects[0])
-
-
 def _apply_manners(model, frame, mods, options: list[Option], rng: random.Random) -> list[dict]:
     """One step with one or two manners of its object: "open up the bowl, fold the bowl in half and
     put it on the plate". Each violation's text runs from the step's start to its own manner."""
@@ -275,7 +249,6 @@ def _apply_manners(model, frame, mods, options: list[Option], rng: random.Random
     texts = [joiner.join(parts[: i + 1]) for i in range(len(parts))]
     body = texts[-1] + (" and " + _fill(model, rng.choice(tails), slot, options[0]) if tails else "")
     mods.setdefault(options[0].step, Mods()).frame = body
-    _rename_next(model, frame, mods, options[0].step)
     return [_violation(o, t) for o, t in zip(options, texts, strict=True)]
 
 
@@ -286,8 +259,6 @@ def _apply(model: TaskModel, frame: list[Slot], mods: dict[int, Mods], option: O
     m.frame = _fill(model, body, slot, option)
     if option.role == "aux":
         m.obj = model.name(option.entity)
-    else:
-        _rename_next(model, frame, mods, option.step)
     return _violation(option, _fill(model, part, slot, option))
 
 

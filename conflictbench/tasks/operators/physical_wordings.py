@@ -34,37 +34,23 @@ SWITCH_HELD = (("pick up {O}, switch on {S}", "switch on {S}"), ("take {O}, turn
 its antecedent ("pick up the ketchup, switch on the ketchup and put it in the basket")."""
 GRASPING_KINDS = ("rigidity", "articulation")
 """Manners that grasp the object, so a later "put it" has its antecedent; "switch on X and put it"
-has none, so a switch comes second or in a pick-up step (whose next step names the object)."""
+has none, so a switch comes second or is picked up first (:data:`SWITCH_HELD`)."""
 TAILS = {
     "place": ("put it {d}", "place it {d}", "set it down {d}"),
-    "place_it": ("put it {d}", "place it {d}", "set it down {d}"),
     "push": ("slide it {d}",),
-    "pick": (),
 }
 """What follows the manners in the same step: the original action on "it" (the one object handled)."""
 NAMED_TAILS = {
     "place": ("put {S} {d}", "place {S} {d}", "set {S} down {d}"),
-    "place_it": ("put {S} {d}", "place {S} {d}", "set {S} down {d}"),
     "push": ("slide {S} {d}",),
-    "pick": (),
 }
 """The tails after a step that brought in a holder: "squeeze the bowl into the ramekin and put it ..."
 could mean the ramekin, so the object is named again."""
-SQUEEZE_INTO = (
-    ("squeeze {O} into {H}", "squeeze {S} into {H}"),
-    ("stuff {O} into {H}", "stuff {S} into {H}"),
-    ("fit {O} into {H}", "fit {S} into {H}"),
-)
-"""A size manner of the step's own object, done before it is put down: into a container a whole size
-class smaller ("squeeze the black bowl into the ramekin and put the black bowl on the plate"). Never
-"put X inside H": "put the bowl on the cookie box inside the ramekin" reads as one location."""
 LIFT_FIRST = {
     "open": (("lift {P} and open {O}", "lift {P}"), ("pick up {P} and open {O}", "pick up {P}")),
     "close": (("lift {P} and close {O}", "lift {P}"), ("pick up {P} and close {O}", "pick up {P}")),
 }
 """A fixture moved before it (or its drawer) is operated: the lift comes first, so it is reached."""
-PICK_INTO = (("put {O} inside {H}", "{O} inside {H}"), ("fit {O} inside {H}", "{O} inside {H}"))
-"""The pick-up half of a split step: the object must first go inside a container too small for it."""
 RIGID_ALONE = (("fold {X} in half", "fold {X} in half"), ("bend {X} in half", "bend {X} in half"))
 OPEN_ALONE = (("open {X}", "open {X}"), ("open up {X}", "open up {X}"))
 SWITCH_ALONE = (("switch on {X}", "switch on {X}"), ("turn on {X}", "turn on {X}"), ("turn {X} on", "turn {X} on"))

@@ -12,11 +12,17 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from conflictbench.tasks.libero.base_tasks import BaseTask
 from conflictbench.tasks.scene.affordances import category, load_table
 from conflictbench.tasks.scene.facts import TaskFacts
 from conflictbench.tasks.scene.lexicon import region_names, region_phrase
 
+IN_THE_WAY_GAP = 0.10
+"""An added "move X out of the way" is true only where X's footprint comes within this of what the
+task moves or of its destination (the "next to" distance of the scene facts): suite 2.0's readers
+found "move the cookie box out of the way" with the box 16-25 cm from anything the task touches."""
 STATE_KINDS = {"open": "open", "close": "close", "turnon": "turn_on", "turnoff": "turn_off"}
 _TABLE_REGION = re.compile(r"^(?P<landmark>[a-z]+(?:_[a-z]+)*?)_(?P<side>left|right|front|back)_region$")
 _SIDES = {"right": "to the right of", "left": "to the left of", "front": "to the front of", "back": "behind"}
@@ -105,6 +111,20 @@ class TaskModel:
         """Named entities with an unnamed twin: their name holds the base task's own relation."""
         twins = {self.category_of(e) for e in self.unnamed}
         return {e for e in self.names if self.category_of(e) in twins}
+
+    def in_the_way(self, entity: str, states: frozenset | None = None) -> bool:
+        """Could moving the entity "out of the way" be true: is its footprint within
+        :data:`IN_THE_WAY_GAP` of a thing the base task moves, or of where it goes, in every state?"""
+        near = [
+            t
+            for t in {self.parent(t) for t in self.targets()}
+            if t != entity and t in self.facts.entities and self.facts.entities[t].kind != "region"
+        ]
+        idx = sorted(states if states is not None else self.facts.states())
+        if not near or not idx:
+            return False
+        gaps = np.min([self.facts.footprint_distance(entity, t)[idx] for t in near], axis=0)
+        return bool((gaps <= IN_THE_WAY_GAP).all())
 
     def always(self, *atom: str) -> bool:
         return self.facts.predicate(*atom) == self.facts.states()

@@ -22,18 +22,35 @@ from conflictbench.tasks.scene.facts import load_scene_facts
 from conflictbench.tasks.scene.task_model import TaskModel, build_model
 from conflictbench.tasks.suite.file import format_suite
 from conflictbench.tasks.suite.review import apply_reviews, load_reviews
+from conflictbench.tasks.validation.factors import bears_on, with_components
 from conflictbench.tasks.validation.rules import Context, new_context, normalise, validate_case
 
 SUITE_NAME = "conflictvla"
-SUITE_VERSION = "2.0.0"
+SUITE_VERSION = "2.1.0"
 """Bumped whenever a case's text changes (2.0.0: every conflict observable, whole originals, truly
 unsatisfiable contradictions, camera-visible spatial margins, broader grounding and physical families,
-every case reviewed)."""
+every case reviewed; 2.1.0: a step is a manipulation with its own goal, L4's factors distinct and
+said per component, directions false between footprints and flagged for the robot's frame, added
+steps that claim nothing false)."""
 DEFAULT_SEED = 0
-PER_CELL = {"instruction": 3, "grounding": 3, "spatial": 3, "physical": 3, "physical/L2": 5}
+PER_CELL = {
+    "instruction": 3,
+    "grounding": 3,
+    "spatial": 3,
+    "physical": 3,
+    "grounding/L2": 4,
+    "spatial/L1": 4,
+    "spatial/L2": 4,
+    "physical/L1": 4,
+    "physical/L2": 6,
+}
 """Cases kept per (base task, family, level); ``family/level`` overrides a family's number for one
-level (physical L2: few one-step tasks offer two violations that each stand alone, so the ones that
-do give more); fewer where a task offers fewer valid candidates."""
+level; fewer where a task offers fewer valid candidates. Since suite 2.1 only the 30 base tasks of
+one manipulation have a single-step frame, and in the single-step cells where fewer than three of
+them offer valid candidates, three each would leave the cell a few review removals from 80: those
+take four (physical L2 six: only 16 one-step tasks offer two violations that each stand alone, once
+a too-small holder is a step of its own rather than a manner). Raising a number only appends cases:
+the selection picks in the same order."""
 MAX_CANDIDATES = 400
 """Candidates drawn per (task, family, level, operator) before selection: bounds build time."""
 SUITE_ABBREV = {"libero_spatial": "spa", "libero_object": "obj", "libero_goal": "goal", "libero_10": "l10"}
@@ -95,6 +112,8 @@ def _select(drafts: list[Draft], k: int, rng: random.Random, accept: Callable[[D
     rng.shuffle(order)
     for key in order:
         rng.shuffle(groups[key])
+        groups[key].sort(key=_bearing)  # stable: bearing drafts last, so popped first
+    order.sort(key=lambda g: not any(_bearing(d) for d in groups[g]))
     chosen: list[Draft] = []
     seen: set[str] = set()
     while len(chosen) < k and any(groups[g] for g in order):
@@ -107,6 +126,11 @@ def _select(drafts: list[Draft], k: int, rng: random.Random, accept: Callable[[D
                 chosen.append(d)
                 break
     return chosen
+
+
+def _bearing(d: Draft) -> bool:
+    """An L4 draft whose later step depends on what an earlier factor is about: preferred."""
+    return d.level == "L4" and bears_on(with_components(d.witness))
 
 
 def generate_task_cases(
@@ -168,7 +192,7 @@ def _to_case(task, d: Draft) -> ConflictCase:
         level=d.level,
         factors=tuple(d.factors),
         premise=d.premise,
-        witness=d.witness,
+        witness=with_components(d.witness),
         status="accepted",
         init_states=d.init_states,
     )

@@ -28,6 +28,7 @@ from importlib import resources
 from pathlib import Path
 
 from conflictbench.core import ConflictCase, UserError
+from conflictbench.tasks.validation.factors import with_components
 
 REVIEW_FILE = "review.jsonl"
 DECISIONS = ("accepted", "revised", "removed")
@@ -157,7 +158,8 @@ def apply_reviews(
                 case,
                 instruction=d.instruction,
                 premise=d.premise or case.premise,
-                witness=d.witness or case.witness,
+                # which components each factor touches follows from the reviewer's witness
+                witness=with_components(d.witness) if d.witness else case.witness,
                 status="revised",
             )
             if ctx is not None:

@@ -14,9 +14,6 @@ Per referent the witness gives ``step``, ``role``, ``text``, ``concept``, ``sour
 - a ``receptacle`` referent (other than a wrong colour) is no word a reader could map onto an open
   receptacle present (:func:`~conflictbench.tasks.scene.lexicon.receptacle_problem`: "the bucket"
   reads as the desk caddy);
-- a referent that replaces the object of a split's pick-up half is the object of the placing half
-  right after it: that step says "it" or names the referent, never the original object (then the
-  absent thing is never needed);
 - at L2 the two referents replace two DIFFERENT roles of the one step: the object and its
   destination or receptacle; no referent repeats a concept of another.
 """
@@ -29,9 +26,6 @@ from conflictbench.tasks.scene.affordances import load_table
 from conflictbench.tasks.scene.lexicon import absence_problem, attribute_problem, receptacle_problem, scene_categories
 from conflictbench.tasks.scene.lexicon import concept as absent_concept
 from conflictbench.tasks.scene.task_model import TaskModel
-
-from .structure import PRONOUN
-from .text import normalise
 
 ROLES = ("object", "destination", "receptacle")
 SOURCES = ("libero", "attribute", "out_of_domain")
@@ -73,23 +67,6 @@ def _stands_in_for(r: dict, case: ConflictCase, model: TaskModel) -> str | None:
     return None
 
 
-def _placing_problem(r: dict, case: ConflictCase, model: TaskModel) -> str | None:
-    """A replaced pick-up object must be what the placing half right after it places."""
-    w, index = case.witness, int(r["step"]) - 1
-    if r.get("role") != "object" or index + 1 >= len(w["steps"]) or w["step_goals"][index]:
-        return None  # not a pick-up half (that step achieves nothing by itself)
-    placed = {str(g[1]) for g in w["step_goals"][index + 1] if len(g) >= 2}
-    if r.get("replaces") not in placed:
-        return None
-    after = normalise(w["steps"][index + 1])
-    if PRONOUN.search(after) or str(r.get("text", "")) in w["steps"][index + 1]:
-        return None
-    return (
-        f"step {index + 2} places {after!r}, not the referent {r.get('text')!r} that step {index + 1} picks up: "
-        "the absent thing is never needed"
-    )
-
-
 def check_absent(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
     out = []
     refs = case.witness.get("referents", [])
@@ -114,7 +91,6 @@ def check_absent(case: ConflictCase, model: TaskModel, states: frozenset) -> lis
             phrase, concept = text.removeprefix("the "), str(r.get("concept", ""))
             synonyms = referent_synonyms(concept, str(r.get("source")))
             why = receptacle_problem(phrase, synonyms, model.problem)
-        why = why or _placing_problem(r, case, model)
         if why:
             out.append(f"referent {text!r} is not absent or not a referent of the task: {why}")
     concepts = [(r.get("concept"), r.get("text")) for r in refs if isinstance(r, dict)]

@@ -13,14 +13,8 @@ Rules:
 - each pair contradicts (:func:`~conflictbench.tasks.operators.contradictions.explain`), and its
   mode is the one the rule gives (``simultaneous`` or ``final_states``); a pair that an order of
   execution satisfies ("do it, then undo it") is rejected with that reason;
-- no constraint at all on the placing half of a split pick-and-place (a step that relocates what
-  the step before it only picked up): a still arm is met by carrying the object over the
-  destination while picking it up, and "put it down without touching X" or "while keeping X fixed"
-  read as releasing it or setting it down securely;
 - no "untouched" constraint on a pushing step (push, slide, shove, move ... aside / out of the way
   / to one side, "move X onto Y", close or shut): the thing can be pushed with another held object;
-- a still or untouched object against a pick-up (``do lift``) only when the step's verb entails
-  lifting ("pick up", "lift"): grabbing or taking need not move it;
 - no filler: no two pairs share a constraint literal in one step, and in L2 every pair sets a constraint
   against the one step's own goal, so each factor alone contradicts it.
 """
@@ -52,20 +46,6 @@ def _unique_name(model: TaskModel, entity: str, text: str) -> bool:
     return any(names_in(text, [n]) and denotes_only(model, n, entity) for n in model.entity_names(entity) if n)
 
 
-def placing_half(witness: dict, step: object) -> bool:
-    """Is the step (1-based) the placing half of a split: it relocates a thing that the original step
-    before it only picked up (no goal of its own)?"""
-    goals, roles = witness.get("step_goals", []), witness.get("step_roles", [])
-    entities = witness.get("step_entities", [])
-    if not isinstance(step, int) or not 2 <= step <= min(len(goals), len(roles), len(entities)):
-        return False
-    before = step - 2
-    if roles[before] != "original" or goals[before]:
-        return False
-    moved = {g[1] for g in goals[step - 1] if len(g) >= 2 and g[0] in ("on", "in")}
-    return bool(moved & set(entities[before]))
-
-
 def _requirement_problems(r: dict, case: ConflictCase, model: TaskModel) -> list[str]:
     rid, lit, text = r.get("id"), r.get("literal"), r.get("text", "")
     if not isinstance(lit, list) or len(lit) < 3 or lit[0] not in HEADS:
@@ -78,11 +58,6 @@ def _requirement_problems(r: dict, case: ConflictCase, model: TaskModel) -> list
         out.append(f"requirement {rid}: the constraint {text!r} uses a pronoun; name the entity in full")
     if "robot" in lit[2:] and not names_in(text, {"robot", "arm", "robot arm"}):
         out.append(f"requirement {rid}: its text does not name the robot arm")
-    if constraint and placing_half(case.witness, r.get("step")):
-        out.append(
-            f"requirement {rid}: no constraint may sit on the placing half of a split (a still arm is met by "
-            "carrying the object over the destination first; a still or untouched object reads as releasing it)"
-        )
     body = _step_body(case, r.get("step"))
     if lit[:2] == ["keep", "untouched"] and body.startswith(tuple(v + " " for v in PUSH_VERBS)):
         out.append(f"requirement {rid}: 'untouched' on a pushing step ({body!r}) is met by pushing with a held object")
@@ -114,16 +89,6 @@ def _step_body(case: ConflictCase, step: object) -> str:
     return normalise(steps[step - 1]) if isinstance(step, int) and 1 <= step <= len(steps) else ""
 
 
-def _lifting_problem(case: ConflictCase, goal: dict, constraint: dict) -> str | None:
-    """A still or untouched object against a pick-up needs a verb that lifts it."""
-    lit, body = constraint.get("literal"), _step_body(case, goal.get("step"))
-    if goal.get("literal", [])[:2] != ["do", "lift"] or lit[:2] not in (["keep", "still"], ["keep", "untouched"]):
-        return None
-    if lit[2] == "robot" or body.startswith(tuple(v + " " for v in LIFT_VERBS)):
-        return None
-    return f"{body!r} need not move {lit[2]} (only 'pick up' or 'lift' does): {lit[1]} does not contradict it"
-
-
 def check_contradiction(case: ConflictCase, model: TaskModel, states: frozenset) -> list[str]:
     w, out = case.witness, []
     reqs = {r.get("id"): r for r in w.get("requirements", []) if isinstance(r, dict)}
@@ -148,10 +113,6 @@ def check_contradiction(case: ConflictCase, model: TaskModel, states: frozenset)
             out.append(f"requirements {pair[0]} and {pair[1]} do not contradict ({a} / {b}): {why}")
         elif mode in MODES and found[0] != mode:
             out.append(f"conflict {pair[:2]} is {found[0]}, not {mode} ({found[1]})")
-        for g, c in ((reqs[pair[0]], reqs[pair[1]]), (reqs[pair[1]], reqs[pair[0]])):
-            why = _lifting_problem(case, g, c)
-            if why:
-                out.append(f"conflict {pair[:2]}: {why}")
         constraints = [(reqs[p].get("step"), lit) for p, lit in zip(pair[:2], (a, b)) if lit[0] not in GOAL_HEADS]
         for scoped in constraints:
             if scoped in seen_constraints:

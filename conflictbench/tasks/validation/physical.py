@@ -33,8 +33,9 @@ subgoal is still asked, naming its original object and destination, and that add
   violation repeated.
 
 Per suite (:func:`suite_problems`, for the lead's suite-level check): each level cell (all physical
-cases of one level) has at least ``MIN_KINDS`` kinds; no sentence skeleton (:func:`skeleton`) is
-more than ``MAX_SKELETON_SHARE`` of its cell; no text appears twice within one LIBERO suite.
+cases of one level) has at least ``MIN_KINDS`` kinds (L2: ``MIN_KINDS_BY_LEVEL``); no sentence
+skeleton (:func:`skeleton`) is more than ``MAX_SKELETON_SHARE`` of its cell; no text appears twice
+within one LIBERO suite.
 """
 
 from __future__ import annotations
@@ -73,6 +74,10 @@ GRASP = re.compile(r"\b(?:pick up|lift|take|grab)\s+(?:the\s+)?")
 """Verbs that grasp their object: one grasp per object in a row."""
 CONNECTIVES = ("together with", "along with", "as well as", "while")
 MIN_KINDS = 4
+MIN_KINDS_BY_LEVEL = {"L2": 3}
+"""L2's two violations share one step, and since suite 2.1 a too-small holder is a step of its own
+(putting the object into it is a placement), so one step offers its object's manners (rigidity,
+switch, articulation) and a fixture lifted before it is operated, which no L2 task pairs."""
 MAX_SKELETON_SHARE = 0.25
 PLACEHOLDER = "<e>"
 
@@ -126,8 +131,21 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
         if kind == "fixed" and HOLDING_ONLY.search(text):
             out.append(f"fixed violation {text!r} only holds or touches the fixture: it must move it")
         out += _denied(model, v, present)
+        out += _placement_inside_a_step(case, v)
     out += _observable(case, model, violations) + _regrasps(case, model)
     return out + _repeated_connectives(case) + _level_shape(case, violations)
+
+
+def _placement_inside_a_step(case: ConflictCase, v: dict) -> list[str]:
+    """Putting the object into a too-small holder is a placement with its own goal: a step of its
+    own, never the manner of an original step ("squeeze the book into the mug and put the book in
+    the caddy" is two placements; suite 2.0's readers counted it as two steps)."""
+    roles, step = case.witness.get("step_roles") or [], v.get("step")
+    if v.get("kind") != "size" or not isinstance(step, int) or not 1 <= step <= len(roles):
+        return []
+    if roles[step - 1] == "original":
+        return [f"size violation {v.get('text')!r} puts the object somewhere first: a step of its own, not a manner"]
+    return []
 
 
 def _observable(case: ConflictCase, model: TaskModel, violations: list) -> list[str]:
@@ -273,8 +291,9 @@ def suite_problems(cases: Iterable[ConflictCase], models: Mapping[tuple[str, int
         cells[c.level].append(c)
     for level, cell in sorted(cells.items()):
         kinds = {k for c in cell for k in kinds_of(c)}
-        if len(kinds) < MIN_KINDS:
-            out.append((cell[0].case_id, f"physical {level}: {len(kinds)} kind(s) {sorted(kinds)}, need {MIN_KINDS}"))
+        need = MIN_KINDS_BY_LEVEL.get(level, MIN_KINDS)
+        if len(kinds) < need:
+            out.append((cell[0].case_id, f"physical {level}: {len(kinds)} kind(s) {sorted(kinds)}, need {need}"))
         shapes = {c.case_id: skeleton(c, models[c.suite, c.task_id]) for c in cell}
         for shape, n in Counter(shapes.values()).items():
             if n > MAX_SKELETON_SHARE * len(cell):

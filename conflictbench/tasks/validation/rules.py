@@ -20,6 +20,7 @@ from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.scene.facts import TaskFacts, file_sha256, load_scene_facts, states_sha256
 from conflictbench.tasks.scene.task_model import TaskModel, build_model
 
+from .factors import components_missing
 from .grounding import check_absent
 from .instruction import check_contradiction
 from .physical import check_affordance
@@ -133,7 +134,7 @@ def validate_case(case: ConflictCase, ctx: Context) -> list[str]:
         states = frozenset(case.init_states)
     try:  # a witness from a user's file may have any shape: a bad one is a finding, not a crash
         if wtype in FAMILY_CHECKS:
-            out += check_structure(case, wtype, model)
+            out += check_structure(case, wtype, model) + components_missing(case.level, case.witness)
             out += FAMILY_CHECKS[wtype](case, model, states)
         else:
             out += list(ctx.extra_checks[wtype](case, model))

@@ -2,9 +2,9 @@
 original task, and unambiguous pronouns.
 
 The witness describes the instruction's steps: ``steps`` (each step's text, in order), and, per
-step, ``step_roles`` (``original``: a step of the base task, or part of one, such as the "pick up"
-of a split pick-and-place; ``added``: a plausible extra step) and ``step_goals`` (the base task's
-goal literals the step achieves). The rules re-derive what they can from the base task:
+step, ``step_roles`` (``original``: a step of the base task, or part of one, such as one object of
+a two-object placing; ``added``: a plausible extra step) and ``step_goals`` (the base task's goal
+literals the step achieves). The rules re-derive what they can from the base task:
 
 - **Whole original**: the steps' goals are exactly the base task's subgoals, and every step names
   the entities of its goals (or the factor that stands in for one, a grounding referent).
@@ -12,6 +12,12 @@ goal literals the step achieves). The rules re-derive what they can from the bas
   original steps would never be reached. Added steps come before every original step.
 - **Unambiguous**: a pronoun is only the object of a placing verb whose antecedent is the object
   just picked up ("pick up the bowl and put it on the plate"); constraints never use pronouns.
+- **A step is a manipulation with its own goal** (suite 2.1): a "pick up X" step before "put it on
+  the plate" is half of one manipulation, not a step; a single-step level's one step achieves ONE
+  goal literal (a base task of two, "put both X and Y in the basket", is L3/L4 material only); L4's
+  factors are two distinct ones in different steps (:mod:`.factors`).
+- **Added steps claim nothing false**: "move X out of the way" (or aside, to one side) only where X
+  stands near what the task touches (:meth:`TaskModel.in_the_way`).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import re
 from conflictbench.core import ConflictCase
 from conflictbench.tasks.scene.task_model import TaskModel
 
+from .factors import check_factors
 from .text import names_in, normalise
 
 FACTOR_KEYS = {
@@ -30,6 +37,8 @@ FACTOR_KEYS = {
     "affordance_violation": "violations",
 }
 ROLES = ("original", "added")
+IN_THE_WAY_CLAIM = re.compile(r"\b(out of the way|aside|to one side|out of its way)\b")
+"""Wordings of an added step that say the thing it moves is in the way."""
 PRONOUN = re.compile(r"\b(it|them|its|they|itself)\b")
 PLACING = ("place", "put", "set", "drop", "stow", "carry", "move", "slide", "bring", "lay", "stand")
 """Verbs whose object may be the pronoun for the thing just picked up: "... and place it on the plate"."""
@@ -77,7 +86,42 @@ def check_structure(case: ConflictCase, wtype: str, model: TaskModel) -> list[st
     out = _steps_and_level(case, wtype)
     if out:
         return out
-    return _observable_and_whole(case, wtype, model) + _pronouns(case)
+    out += check_factors(case.level, case.witness, wtype)
+    out += _one_manipulation(case) + _added_claims(case, model)
+    return out + _observable_and_whole(case, wtype, model) + _pronouns(case)
+
+
+def _one_manipulation(case: ConflictCase) -> list[str]:
+    """Each step has its own goal; a single-step level's step has exactly one."""
+    w, out = case.witness, []
+    goals, roles = w.get("step_goals") or [], w.get("step_roles") or []
+    if case.level in ("L1", "L2") and goals and isinstance(goals[0], list) and len(goals[0]) > 1:
+        out.append(
+            f"a single-step level on a base task of {len(goals[0])} manipulations ({goals[0]}): use it for L3/L4"
+        )
+    for i, (role, literals) in enumerate(zip(roles, goals)):
+        if role == "original" and not literals:
+            out.append(
+                f"step {i + 1} has no goal of its own: reaching for an object and placing it is one step, not two"
+            )
+    return out
+
+
+def _added_claims(case: ConflictCase, model: TaskModel) -> list[str]:
+    """An added step that says it moves a thing "out of the way" must be true of the scene."""
+    w, out = case.witness, []
+    states = frozenset(case.init_states) if case.init_states else None
+    for i, (role, text) in enumerate(zip(w.get("step_roles") or [], w.get("steps") or [])):
+        if role != "added" or not IN_THE_WAY_CLAIM.search(text):
+            continue
+        moved = [e for e in (w.get("step_entities") or [[]] * (i + 1))[i] if e in model.facts.entities]
+        far = [e for e in moved if not model.in_the_way(e, states)]
+        if far:
+            out.append(
+                f"step {i + 1} ({text!r}) claims {', '.join(far)} is in the way, but it stands apart from "
+                "what the task touches in some initial state"
+            )
+    return out
 
 
 def _atom(literal) -> tuple[str, ...]:
@@ -131,12 +175,6 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
                     continue
                 if not names_in(text, model.entity_names(entity) | model.entity_names(model.parent(entity))):
                     out.append(f"step {i + 1} does not name {entity}, which its goal {list(atom)} needs")
-        if role == "original" and not literals:  # the pick-up half of a split pick-and-place
-            placed = [str(g[1]) for g in goals[i + 1]] if i + 1 < len(steps) and roles[i + 1] == "original" else []
-            if not any(names_in(steps[i], model.entity_names(o)) or o in replaced.get(i + 1, set()) for o in placed):
-                out.append(
-                    f"step {i + 1} is marked original but achieves nothing: it picks up nothing the next step places"
-                )
     missing = sorted(base - asked)
     if missing:
         out.append(f"the instruction drops the base task's subgoal(s) {[list(m) for m in missing]}")
