@@ -67,10 +67,11 @@ def scene_sheet(model: TaskModel) -> str:
             held.append(f"({' '.join(atom)})" + ("" if len(states) == n else f" in {len(states)} of {n} states"))
     lines.append(f"Initially true (all {n} initial states unless said): " + ", ".join(held))
     lines.append(
-        "Positions in initial state 0, centimetres (x: towards the camera = front; y: the camera's right; "
-        "z: up): "
+        "Positions in initial state 0, centimetres (x: towards the camera = front; y: the image's right, "
+        "which is the robot's left; z: up), with each thing's footprint radius r: "
         + "; ".join(
-            f"{model.names.get(e, e)} ({p[0][0] * 100:.0f}, {p[0][1] * 100:.0f}, {p[0][2] * 100:.0f})"
+            f"{model.names.get(e, e)} ({p[0][0] * 100:.0f}, {p[0][1] * 100:.0f}, {p[0][2] * 100:.0f}; "
+            f"r {(facts.entities[e].radius or 0) * 100:.0f})"
             for e, p in sorted(facts.positions.items())
             if facts.entities[e].kind != "region"
         )
