@@ -323,6 +323,13 @@ def test_a_report_shows_the_current_suites_conflict_episodes_and_counts_the_othe
         "conflict episodes not shown: 2 of suite conflictvla 1.0.0 (conflictbench report --all-suites shows them)"
         in said
     )
+    # which of those cases the shipped suite no longer plays: named, and listed in full beside the tables
+    gone = sorted({r.case_id for r in records if r.policy == "beta" and not r.is_reference})
+    playing = {c.case_id for c in load_suite().cases if c.status != "removed"}
+    assert gone and not set(gone) & playing
+    listed = tmp_path / "run" / "report" / "cases_no_longer_in_suite.txt"
+    assert f"of them, {len(gone)} case(s) are no longer in suite {current}: {', '.join(gone)} (all in {listed})" in said
+    assert listed.read_text().split() == gone
     assert report_command([str(tmp_path / "run"), "--all-suites"], plugins) == 0
     assert sorted(set(pd.read_csv(tmp_path / "run" / "report" / "pairs.csv")["model"])) == ["alpha", "beta"]
     assert "not shown" not in capsys.readouterr().out

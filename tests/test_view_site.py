@@ -283,7 +283,7 @@ def test_a_pages_play_again_command_plans_exactly_its_pair(plugins, policy, sett
     from conflictbench.sim.plan import build_plan
     from conflictbench.view.pairs import play_again_command
 
-    case = next(c for c in SHIPPED if c.family == "spatial" and c.level == "L2" and c.suite == "libero_10")
+    case = next(c for c in SHIPPED if c.family == "spatial" and c.level == "L4" and c.suite == "libero_10")
     conflict = episode("x", case=case, policy=policy, prompt="p1", policy_settings=json.dumps(settings))
     conflict = dataclasses.replace(conflict, init_state=4, seed=11)
     words = shlex.split(play_again_command(conflict))
@@ -307,3 +307,20 @@ def test_a_pages_play_again_command_plans_exactly_its_pair(plugins, policy, sett
         (None, case.suite, case.task_id, 4, "p1"),
         (case.case_id, case.suite, case.task_id, 4, "p1"),
     ]
+
+
+def test_a_spatial_pair_page_states_the_frame_and_draws_its_axes():
+    """Suite 2.1: a spatial case's page says its directions are LIBERO's (the camera's) and whether
+    they hold from the robot's side; the path seen from above has the axes named in that frame."""
+    from importlib import resources
+
+    from conflictbench.view.site import frame_of_reference
+
+    spatial = [c for c in load_suite(None).cases if c.family == "spatial" and c.status != "removed"]
+    dependent = next(c for c in spatial if c.witness["frame_independent"] is False)
+    independent = next(c for c in spatial if c.witness["frame_independent"] is True)
+    for case, said in ((dependent, "would be TRUE (frame dependent)"), (independent, "(frame independent)")):
+        text = frame_of_reference(case)
+        assert "front = towards the camera (+x)" in text and "left = -y" in text and said in text
+    script = (resources.files("conflictbench.view") / "assets" / "viewer.js").read_text()
+    assert 'compass: { x: "+x front (camera)", y: "+y image right = robot\'s left" }' in script

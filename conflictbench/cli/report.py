@@ -35,19 +35,21 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
     if args.all_suites and args.suite:
         raise UserError("--suite and --all-suites exclude each other")
-    suite = None if args.all_suites else _suite_label(args.suite)
+    suite, cases = (None, None) if args.all_suites else _suite(args.suite)
     tables = io.StringIO()  # the files are written before anything is printed: `report DIR | head` keeps them
     report_store(store, plugins, out_dir=Path(args.out) if args.out else root / "report", metrics=metrics,
-                 stream=tables, suite=suite)  # fmt: skip
+                 stream=tables, suite=suite, suite_cases=cases)  # fmt: skip
     sys.stdout.write(tables.getvalue())
     return 0
 
 
-def _suite_label(path: str | None) -> str:
-    """``name version`` of the suite file (default: the shipped one), as its conflict episodes store it."""
+def _suite(path: str | None) -> tuple[str, frozenset[str]]:
+    """``name version`` of the suite file (default: the shipped one), as its conflict episodes store it,
+    and the ids of the cases it plays."""
     from conflictbench.tasks.suite.file import load_suite
 
     try:
-        return load_suite(path).label
+        suite = load_suite(path)
+        return suite.label, frozenset(c.case_id for c in suite.cases if c.status in ("accepted", "revised"))
     except OSError as exc:
         raise UserError(f"--suite {path}: {exc.strerror or exc}") from None

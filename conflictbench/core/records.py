@@ -261,7 +261,7 @@ class EpisodeRecord:
     # context
     episode_id: str = ""
     conflict_suite: str | None = None
-    """``name version`` of the suite the conflict case comes from (``conflictvla 2.0.0``); None for a reference (and
+    """``name version`` of the suite the conflict case comes from (``conflictvla 2.1.0``); None for a reference (and
     in stores written before the column). Reports show the current suite's episodes by default."""
     base_instruction: str = ""
     prompt_text: str = ""

@@ -59,12 +59,14 @@ def report_store(
     metrics: Sequence[str] | None = None,
     chunk: int = CHUNK_PAIRS,
     suite: str | None = None,
+    suite_cases: Iterable[str] | None = None,
     **options,
 ) -> dict[str, pd.DataFrame]:
     """:func:`~conflictbench.report.summary.report_records` for the episodes of a store (or some of them); with
-    ``suite`` (``name version``) only that suite's conflict episodes, the others counted in one line."""
+    ``suite`` (``name version``) only that suite's conflict episodes, the others counted in one line (and with
+    ``suite_cases``, the ids that suite plays, the others' cases it no longer has named)."""
     chosen = select_metrics(plugins, metrics)
-    pairs, counts = pair_up(light_records(store, episode_ids), suite)
+    pairs, counts = pair_up(light_records(store, episode_ids), suite, suite_cases)
     first, second = tee(loaded_pairs(store, pairs, chunk))
     frame = evaluate_pairs(
         (r for r, _ in first),

@@ -105,6 +105,9 @@ class EpisodeCounts:
     """Conflict episodes not shown, by the suite they are of (a report of one suite)."""
     unrecorded_suite: int = 0
     """Conflict episodes of a store written before the suite was recorded, shown as the reported suite's."""
+    gone_cases: list[str] = field(default_factory=list)
+    """Case ids of the episodes not shown that the reported suite no longer plays (new text, or removed)."""
+    suite: str | None = None
 
 
 def other_suites_line(other: Counter) -> str | None:
@@ -113,6 +116,20 @@ def other_suites_line(other: Counter) -> str | None:
         return None
     parts = ", ".join(f"{n} of suite {label}" for label, n in sorted(other.items()))
     return f"conflict episodes not shown: {parts} (conflictbench report --all-suites shows them)"
+
+
+GONE_FILE = "cases_no_longer_in_suite.txt"
+
+
+def gone_cases_line(counts: EpisodeCounts, out_dir: str | Path | None = None) -> str | None:
+    """Which of the other suites' cases the reported suite no longer has: their episodes cannot be
+    played again as they were (a case whose text is unchanged is played again under the new version)."""
+    gone = counts.gone_cases
+    if not gone:
+        return None
+    shown = ", ".join(gone[:5]) + (f" and {len(gone) - 5} more" if len(gone) > 5 else "")
+    where = f" (all in {Path(out_dir) / GONE_FILE})" if out_dir is not None else ""
+    return f"of them, {len(gone)} case(s) are no longer in suite {counts.suite}: {shown}{where}"
 
 
 def left_out_line(episodes: Sequence[EpisodeRecord]) -> str | None:
@@ -128,20 +145,29 @@ def left_out_line(episodes: Sequence[EpisodeRecord]) -> str | None:
     )
 
 
-def pair_up(records: Iterable[EpisodeRecord], suite: str | None = None) -> tuple[list[Pair], EpisodeCounts]:
+def pair_up(
+    records: Iterable[EpisodeRecord], suite: str | None = None, suite_cases: Iterable[str] | None = None
+) -> tuple[list[Pair], EpisodeCounts]:
     """Pairs for the report. A policy error ends an episode as a failure (it stays in); a simulator or
     serving-infrastructure failure says nothing about the policy, so such episodes are left out with their pairs.
-    With ``suite`` (``name version``), only that suite's conflict episodes, and the others counted."""
+    With ``suite`` (``name version``), only that suite's conflict episodes, and the others counted; with
+    ``suite_cases`` (the ids it plays), the cases of those others it no longer has are named."""
     records = list(records)
-    other, unrecorded = Counter(), 0
+    other, unrecorded, gone = Counter(), 0, []
     if suite is not None:  # a store written before the column: its conflict episodes are shown, and said so
         conflicts = [r for r in records if not r.is_reference]
-        other = Counter(r.conflict_suite for r in conflicts if r.conflict_suite not in (suite, None))
+        hidden = [r for r in conflicts if r.conflict_suite not in (suite, None)]
+        other = Counter(r.conflict_suite for r in hidden)
+        if suite_cases is not None:
+            playing = set(suite_cases)
+            gone = sorted({r.case_id for r in hidden if r.case_id and r.case_id not in playing})
         unrecorded = sum(r.conflict_suite is None for r in conflicts)
         records = [r for r in records if r.is_reference or r.conflict_suite in (suite, None)]
     counts = EpisodeCounts(
         other_suites=other,
         unrecorded_suite=unrecorded,
+        gone_cases=gone,
+        suite=suite,
         episodes=len(records),
         references=sum(r.is_reference for r in records),
         policy_errors=[r for r in records if r.error is not None and not r.infrastructure_failed],
@@ -221,6 +247,8 @@ def report_frame(
         print(line, file=stream)
     if line := other_suites_line(counts.other_suites):
         print(line, file=stream)
+    if line := gone_cases_line(counts, out_dir):
+        print(line, file=stream)
     if counts.unrecorded_suite:
         print(f"{counts.unrecorded_suite} conflict episode(s) were stored before their suite was recorded and are "
               "shown as this suite's", file=stream)  # fmt: skip
@@ -240,6 +268,8 @@ def report_frame(
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         write_files(out, frame, aggregates, specs, couples, differences, metrics, figures=figures)
+        if counts.gone_cases:
+            (out / GONE_FILE).write_text("".join(f"{c}\n" for c in counts.gone_cases), encoding="utf-8")
         print(f"tables{' and figures' if figures else ''} written to {out}/", file=stream)
     return result
 

@@ -33,7 +33,7 @@ class EpisodeSpec:
     base_instruction: str
     case: ConflictCase | None = None
     conflict_suite: str = ""
-    """``name version`` of the suite the case comes from (``conflictvla 2.0.0``); empty for a reference, which no
+    """``name version`` of the suite the case comes from (``conflictvla 2.1.0``); empty for a reference, which no
     suite changes. Part of a conflict episode's identity: a new suite version plays its cases again."""
 
     @property

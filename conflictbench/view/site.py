@@ -81,6 +81,23 @@ def _video(kind: str, record: EpisodeRecord, meta: Mapping[str, Any] | None, hin
     return f'<figure>{caption}<p class="no-video">No video rendered for this episode. {escape(hint)}</p></figure>'
 
 
+FRAME_OF_REFERENCE = (
+    "Directions are LIBERO's own, the agentview camera's (the camera facing the robot across the table): "
+    "left and right as in the image (left = -y), front = towards the camera (+x), behind = towards the robot. "
+    "The robot's own left is the image's right (the axes are drawn on the path seen from above)."
+)
+
+
+def frame_of_reference(case: ConflictCase) -> str:
+    """The convention a spatial case's directions are in, and whether its claims hold either way."""
+    independent = case.witness.get("frame_independent")
+    either = {
+        True: "Its claims are false read from the robot's side too (frame independent).",
+        False: "Read from the robot's side, a direction it claims would be TRUE (frame dependent).",
+    }.get(independent, "The case does not say whether its claims hold from the robot's side.")
+    return f"{escape(FRAME_OF_REFERENCE)} {escape(either)}"
+
+
 def pair_page(
     row: Mapping[str, Any],
     reference: EpisodeRecord,
@@ -107,6 +124,7 @@ def pair_page(
         ("Original instruction", escape(reference.instruction)),
         ("Conflict instruction", f"<strong>{escape(conflict.instruction)}</strong>"),
         ("Why its premise fails", premise),
+        *([("Frame of reference", frame_of_reference(case))] if case and case.family == "spatial" else []),
         ("Witness", witness),
         ("Text the policy received", f"<pre>{escape(conflict.prompt_text or conflict.instruction)}</pre>"),
         (

@@ -24,7 +24,8 @@ function ticks(lo, hi, count) {
 }
 
 // A line plot as SVG: series = [{points: [[x, y], ...], color, label, dash, marker}]; equal: same scale on both axes.
-function linePlot(container, { series, xlabel, ylabel, title, equal = false, width = 360, height = 260, extra = [] }) {
+function linePlot(container, { series, xlabel, ylabel, title, equal = false, width = 360, height = 260, extra = [],
+                                compass = null }) {
   const pad = { left: 56, right: 12, top: 38, bottom: 40 };  // the legend sits between the title and the frame
   const all = series.flatMap((s) => s.points).concat(extra.map((e) => e.point));
   const xs = all.map((p) => p[0]), ys = all.map((p) => p[1]);
@@ -76,6 +77,13 @@ function linePlot(container, { series, xlabel, ylabel, title, equal = false, wid
       legendX += 28 + 6.5 * s.label.length;
     }
   }
+  if (compass) {  // arrows along the plot's axes, named in the frame the suite's words use
+    const ox = pad.left + 14, oy = pad.top + h - 14, len = 26;
+    node("line", { x1: ox, y1: oy, x2: ox + len, y2: oy, class: "compass" }, svg);
+    node("text", { x: ox + len + 3, y: oy + 4, class: "compass-label" }, svg, compass.x);
+    node("line", { x1: ox, y1: oy, x2: ox, y2: oy - len, class: "compass" }, svg);
+    node("text", { x: ox - 4, y: oy - len - 4, class: "compass-label" }, svg, compass.y);
+  }
   for (const e of extra) {  // marked points: the targets' initial positions
     node("rect", { x: X(e.point[0]) - 4, y: Y(e.point[1]) - 4, width: 8, height: 8, class: "target" }, layer);
     node("text", { x: X(e.point[0]) + 7, y: Y(e.point[1]) - 6, class: "target-label" }, layer, e.label);
@@ -89,7 +97,9 @@ function pairPage(data) {
                                dash: k === "conflict" ? "5 3" : "", marker: true });
   const targets = (a, b) => (data.reference.targets || []).map((p, i) => ({ point: [p[a], p[b]], label: data.target_names[i] || "" }));
   linePlot(document.getElementById("plot-top"), { series: episodes.map((k) => path(k, 0, 1)), equal: true,
-    title: "End effector, seen from above", xlabel: "x (m)", ylabel: "y (m)", extra: targets(0, 1) });
+    title: "End effector, seen from above", xlabel: "x (m), + = front: towards the camera",
+    ylabel: "y (m), + = the image's right", extra: targets(0, 1),
+    compass: { x: "+x front (camera)", y: "+y image right = robot's left" } });
   linePlot(document.getElementById("plot-side"), { series: episodes.map((k) => path(k, 0, 2)), equal: true,
     title: "End effector, seen from the side", xlabel: "x (m)", ylabel: "z (m)", extra: targets(0, 2) });
   linePlot(document.getElementById("plot-distance"), {
