@@ -33,8 +33,6 @@ from .text import _named_or_pronoun, names_in, normalise
 GOAL_HEADS = ("goal", "do")
 PUSH_VERBS = ("push", "slide", "shove", "move", "close", "shut")
 """Step verbs a held object can do by pushing: "untouched" does not contradict them."""
-LIFT_VERBS = ("pick up", "lift")
-"""Pick-up verbs that entail moving the object (not "grab", "take")."""
 
 
 def _added_goals(model: TaskModel) -> list[tuple[str, ...]]:
