@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-FAMILY_FACTORS = {
+FAMILY_FACTORS = {  # witness type -> the witness field listing its factors
     "contradiction": "conflicts",
     "absent_referent": "referents",
     "false_relation": "relations",
@@ -29,7 +29,8 @@ class Factor:
     step: int
     kind: str
     entities: tuple[str, ...]
-    signature: tuple
+    requirement: tuple
+    """What conflicts, with its entities: a constraint literal, a replaced role, a relation, a violation."""
 
 
 def _constraint(requirements: list[dict]) -> list[dict]:
@@ -73,7 +74,7 @@ def factors_of(witness: dict, wtype: str) -> list[Factor]:
 
 def signature(f: Factor) -> tuple:
     """What makes two factors the same one: the requirement (with its entities) that conflicts."""
-    return (f.kind, f.signature)
+    return (f.kind, f.requirement)
 
 
 def distinct_spread(factors: list[Factor]) -> bool:

@@ -27,15 +27,9 @@ import re
 from conflictbench.core import ConflictCase
 from conflictbench.tasks.scene.task_model import TaskModel
 
-from .factors import check_factors
+from .factors import FAMILY_FACTORS, check_factors
 from .text import names_in, normalise
 
-FACTOR_KEYS = {
-    "contradiction": "conflicts",
-    "absent_referent": "referents",
-    "false_relation": "relations",
-    "affordance_violation": "violations",
-}
 ROLES = ("original", "added")
 IN_THE_WAY_CLAIM = re.compile(r"\b(out of the way|aside|to one side|out of its way)\b")
 """Wordings of an added step that say the thing it moves is in the way."""
@@ -60,9 +54,9 @@ def _steps_and_level(case: ConflictCase, wtype: str) -> list[str]:
             out.append(f"step {s!r} is not in the instruction (in order)")
             break
         pos = i + len(s)
-    factors = w.get(FACTOR_KEYS.get(wtype, "factors"), [])
+    factors = w.get(FAMILY_FACTORS.get(wtype, "factors"), [])
     if not isinstance(factors, list) or not factors:
-        return out + [f"witness field {FACTOR_KEYS.get(wtype, 'factors')!r} is empty"]
+        return out + [f"witness field {FAMILY_FACTORS.get(wtype, 'factors')!r} is empty"]
     if wtype == "contradiction":
         step_of = {r.get("id"): r.get("step") for r in w.get("requirements", []) if isinstance(r, dict)}
         factor_steps = [max(step_of.get(p, 0) or 0 for p in pair) if isinstance(pair, list) else 0 for pair in factors]
@@ -111,10 +105,11 @@ def _added_claims(case: ConflictCase, model: TaskModel) -> list[str]:
     """An added step that says it moves a thing "out of the way" must be true of the scene."""
     w, out = case.witness, []
     states = frozenset(case.init_states) if case.init_states else None
+    said = w.get("step_entities") or []
     for i, (role, text) in enumerate(zip(w.get("step_roles") or [], w.get("steps") or [])):
         if role != "added" or not IN_THE_WAY_CLAIM.search(text):
             continue
-        moved = [e for e in (w.get("step_entities") or [[]] * (i + 1))[i] if e in model.facts.entities]
+        moved = [e for e in (said[i] if i < len(said) else []) if e in model.facts.entities]
         far = [e for e in moved if not model.in_the_way(e, states)]
         if far:
             out.append(
