@@ -273,3 +273,15 @@ def test_a_repeated_grasp_is_rejected(ctx):
     twice = body.replace(", switch on the black bowl", ", switch on the black bowl, lift the black bowl")
     assert twice != body
     rejected(replaced_text(good, body, twice, good.witness["violations"]), ctx, "twice")
+
+
+def test_a_twinned_bowl_is_named_in_full_in_its_violation(ctx):
+    """libero_spatial has two identical black bowls: "pick up the black bowl between the plate and the
+    ramekin, switch on the black bowl ..." could mean either (suite 2.1's audit)."""
+    key = ("libero_spatial", 0)
+    full = "the black bowl between the plate and the ramekin"
+    good = one(key, "L1", lambda c: c.witness["violations"][0]["kind"] == "switch")
+    v = good.witness["violations"][0]
+    assert full in v["text"] and validate_case(good, ctx) == []
+    short = v["text"].replace(full, "the black bowl")
+    rejected(replaced_text(good, v["text"], short, [{**v, "text": short}]), ctx, "its identical twin shares")

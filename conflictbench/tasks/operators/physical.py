@@ -228,7 +228,10 @@ def _fill(model: TaskModel, text: str, slot: Slot, option: Option) -> str:
         else ""
     )
     thing = slot.objects and model.category_of(slot.objects[0]) != "region"
-    short = f"the {_info(model, slot.objects[0]).names[0]}" if thing else ""
+    # a thing with an identical twin (libero_spatial's black bowls) is named in full every time: "turn
+    # on the black bowl" beside its twin could mean either (suite 2.1's audit)
+    twinned = thing and slot.objects[0] in model.goal_twins()
+    short = o if twinned else f"the {_info(model, slot.objects[0]).names[0]}" if thing else ""
     return text.format(O=o, S=short, X=model.name(x), H=model.name(h) if h else "", P=p, d=d)
 
 

@@ -45,6 +45,7 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable, Mapping
 
 from conflictbench.core import ConflictCase
+from conflictbench.tasks.operators.instruction import denotes_only
 from conflictbench.tasks.scene.affordances import AFFORDANCES, category, load_table
 from conflictbench.tasks.scene.task_model import TaskModel
 
@@ -128,6 +129,10 @@ def check_affordance(case: ConflictCase, model: TaskModel, states: frozenset) ->
                 out.append(f"the instruction does not name {entity}")
         elif not names_in(text, entity_names(model, entity)):
             out.append(f"violation text {text!r} does not name {entity}")
+        if entity in model.goal_twins() and not any(
+            names_in(text, [n]) and denotes_only(model, n, entity) for n in entity_names(model, entity)
+        ):
+            out.append(f"violation text {text!r} names {entity} by a noun its identical twin shares: name it in full")
         if kind == "fixed" and HOLDING_ONLY.search(text):
             out.append(f"fixed violation {text!r} only holds or touches the fixture: it must move it")
         out += _denied(model, v, present)
