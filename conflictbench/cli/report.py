@@ -50,6 +50,6 @@ def _suite(path: str | None) -> tuple[str, frozenset[str]]:
 
     try:
         suite = load_suite(path)
-        return suite.label, frozenset(c.case_id for c in suite.cases if c.status in ("accepted", "revised"))
+        return suite.label, frozenset(c.case_id for c in suite.accepted())
     except OSError as exc:
         raise UserError(f"--suite {path}: {exc.strerror or exc}") from None
