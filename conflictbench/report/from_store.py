@@ -19,6 +19,7 @@ from conflictbench.metrics import evaluate_pairs
 from conflictbench.store import EpisodeStore
 from conflictbench.store.schema import ARRAY_COLUMNS, SCHEMA, normalize_scalars
 
+from .paper import declared_paper_models
 from .summary import pair_up, report_frame, select_metrics
 
 KEY_COLUMNS = [name for name in SCHEMA.names if name not in ARRAY_COLUMNS]
@@ -51,6 +52,14 @@ def loaded_pairs(
             yield references[pair.reference.episode_id], loaded[pair.conflict.episode_id]
 
 
+def paper_beside(store: EpisodeStore, plugins: Plugins) -> dict[tuple[str, str], str]:
+    """(policy, settings hash) -> the paper's model, for the store's runs declared to be one of the paper's
+    checkpoints (``model.published=<entry>``, recorded in the store)."""
+    from conflictbench.store.declarations import declarations
+
+    return declared_paper_models(declarations(store.root), plugins.published_results())
+
+
 def report_store(
     store: EpisodeStore,
     plugins: Plugins,
@@ -67,6 +76,7 @@ def report_store(
     ``suite_cases``, the ids that suite plays, the others' cases it no longer has named)."""
     chosen = select_metrics(plugins, metrics)
     pairs, counts = pair_up(light_records(store, episode_ids), suite, suite_cases)
+    options.setdefault("paper", paper_beside(store, plugins))
     first, second = tee(loaded_pairs(store, pairs, chunk))
     frame = evaluate_pairs(
         (r for r, _ in first),

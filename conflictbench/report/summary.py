@@ -38,6 +38,7 @@ from conflictbench.metrics import (
     with_model,
 )
 
+from .paper import declared_labels
 from .tables import (
     PAPER_METRICS,
     TableSpec,
@@ -188,12 +189,14 @@ def report_records(
     stream: TextIO | None = None,
     figures: bool = True,
     directions: Mapping[str, str] | None = None,
+    paper: Mapping[tuple[str, str], str] | None = None,
 ) -> dict[str, pd.DataFrame]:
     """Print the tables for these episodes and, with ``out_dir``, write them and the figures.
 
     ``metrics`` restricts the columns (default: every registered metric); ``directions`` maps a
     metric or outcome name to "higher"/"lower", overriding the direction its registration gives
-    (a metric registered without one is unmarked otherwise). Returns the frames by name: ``pairs``,
+    (a metric registered without one is unmarked otherwise); ``paper`` as :func:`report_frame`'s.
+    Returns the frames by name: ``pairs``,
     ``overall``, ``family``, ``qualified_failures``, ``aggregates_<grouping>``, ``prompt_couples``,
     ``prompt_differences``.
     """
@@ -202,7 +205,8 @@ def report_records(
     frame = evaluate_pairs(
         [p.reference for p in pairs], [p.conflict for p in pairs], plugins=plugins, metrics=[m.name for m in chosen]
     )
-    return report_frame(frame, counts, chosen, out_dir=out_dir, stream=stream, figures=figures, directions=directions)
+    return report_frame(frame, counts, chosen, out_dir=out_dir, stream=stream, figures=figures, directions=directions,
+                        paper=paper)  # fmt: skip
 
 
 def report_frame(
@@ -214,20 +218,24 @@ def report_frame(
     stream: TextIO | None = None,
     figures: bool = True,
     directions: Mapping[str, str] | None = None,
+    paper: Mapping[tuple[str, str], str] | None = None,
 ) -> dict[str, pd.DataFrame]:
     """Everything after the per-pair frame: aggregates, tables, differences, files and figures.
-    Each metric is shown as its registration says (label, unit, direction)."""
+    Each metric is shown as its registration says (label, unit, direction). ``paper`` maps a (policy, settings
+    hash) declared to be one of the paper's checkpoints to the paper's model: its P0 rows get the paper's
+    figures beside them (:mod:`.paper`), shown and never computed with."""
     stream = stream or sys.stdout
     metrics = paper_order(metrics)  # the differences table follows table 1's column order
     names = [m.name for m in metrics]
     frame = with_model(frame)
+    declared = declared_labels(frame, paper)
     aggregates = {grouping: aggregate(frame, by, names) for grouping, by in GROUPINGS.items()}
     specs = paper_tables(metrics, directions)
     couples = prompt_couples(frame, names)
     differences = prompt_differences(couples, names)
 
     for spec in specs:
-        print("\n" + render_text(aggregates[spec.grouping], spec), file=stream)
+        print("\n" + render_text(aggregates[spec.grouping], spec, declared), file=stream)
     print("\n" + legend(metrics), file=stream)
     if len(differences):
         print("\n" + render_differences(differences, metrics), file=stream)
@@ -267,7 +275,7 @@ def report_frame(
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        write_files(out, frame, aggregates, specs, couples, differences, metrics, figures=figures)
+        write_files(out, frame, aggregates, specs, couples, differences, metrics, figures=figures, declared=declared)
         if counts.gone_cases:
             (out / GONE_FILE).write_text("".join(f"{c}\n" for c in counts.gone_cases), encoding="utf-8")
         print(f"tables{' and figures' if figures else ''} written to {out}/", file=stream)
@@ -284,13 +292,14 @@ def write_files(
     metrics: Sequence[MetricSpec],
     *,
     figures: bool = True,
+    declared: Mapping[str, str] | None = None,
 ) -> list[Path]:
     written = []
     report = ["# conflictbench report", ""]
     for spec in specs:
         table = aggregates[spec.grouping]
-        markdown = render_markdown(table, spec)
-        for suffix, text in ((".md", markdown), (".tex", render_latex(table, spec))):
+        markdown = render_markdown(table, spec, declared)
+        for suffix, text in ((".md", markdown), (".tex", render_latex(table, spec, declared))):
             path = out / f"{spec.name}{suffix}"
             path.write_text(text)
             written.append(path)

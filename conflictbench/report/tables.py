@@ -27,6 +27,8 @@ from tabulate import LATEX_ESCAPE_RULES, tabulate
 
 from conflictbench.core import MetricSpec
 
+from .paper import PAPER_FILES, beside_note, with_paper_rows
+
 OUTCOME_DIRECTIONS = {"PCSR": "higher", "RGSR": "lower", "dSR": "higher", "FR": "higher"}
 #: The paper's layout: which metrics (by name, in order) tables 1 and 3 and table 2 show first;
 #: every other selected metric follows them.
@@ -192,7 +194,7 @@ def _body(aggregates: pd.DataFrame, spec: TableSpec) -> list[tuple[list[str], li
     ]
 
 
-def _header(spec: TableSpec) -> list[str]:
+def table_header(spec: TableSpec) -> list[str]:
     return [KEY_LABELS.get(k, k) for k in spec.keys] + [c.label for c in spec.columns]
 
 
@@ -214,25 +216,35 @@ def legend(spec: TableSpec, mark: str = "*") -> str:
     return f"{units}, counts in brackets; {mark} most favourable per column within each {within} ({'; '.join(parts)})"
 
 
-def render_text(aggregates: pd.DataFrame, spec: TableSpec) -> str:
+def table_rows(aggregates: pd.DataFrame, spec: TableSpec, declared: Mapping[str, str] | None):
+    """The table's rows with the paper's beside the P0 rows of models declared as its (:mod:`.paper`)."""
+    return with_paper_rows(_body(aggregates, spec), spec, declared)
+
+
+def paper_note(spec: TableSpec, declared: Mapping[str, str] | None) -> list[str]:
+    return [note] if spec.name in PAPER_FILES and (note := beside_note(declared)) else []
+
+
+def render_text(aggregates: pd.DataFrame, spec: TableSpec, declared: Mapping[str, str] | None = None) -> str:
+    """The terminal's table; ``declared`` (model label -> the paper's model) adds the paper's rows beside."""
     if aggregates.empty:
         return f"== {spec.title} ==\nn/a: no pairs (0 pairs with both a conflict episode and its reference)"
     rows = [
-        keys + [f"{value} {counts}{'*' if best else ''}" for value, counts, best in cells]
-        for keys, cells in _body(aggregates, spec)
+        keys + [f"{value} {counts}{'*' if best else ''}".strip() for value, counts, best in cells]
+        for keys, cells in table_rows(aggregates, spec, declared)
     ]
-    table = tabulate(rows, _header(spec), tablefmt="simple", disable_numparse=True)
-    return "\n".join([f"== {spec.title} ==", table, legend(spec)])
+    table = tabulate(rows, table_header(spec), tablefmt="simple", disable_numparse=True)
+    return "\n".join([f"== {spec.title} ==", table, legend(spec), *paper_note(spec, declared)])
 
 
-def render_markdown(aggregates: pd.DataFrame, spec: TableSpec) -> str:
+def render_markdown(aggregates: pd.DataFrame, spec: TableSpec, declared: Mapping[str, str] | None = None) -> str:
     rows = [
-        keys + [f"**{value} {counts}**" if best else f"{value} {counts}" for value, counts, best in cells]
-        for keys, cells in _body(aggregates, spec)
+        keys + [f"**{value} {counts}**" if best else f"{value} {counts}".strip() for value, counts, best in cells]
+        for keys, cells in table_rows(aggregates, spec, declared)
     ] or [_placeholder(spec)]
     rows = [[text.replace("|", r"\|") for text in row] for row in rows]  # a "|" would end the cell
-    table = tabulate(rows, _header(spec), tablefmt="pipe", colalign=_alignment(spec), disable_numparse=True)
-    return "\n".join([f"### {spec.title}", "", table, "", legend(spec, "bold:"), ""])
+    table = tabulate(rows, table_header(spec), tablefmt="pipe", colalign=_alignment(spec), disable_numparse=True)
+    return "\n".join([f"### {spec.title}", "", table, "", legend(spec, "bold:"), *paper_note(spec, declared), ""])
 
 
 # LaTeX markup travels through tabulate's escaping as private-use characters, replaced afterwards,
@@ -247,18 +259,21 @@ def tex_escape(text: str) -> str:
 
 
 def _tex_cell(value: str, counts: str, best: bool) -> str:
+    if not value:  # a paper row's column the paper does not have
+        return ""
     shown = f"{_BOLD}{value}{_END_BOLD}" if best else value
     return f"{shown}{_SMALL}{counts}{_END_SMALL}"
 
 
-def render_latex(aggregates: pd.DataFrame, spec: TableSpec) -> str:
-    rows = [keys + [_tex_cell(*parts) for parts in cells] for keys, cells in _body(aggregates, spec)] or [
-        _placeholder(spec)
-    ]
+def render_latex(aggregates: pd.DataFrame, spec: TableSpec, declared: Mapping[str, str] | None = None) -> str:
+    rows = [
+        keys + [_tex_cell(*parts) for parts in cells] for keys, cells in table_rows(aggregates, spec, declared)
+    ] or [_placeholder(spec)]
     tabular = tabulate(
-        rows, _header(spec), tablefmt="latex_booktabs", colalign=_alignment(spec), disable_numparse=True
+        rows, table_header(spec), tablefmt="latex_booktabs", colalign=_alignment(spec), disable_numparse=True
     ).translate(_MARKUP)
-    caption = tex_escape(f"{spec.title}. {legend(spec, 'Bold:')}.")
+    notes = [f"{note}." for note in paper_note(spec, declared)]
+    caption = tex_escape(" ".join([f"{spec.title}. {legend(spec, 'Bold:')}.", *notes]))
     return "\n".join(
         [r"\begin{table}[t]", r"\centering", r"\small", rf"\caption{{{caption}}}", tabular, r"\end{table}", ""]
     )

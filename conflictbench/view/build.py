@@ -11,15 +11,17 @@ from importlib import resources
 from itertools import islice
 from pathlib import Path
 
+import pandas as pd
+
 from conflictbench.core import UserError
 from conflictbench.core.plugins import Plugins
 from conflictbench.metrics import evaluate_pairs
-from conflictbench.report.from_store import CHUNK_PAIRS, loaded_pairs
+from conflictbench.report.from_store import CHUNK_PAIRS, loaded_pairs, paper_beside
 from conflictbench.report.summary import select_metrics
 from conflictbench.store import EpisodeStore
 
 from .pairs import Selection, choose
-from .site import index_page, pair_page
+from .site import index_page, pair_page, paper_section
 from .videos import current_meta, playable, render_videos, write_atomic
 
 
@@ -86,9 +88,11 @@ def build_site(
     measure_names = [m.name for m in metrics]
     with_both: set[str] = set()
     index_rows: list[dict] = []
+    frames = []
     loaded = loaded_pairs(store, pairs)  # each pair's arrays read once: measured, then its page written
     while chunk := list(islice(loaded, CHUNK_PAIRS)):
         frame = evaluate_pairs([r for r, _ in chunk], [c for _, c in chunk], plugins=plugins, metrics=measure_names)
+        frames.append(frame)
         for (reference, conflict), measured in zip(chunk, frame[measure_names].to_dict("records"), strict=True):
             i = len(index_rows)
             row = {**rows.iloc[i].to_dict(), **measured}
@@ -105,7 +109,10 @@ def build_site(
     for stale in (out / "pairs").glob("*.html"):  # pages of pairs this build does not show (filters, a new store)
         if stale.stem not in shown:
             stale.unlink(missing_ok=True)
-    write_atomic(out / "index.html", index_page(index_rows, metrics, str(store_dir), with_both))
+    beside = (
+        paper_section(pd.concat(frames, ignore_index=True), metrics, paper_beside(store, plugins)) if frames else ""
+    )
+    write_atomic(out / "index.html", index_page(index_rows, metrics, str(store_dir), with_both, beside))
     for name in ("viewer.js", "viewer.css"):
         write_atomic(out / "assets" / name, (resources.files("conflictbench.view") / "assets" / name).read_bytes())
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())

@@ -180,8 +180,35 @@ def pair_page(
     return _page(title, body, "../")
 
 
-def index_page(rows: Sequence[Mapping[str, Any]], metrics: Sequence, source: str, videos: set[str]) -> str:
-    """Every pair in one table, filtered in the page by model, family, level, prompt and outcome."""
+def paper_section(frame, metrics: Sequence, paper: Mapping[tuple[str, str], str]) -> str:
+    """Table 1 of this store's pairs with the paper's rows beside the P0 rows of the models declared to be its
+    checkpoints (``conflictbench.report.paper``), and its note; empty where no model of the store is declared."""
+    from tabulate import tabulate
+
+    from conflictbench.metrics.aggregate import GROUPINGS, aggregate, with_model
+    from conflictbench.report.paper import declared_labels
+    from conflictbench.report.tables import paper_note, paper_tables, table_header, table_rows
+
+    frame = with_model(frame)
+    declared = declared_labels(frame, paper)
+    if not declared:
+        return ""
+    spec = paper_tables(metrics)[0]
+    table = aggregate(frame, GROUPINGS[spec.grouping], [m.name for m in metrics])
+    rows = [
+        keys + [f"{value} {counts}".strip() for value, counts, _ in cells]
+        for keys, cells in table_rows(table, spec, declared)
+    ]
+    html = tabulate(rows, table_header(spec), tablefmt="html", disable_numparse=True)
+    note = "".join(f"<p class='note'>{escape(n)}</p>" for n in paper_note(spec, declared))
+    return f"<h2>Beside the paper (P0)</h2>\n{html}\n{note}"
+
+
+def index_page(
+    rows: Sequence[Mapping[str, Any]], metrics: Sequence, source: str, videos: set[str], beside: str = ""
+) -> str:
+    """Every pair in one table, filtered in the page by model, family, level, prompt and outcome; ``beside``:
+    the paper's figures beside this store's (:func:`paper_section`), where a model is declared as the paper's."""
     options = {name: sorted({str(r[name]) for r in rows}) for name in FILTERS}
     options["outcome"] = [o for o in OUTCOMES.values() if o in options["outcome"]]  # in the order of OUTCOMES
     filters = "".join(
@@ -207,6 +234,7 @@ def index_page(rows: Sequence[Mapping[str, Any]], metrics: Sequence, source: str
     body = f"""<h1>conflictbench: {len(rows)} pairs</h1>
 <p>From the episode store <code>{escape(source)}</code>. Each pair is a conflict rollout and the reference
 rollout by the same policy, base task, initial state, prompt condition and seed.</p>
+{beside}
 <form id="filters">{filters}</form>
 <p id="count">{len(rows)} pairs</p>
 <table id="pairs"><thead><tr>{head}</tr></thead><tbody>
