@@ -23,6 +23,7 @@ from .core import (
     rng_for,
     sampling_seed,
 )
+from .core.registry import read_published
 from .hosting import (
     HostedConfig,
     HostedPolicy,
@@ -92,6 +93,8 @@ __all__ = [
     "ServerProcess",
     "free_port",
     "model_environment",
+    # a model plugin's published LIBERO figures, read from its data file
+    "read_published",
     # the plugin manager
     "BUILTIN_PLUGINS",
     "plugins",

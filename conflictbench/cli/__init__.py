@@ -2,6 +2,7 @@
 
     conflictbench [hydra overrides]   run.py      compose and play a run (``-m`` for sweeps)
     conflictbench list                listing.py  policies, metrics, families, levels, prompts, presets
+    conflictbench reproduce ...       reproduce.py  a checkpoint's LIBERO success beside its authors' published figure
     conflictbench report DIR          report.py   tables from an episode store, running nothing
     conflictbench view DIR            view.py     a static HTML site of the store's pairs, videos by replay
     conflictbench merge OUT SHARD...  merge.py    one store from stores written on different machines
@@ -31,6 +32,7 @@ from conflictbench.core import PluginError, PolicyStalled, ServerUnavailable, Si
 VERBS = {
     "list": "listing",
     "report": "report",
+    "reproduce": "reproduce",
     "suite": "suite",
     "view": "view",
     "merge": "merge",
@@ -41,6 +43,8 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench -m [OVERRIDE ...]     sweep, e.g. -m model=noop,random prompt=p0,p1
        conflictbench list                  what can be chosen, and which package provides it
        conflictbench report DIR            tables from the episode store in DIR
+       conflictbench reproduce model=M model.checkpoint=DIR model.published=ENTRY [--quick]
+                                           does the checkpoint score what its authors published? (LIBERO)
        conflictbench view DIR              a web page per pair (videos, paths, measures): DIR/view/index.html
        conflictbench merge OUT SHARD...    one store from stores written on different machines
        conflictbench prune DIR [--delete]  the episodes stored again under a newer identity, listed or removed

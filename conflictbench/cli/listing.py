@@ -18,6 +18,13 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     print("policies (model=...):")
     for name, spec in sorted(plugins.policies().items()):
         print(f"  {name:<20} {spec.plugin} {spec.plugin_version}")
+    published = plugins.published_results()
+    print("published LIBERO results (conflictbench reproduce ... model.published=...):")
+    if not published:
+        print("  (none registered)")
+    for name, result in published.items():
+        suites = ", ".join(result.success)
+        print(f"  {name:<42} model={result.policy}  {suites}" + (" [secondary]" if result.status != "primary" else ""))
     print("metrics (per pair):")
     metrics = plugins.metrics()
     if not metrics:

@@ -6,7 +6,7 @@ import contextlib
 import os
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -163,8 +163,15 @@ def register_model_configs(plugins: Plugins) -> None:
         store.store(group="model", name=name, node=spec.config if spec.config is not None else {})
 
 
-def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
-    """Play the composed run and print its report. Returns the process exit code."""
+#: ``finish(store, episode_ids)``: what a verb built on the run reports instead of the conflict tables.
+Finish = Callable[[Any, list[str]], None]
+
+
+def run_job(
+    cfg: DictConfig, plugins: Plugins, model: str, *, declared: str | None = None, finish: Finish | None = None
+) -> int:
+    """Play the composed run and print its report (``finish``'s, where given); ``declared``: the published
+    checkpoint the user declared the model to be, kept beside the episodes. Returns the process exit code."""
     from conflictbench.cli.sweep import record_job, sweep_job
     from conflictbench.report import report_store
     from conflictbench.sim.plan import build_plan
@@ -236,6 +243,10 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
         max_steps=options.max_steps,
     )
     result = runner.run(plan)
+    if declared is not None:  # by the identity the runner computed: not part of it, so episodes are reused
+        from conflictbench.store.declarations import record_declaration
+
+        record_declaration(store.root, model, runner.config_hash, declared)
     print(
         f"conflictbench: {result.played} played, {result.already_stored} already stored, "
         f"{result.played_elsewhere} played by another job, {result.errors} with errors"
@@ -247,7 +258,9 @@ def run_job(cfg: DictConfig, plugins: Plugins, model: str) -> int:
     if job is not None:  # a sweep's jobs keep their own tables apart; the sweep's end reports them together
         record_job(job[0], store.root, model, list(result.episode_ids))
         report_dir = report_dir / "jobs" / f"{job[1]}-{model}"
-    if options.report:
+    if finish is not None:
+        finish(store, list(result.episode_ids))
+    elif options.report:
         report_store(store, plugins, episode_ids=result.episode_ids, out_dir=report_dir, metrics=options.metrics)
     return 0
 
@@ -277,6 +290,14 @@ class PluginsHere:
 
 def command(argv: list[str], plugins: Plugins) -> int:
     """Compose the run from Hydra overrides and play it (Hydra's own errors exit with code 2)."""
+    from .published import take_declaration
+
+    argv, declared = take_declaration(argv, plugins)
+    return play(argv, plugins, declared=declared)
+
+
+def play(argv: list[str], plugins: Plugins, *, declared: str | None = None, finish: Finish | None = None) -> int:
+    """:func:`command` with the declaration already taken off ``argv``, and ``finish`` for :func:`run_job`."""
     import hydra
     from hydra.core.hydra_config import HydraConfig
 
@@ -293,7 +314,8 @@ def command(argv: list[str], plugins: Plugins) -> int:
     def task(cfg) -> int:
         state["started"] = True
         try:
-            return run_job(cfg, here.get(), HydraConfig.get().runtime.choices["model"])
+            model = HydraConfig.get().runtime.choices["model"]
+            return run_job(cfg, here.get(), model, declared=declared, finish=finish)
         except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             hydra_config, job = HydraConfig.get(), sweep_job()

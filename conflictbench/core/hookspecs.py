@@ -143,3 +143,29 @@ def conflictbench_register_conflict_operators(register):
     ``conflictbench suite build`` runs every registered operator; ``suite validate`` applies every
     registered check. The built-in operators register through this same hook.
     """
+
+
+@hookspec
+def conflictbench_register_published_results(register):
+    """Declare what the authors of a model published for its official checkpoints on LIBERO.
+
+    Call ``register(name, policy=..., checkpoint=..., success={suite: percent}, protocol={...}, source=...,
+    url=..., date=..., paper_model=None, status="primary", caveats=(), counts=None)`` once per entry:
+
+    - ``name``: what a user declares with ``model.published=<name>`` (short: ``pi05-libero``);
+    - ``policy``: the registered policy that plays this checkpoint (``pi05``);
+    - ``checkpoint``: where the checkpoint is published (a Hub id, a bucket path);
+    - ``success``: LIBERO suite -> published success in percent, exactly as the source prints it;
+    - ``protocol``: how the figure was measured: ``episodes_per_suite`` (int), ``trials_per_task`` (int, where
+      the source says), ``seeds`` (int, optional),
+      ``init_states`` (text), ``max_steps`` (suite -> steps, optional), ``warmup_steps`` (optional),
+      ``actions_per_query`` (optional), ``notes`` (text, optional);
+    - ``source``, ``url``, ``date``: the citation (paper or model card, its address, the date or commit);
+    - ``paper_model``: the row of the ConflictVLA-Bench paper's tables this checkpoint is, or ``None``;
+    - ``status``: ``primary`` (read in the source) or ``secondary`` (only third-party copies could be read);
+    - ``caveats``: what a reader must know (figures disagree, another harness);
+    - ``counts``: suite -> ``"k/n"`` where the source also prints counts.
+
+    ``conflictbench reproduce`` compares a declared checkpoint's measured success with these figures. Nothing
+    can check offline that a checkpoint is the one named: the user's declaration says so.
+    """

@@ -34,10 +34,12 @@ from .registry import (
     MetricSpec,
     PluginSource,
     PolicySpec,
+    PublishedResult,
     check_name,
     metric_spec,
     operator_spec,
     policy_spec,
+    published_spec,
 )
 
 ENTRY_POINT_GROUP = hookspecs.PROJECT_NAME
@@ -199,6 +201,10 @@ class Plugins:
 
     def conflict_operators(self) -> dict[str, ConflictOperatorSpec]:
         return self._collect("conflictbench_register_conflict_operators", "conflict operator", operator_spec)
+
+    def published_results(self) -> dict[str, PublishedResult]:
+        """Entry name -> what a model's authors published for that checkpoint (``model.published=<name>``)."""
+        return self._collect("conflictbench_register_published_results", "published result", published_spec)
 
     def families(self) -> tuple[str, ...]:
         """The built-in families, then any a plugin's operators add."""

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .errors import PluginError, UserError
-from .records import FAMILIES, LEVELS
+from .records import FAMILIES, LEVELS, LIBERO_SUITES
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -184,3 +184,121 @@ def operator_spec(
 def check_name(kind: str, name: Any, plugin_name: str) -> None:
     if not isinstance(name, str) or not _NAME.match(name):
         raise PluginError(f"{kind} name {name!r} from {plugin_name} is not valid (letters, digits, '_', '.', '-')")
+
+
+#: The keys of a published result's ``protocol``, and the type of each.
+PROTOCOL_KEYS = {
+    "episodes_per_suite": int,
+    "trials_per_task": int,
+    "seeds": int,
+    "init_states": str,
+    "max_steps": dict,
+    "warmup_steps": int,
+    "actions_per_query": str,
+    "notes": str,
+}
+PAPER_MODELS = ("OpenVLA", "OpenVLA-OFT", "pi0", "pi0-FAST", "pi0.5", "GR00T N1.7", "VLA-JEPA", "UniVLA")
+"""The rows of the ConflictVLA-Bench paper's tables (shared/paper/table1_overall_p0.csv)."""
+
+
+@dataclass(frozen=True)
+class PublishedResult:
+    """What a model's authors published for one official checkpoint on LIBERO, with its citation."""
+
+    name: str
+    policy: str
+    checkpoint: str
+    success: dict[str, float]
+    """LIBERO suite -> success in percent, as the source prints it."""
+    protocol: dict[str, Any]
+    source: str
+    url: str
+    date: str
+    plugin: str
+    plugin_version: str
+    paper_model: str | None = None
+    status: str = "primary"
+    """``primary``: read in the source; ``secondary``: only consistent third-party copies could be read."""
+    caveats: tuple[str, ...] = ()
+    counts: dict[str, str] | None = None
+    """Suite -> ``"k/n"`` where the source prints counts too (they may disagree with its percentages)."""
+
+    @property
+    def citation(self) -> str:
+        return f"{self.source}, {self.url} ({self.date})"
+
+
+def published_spec(
+    where: str,
+    src: PluginSource,
+    name: str,
+    *,
+    policy: str,
+    checkpoint: str,
+    success: dict[str, float],
+    protocol: dict[str, Any],
+    source: str,
+    url: str,
+    date: str,
+    paper_model: str | None = None,
+    status: str = "primary",
+    caveats: Sequence[str] = (),
+    counts: dict[str, str] | None = None,
+) -> PublishedResult:
+    for label, text in (("policy", policy), ("checkpoint", checkpoint), ("source", source), ("date", date)):
+        if not isinstance(text, str) or not text.strip():
+            raise PluginError(f"{where}: {label} must be a non-empty string")
+    if not isinstance(url, str) or not url.startswith(("https://", "http://")):
+        raise PluginError(f"{where}: url must be a web address, got {url!r}")
+    if not isinstance(success, dict) or not success:
+        raise PluginError(f"{where}: success must map LIBERO suites to percentages")
+    for suite, value in success.items():
+        if suite not in LIBERO_SUITES:
+            raise PluginError(f"{where}: {suite!r} is not a LIBERO suite ({', '.join(LIBERO_SUITES)})")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 100:
+            raise PluginError(f"{where}: success of {suite} must be a percentage in [0, 100], got {value!r}")
+    if not isinstance(protocol, dict) or not isinstance(protocol.get("episodes_per_suite"), int):
+        raise PluginError(f"{where}: protocol needs episodes_per_suite (an integer)")
+    for key, value in protocol.items():
+        if key not in PROTOCOL_KEYS or not isinstance(value, PROTOCOL_KEYS[key]):
+            raise PluginError(f"{where}: protocol {key}={value!r}; keys and types: {PROTOCOL_KEYS}")
+    if set(protocol.get("max_steps", {})) - set(LIBERO_SUITES):
+        raise PluginError(f"{where}: protocol max_steps names suites LIBERO lacks")
+    if paper_model is not None and paper_model not in PAPER_MODELS:
+        raise PluginError(f"{where}: paper_model must be one of {', '.join(PAPER_MODELS)}, got {paper_model!r}")
+    if status not in ("primary", "secondary"):
+        raise PluginError(f"{where}: status must be 'primary' or 'secondary', got {status!r}")
+    if counts is not None and (
+        set(counts) - set(success) or not all(re.fullmatch(r"\d+/\d+", c) for c in counts.values())
+    ):
+        raise PluginError(f"{where}: counts must map suites of success to 'k/n'")
+    return PublishedResult(
+        name, policy, checkpoint, {s: float(v) for s, v in success.items()}, dict(protocol), source, url, date,
+        src.distribution, src.version, paper_model, status, tuple(caveats), dict(counts) if counts else None,
+    )  # fmt: skip
+
+
+def read_published(path: Any) -> list[dict[str, Any]]:
+    """The ``register(**entry)`` arguments of a model plugin's published-results TOML file.
+
+    The file has ``[protocol.NAME]`` tables, then one table per group of entries that share a citation: its keys
+    apply to each of its ``entries`` (name -> own keys; ``suite`` + ``success`` for a one-suite checkpoint; own
+    ``caveats`` add to the group's). A ``protocol`` is a table, or ``{base = NAME, ...}`` extending a named one."""
+    import tomllib
+    from pathlib import Path
+
+    data = tomllib.loads(Path(str(path)).read_text(encoding="utf-8"))
+    protocols = data.pop("protocol", {})
+    found = []
+    for group in data.values():
+        shared = {key: value for key, value in group.items() if key != "entries"}
+        for name, own in group["entries"].items():
+            entry = {**shared, **own, "name": name, "caveats": [*shared.get("caveats", []), *own.get("caveats", [])]}
+            if "suite" in entry:
+                entry["success"] = {entry.pop("suite"): entry["success"]}
+            protocol = dict(entry.get("protocol", {}))
+            if "base" in protocol:
+                protocol = {**protocols[protocol.pop("base")], **protocol}
+            entry["protocol"] = protocol
+            found.append(entry)
+    return found

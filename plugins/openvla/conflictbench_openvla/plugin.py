@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import functools
+from importlib import resources
 
-from conflictbench import hookimpl
+from conflictbench import hookimpl, read_published
 
 from .client import POLICIES, load
 
@@ -13,3 +14,10 @@ from .client import POLICIES, load
 def conflictbench_register_policies(register):
     for name, (_policy, config) in POLICIES.items():
         register(name, load=functools.partial(load, name), config=config)
+
+
+@hookimpl
+def conflictbench_register_published_results(register):
+    """What the model's authors published on LIBERO, with its citations (published.toml)."""
+    for entry in read_published(resources.files(__package__) / "published.toml"):
+        register(**entry)
