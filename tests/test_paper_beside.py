@@ -11,6 +11,8 @@ import pytest
 from test_report import two_models
 
 import conflictbench
+from conflictbench import hookimpl
+from conflictbench.core.plugins import Plugins
 from conflictbench.report import report_records
 from conflictbench.report.paper import paper_models, paper_table, paper_value
 
@@ -99,3 +101,38 @@ def test_a_metric_the_paper_lacks_is_left_blank_in_the_papers_row():
     assert paper_value("table3_qualified_failures", "pi0.5", "tar_qf") == float(
         paper_table("table3_qualified_failures").set_index("model").loc["pi0.5", "TAR"]
     )
+
+
+class PaperCheckpoint:
+    """A published entry declared to be the paper's pi0 (the figures are the test's; the plugin says so)."""
+
+    @hookimpl
+    def conflictbench_register_published_results(self, register):
+        for name, paper_model in (("official-pi0", "pi0"), ("someone-elses", None)):
+            register(name, policy="noop", checkpoint="(built in)", success={"libero_goal": 50.0},
+                     protocol={"episodes_per_suite": 500}, source="test", url="https://example.org/t",
+                     date="2026-01-01", paper_model=paper_model)  # fmt: skip
+
+
+@pytest.mark.sim
+def test_a_declared_run_shows_the_papers_rows_at_its_end_in_its_report_and_on_the_viewers_index(tmp_path, capsys):
+    from conflictbench.cli.report import command as report_command
+    from conflictbench.cli.run import command as run_command
+    from conflictbench.cli.view import command as view_command
+
+    plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[PaperCheckpoint()])
+    store = tmp_path / "store"
+    common = ["model=noop", "run.tasks=[libero_goal/6]", "run.workers=1", "run.progress=false", "run.max_steps=3",
+              "suite=grounding", "level=L1", f"run.out={store}", f"hydra.run.dir={tmp_path}/hydra"]  # fmt: skip
+    pcsr = f"{paper_value('table1_overall', 'pi0', 'PCSR'):.1f} (paper)"
+    assert run_command([*common, "model.published=someone-elses"], plugins) == 0
+    assert "paper:" not in capsys.readouterr().out  # a declared checkpoint that is not one of the paper's: nothing
+    assert run_command([*common, "model.published=official-pi0"], plugins) == 0
+    assert re.search(rf"\npaper: pi0 +p0 .*{re.escape(pcsr)}", capsys.readouterr().out)  # the run's own summary
+    assert report_command([str(store)], plugins) == 0
+    assert re.search(rf"\npaper: pi0 +p0 .*{re.escape(pcsr)}", capsys.readouterr().out)
+    assert "paper: pi0" in (store / "report" / "table1_overall.md").read_text()
+    assert view_command([str(store), "--videos", "0", "--no-progress"], plugins) == 0
+    index = (store / "view" / "index.html").read_text()
+    assert "Beside the paper (P0)" in index and "paper: pi0" in index and pcsr in index
+    assert "the paper&#x27;s suite is not this one" in index or "the paper's suite is not this one" in index

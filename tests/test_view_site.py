@@ -324,3 +324,12 @@ def test_a_spatial_pair_page_states_the_frame_and_draws_its_axes():
         assert "front = towards the camera (+x)" in text and "left = -y" in text and said in text
     script = (resources.files("conflictbench.view") / "assets" / "viewer.js").read_text()
     assert 'compass: { x: "+x front (camera)", y: "+y image right = robot\'s left" }' in script
+
+
+def test_a_policy_without_settings_gets_a_play_again_command():
+    from conflictbench.view.pairs import play_again_command
+
+    case = SHIPPED[0]
+    record = episode("c", case=case, policy="noop", policy_settings="null")  # what the store holds for noop
+    command = play_again_command(record)
+    assert "model=noop" in command and "model." not in command.replace("model=noop", "")

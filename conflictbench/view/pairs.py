@@ -126,7 +126,7 @@ def play_again_command(conflict: EpisodeRecord) -> str:
     """The command that plays this pair (its conflict episode and the reference it needs) again."""
     import shlex
 
-    settings = json.loads(conflict.policy_settings or "{}")
+    settings = json.loads(conflict.policy_settings or "{}") or {}  # "null": a policy without settings (noop)
     overrides = [f"model={conflict.policy}"]
     overrides += [f"model.{key}={_override_value(value)}" for key, value in sorted(settings.items())]
     overrides += [
