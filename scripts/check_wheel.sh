@@ -84,7 +84,7 @@ grep -q "2 played, 0 already stored, 0 played by another job, 0 with errors" "$w
 # 5. The viewer from the wheel: its page assets are packaged, and videos encode with the sim extra's PyAV.
 "$work/venv/bin/conflictbench" view results --no-progress >"$work/view.log" || { cat "$work/view.log" >&2; exit 1; }
 cat "$work/view.log" >&2
-grep -q "1 pair page, 2 videos rendered" "$work/view.log" && [ -s results/view/assets/viewer.js ] \
+grep -q "1 pair page, 1 reference episode page, 2 videos rendered" "$work/view.log" && [ -s results/view/assets/viewer.js ] \
   || { say "the viewer did not write its site with both videos"; exit 1; }
 
 # 6. Each model plugin as a user installs it (not editable), alone beside the wheel and the server half: a plugin

@@ -126,6 +126,13 @@ def test_noop_is_below_a_half_consistent_with_ten_and_quick_mode_is_inconclusive
     assert (store / "report" / "reproduce-noop-ten.csv").read_text().splitlines()[1].startswith("libero_goal,16,0,0,")
     # one identity (the initial states are not part of it): the latest declaration stands
     assert list(declarations(store).values()) == ["noop-ten"]
+    # what the output's last line promises: the viewer opens its episodes (one replayed to a video here)
+    from conflictbench.cli.view import command as view_command
+
+    assert view_command([str(store), "--videos", "1", "--no-progress"], stand_in_plugins()) == 0
+    assert "0 pair pages, 16 reference episode pages, 1 video rendered" in capsys.readouterr().out
+    pages = sorted((store / "view" / "episodes").glob("*.html"))
+    assert len(pages) == 16 and sum("<video" in page.read_text() for page in pages) == 1
 
 
 @pytest.mark.sim

@@ -168,7 +168,10 @@ def test_the_command_names_mistakes_in_one_line(store, tmp_path, capsys):
     assert len(err) == 3 and all(line.startswith("conflictbench: error:") for line in err)
     assert "L9" in err[2] and "Traceback" not in "".join(err)
     assert main(["view", str(store.root), "--videos", "0", "--no-progress"]) == 0
-    assert "2 pair pages" in capsys.readouterr().out and (store.root / "view" / "index.html").is_file()
+    assert (
+        "2 pair pages, 1 reference episode page" in capsys.readouterr().out
+        and (store.root / "view" / "index.html").is_file()
+    )
 
 
 def test_a_folder_the_site_cannot_go_to_is_named_in_one_line(store, tmp_path, capsys):
@@ -198,7 +201,10 @@ def test_a_video_shows_where_its_note_names_the_episode_as_stored_and_its_replay
     for eid in ("ref", "d-ground", "c-phys"):
         note(eid)
     build_site(store.root, site, plugins, Selection(), videos=0, progress=False)
-    assert (site / "index.html").read_text().count("<td>yes</td>") == 2
+    assert pairs_table(site).count("<td>yes</td>") == 2
+    assert (
+        references_table(site).count("<td>yes</td>") == 1 and "<video" in (site / "episodes" / "ref.html").read_text()
+    )
     assert all((site / "pairs" / f"{n}.html").read_text().count("<video") == 2 for n in ("d-ground", "c-phys"))
 
     note("c-phys", error="EGLError: could not make a context")
@@ -206,7 +212,7 @@ def test_a_video_shows_where_its_note_names_the_episode_as_stored_and_its_replay
     changed.actions = changed.actions + 1.0  # played again under the same id: the old video shows another rollout
     store.write(changed)
     build_site(store.root, site, plugins, Selection(), videos=0, progress=False)
-    assert (site / "index.html").read_text().count("<td>yes</td>") == 0
+    assert pairs_table(site).count("<td>yes</td>") == 0
     failed_page = (site / "pairs" / "c-phys.html").read_text()
     assert "The replay failed: EGLError" in failed_page and failed_page.count("<video") == 1  # the reference's
     assert (site / "pairs" / "d-ground.html").read_text().count("<video") == 1
@@ -225,10 +231,34 @@ def test_a_page_without_video_says_the_command_to_render_it_escaped(tmp_path, pl
     assert f"--family {goal3.family} --pair c1" in page
 
 
-def test_a_store_without_pairs_is_refused(tmp_path, plugins):
+def pairs_table(site) -> str:
+    return (site / "index.html").read_text().split('<table id="pairs">')[1].split("</table>")[0]
+
+
+def references_table(site) -> str:
+    return (site / "index.html").read_text().split('<table id="references">')[1].split("</table>")[0]
+
+
+def test_a_store_of_reference_episodes_alone_gets_a_page_for_each(tmp_path, plugins):
+    """What `conflictbench reproduce` stores: the original instructions, no conflict, so no pair."""
     store = EpisodeStore(tmp_path / "r")
-    store.write(episode("ref"))
-    with pytest.raises(UserError, match="no pairs"):
+    store.write(episode("ref", seed=1))
+    store.write(episode("ref2", seed=2, success=False))
+    built = build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    assert (built.pairs, built.episodes) == (0, 2)
+    rows = references_table(tmp_path / "site")
+    assert rows.count("<tr>") == 3 and "succeeded" in rows and "failed" in rows  # a header and one row each
+    page = (tmp_path / "site" / "episodes" / "ref2.html").read_text()
+    assert "open the top drawer and put the bowl inside" in page and "No video rendered" in page
+    assert "--videos all" in page
+    by_model = build_site(store.root, tmp_path / "site2", plugins, Selection(model={"noop"}), videos=0, progress=False)
+    assert by_model.episodes == 2  # the model filter names references too
+
+
+def test_a_store_without_pairs_or_references_is_refused(tmp_path, plugins):
+    store = EpisodeStore(tmp_path / "r")
+    store.write(episode("c", case=SHIPPED[0]))  # a conflict episode whose reference is not stored
+    with pytest.raises(UserError, match="no pairs and no reference episodes"):
         build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
 
 

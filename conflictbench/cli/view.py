@@ -63,7 +63,8 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         return 130
     failed = f", {built.failed} failed (see their pages)" if built.failed else ""
     print(
-        f"conflictbench: {built.pairs} pair page{'s' * (built.pairs != 1)}, {built.rendered} video"
+        f"conflictbench: {built.pairs} pair page{'s' * (built.pairs != 1)}, {built.episodes} reference episode "
+        f"page{'s' * (built.episodes != 1)}, {built.rendered} video"
         f"{'s' * (built.rendered != 1)} rendered{failed} in "
         f"{built.seconds:.0f} s; {built.bytes / 1e6:.1f} MB in {built.out}/\n"
         f"open {(built.out / 'index.html').resolve().as_uri()}",

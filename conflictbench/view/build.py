@@ -20,6 +20,7 @@ from conflictbench.report.from_store import CHUNK_PAIRS, loaded_pairs, paper_bes
 from conflictbench.report.summary import select_metrics
 from conflictbench.store import EpisodeStore
 
+from .episodes import episode_page, reference_episodes, references_section
 from .pairs import Selection, choose
 from .site import index_page, pair_page, paper_section
 from .videos import current_meta, playable, render_videos, write_atomic
@@ -28,6 +29,7 @@ from .videos import current_meta, playable, render_videos, write_atomic
 @dataclass
 class Built:
     pairs: int
+    episodes: int  # reference episodes' own pages
     rendered: int
     failed: int
     seconds: float
@@ -70,7 +72,10 @@ def build_site(
     started = time.perf_counter()
     store = EpisodeStore(store_dir)
     cases = {case.case_id: case for case in load_suite(suite_file).cases}
-    pairs, rows = choose(store, selection)
+    pairs, rows = choose(store, selection, allow_none=True)
+    references = reference_episodes(store, selection)
+    if not pairs and not references:
+        raise UserError(f"{store.root} holds no pairs and no reference episodes to show")
     names = [p.conflict.episode_id for p in pairs]
     if unknown := set(video_pairs) - set(names):
         raise UserError(f"--pair {', '.join(sorted(unknown))}: not among the pairs this command shows")
@@ -79,6 +84,9 @@ def build_site(
 
     with_video = [p for i, p in enumerate(pairs) if (videos is None or i < videos) or names[i] in video_pairs]
     wanted = {r.episode_id: r for p in with_video for r in (p.reference, p.conflict)}
+    budget = None if videos is None else max(0, videos - len(with_video))  # the pairs' first, then references'
+    alone = [r for _, r in references if r.episode_id not in wanted]
+    wanted.update({r.episode_id: r for r in (alone if budget is None else alone[:budget])})
     by_task = sorted(wanted.values(), key=lambda r: (r.suite, r.task_id, r.episode_id))  # an env per task, once
     rendered, failed, render_s = render_videos(store, out, [(r.episode_id, r.policy) for r in by_task], workers,
                                                progress)  # fmt: skip
@@ -105,6 +113,20 @@ def build_site(
             page = pair_page(row, reference, conflict, cases.get(conflict.case_id or ""), metrics, metas,
                              neighbours, hint)  # fmt: skip
             write_atomic(out / "pairs" / f"{conflict.episode_id}.html", page)
+    shown_references = set()
+    hint = "Render it with: " + shlex.join([*rerun, "--videos", "all"])
+    for start in range(0, len(references), CHUNK_PAIRS):  # arrays (what a video's note is checked against) by chunk
+        part = references[start : start + CHUNK_PAIRS]
+        loaded_refs = {r.episode_id: r for r in store.load([(r.episode_id, r.policy) for _, r in part])}
+        for label, light in part:
+            record = loaded_refs[light.episode_id]
+            meta = current_meta(out, record)
+            write_atomic(out / "episodes" / f"{record.episode_id}.html", episode_page(label, record, meta, hint))
+            if playable(meta):
+                shown_references.add(record.episode_id)
+    for stale in (out / "episodes").glob("*.html"):
+        if stale.stem not in {r.episode_id for _, r in references}:
+            stale.unlink(missing_ok=True)
     shown = set(names)
     for stale in (out / "pairs").glob("*.html"):  # pages of pairs this build does not show (filters, a new store)
         if stale.stem not in shown:
@@ -112,8 +134,9 @@ def build_site(
     beside = (
         paper_section(pd.concat(frames, ignore_index=True), metrics, paper_beside(store, plugins)) if frames else ""
     )
-    write_atomic(out / "index.html", index_page(index_rows, metrics, str(store_dir), with_both, beside))
+    listed = references_section(references, shown_references)
+    write_atomic(out / "index.html", index_page(index_rows, metrics, str(store_dir), with_both, beside, listed))
     for name in ("viewer.js", "viewer.css"):
         write_atomic(out / "assets" / name, (resources.files("conflictbench.view") / "assets" / name).read_bytes())
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
-    return Built(len(pairs), rendered, failed, time.perf_counter() - started, render_s, size, out)
+    return Built(len(pairs), len(references), rendered, failed, time.perf_counter() - started, render_s, size, out)

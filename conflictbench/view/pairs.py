@@ -70,8 +70,12 @@ def pair_rows(store: EpisodeStore) -> tuple[list[Pair], pd.DataFrame]:
     return pairs, with_model(rows)
 
 
-def choose(store: EpisodeStore, selection: Selection) -> tuple[list[Pair], pd.DataFrame]:
+def choose(store: EpisodeStore, selection: Selection, *, allow_none: bool = False) -> tuple[list[Pair], pd.DataFrame]:
+    """The pairs the filters choose, in the paper's order; with ``allow_none``, none where the store has none (it
+    may hold reference episodes alone, as ``conflictbench reproduce`` plays them)."""
     pairs, rows = pair_rows(store)
+    if not pairs and allow_none:
+        return [], rows
     if not pairs:
         raise UserError(f"{store.root} holds no pairs to show (a conflict episode and its reference)")
     selection.check(rows)

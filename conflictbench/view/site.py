@@ -15,7 +15,7 @@ from .pairs import FILTERS, OUTCOMES, episode_data, play_again_command
 EQUAL_PATH_M = 1e-6  # a replay within a micrometre of the stored path shows what happened
 
 
-def _page(title: str, body: str, root: str) -> str:
+def page_html(title: str, body: str, root: str) -> str:
     return (
         '<!doctype html>\n<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
@@ -47,7 +47,7 @@ def _outcome(text: str) -> str:
     return f'<span class="outcome {slug(text)}">{escape(text)}</span>'
 
 
-def _episode_words(record: EpisodeRecord) -> str:
+def episode_words(record: EpisodeRecord) -> str:
     done = "completed the original goal" if record.success else "did not complete the original goal"
     error = f" (ended by: {escape(record.error)})" if record.error else ""
     return f"{done} in {record.steps} steps{error}"
@@ -74,7 +74,7 @@ def replay_words(meta: Mapping[str, Any] | None) -> tuple[str, bool]:
 
 
 def _video(kind: str, record: EpisodeRecord, meta: Mapping[str, Any] | None, hint: str) -> str:
-    caption = f'<figcaption><span class="{kind}-mark">{kind.capitalize()}</span>: {_episode_words(record)}</figcaption>'
+    caption = f'<figcaption><span class="{kind}-mark">{kind.capitalize()}</span>: {episode_words(record)}</figcaption>'
     if meta and not meta.get("error"):
         src = f"../videos/{escape(record.episode_id, quote=True)}.mp4"
         return f'<figure>{caption}<video src="{src}" controls muted playsinline preload="auto"></video></figure>'
@@ -177,7 +177,7 @@ def pair_page(
 <h2>Measures of this pair</h2>
 <table><thead><tr><th>measure</th><th>value</th><th>what it measures</th></tr></thead><tbody>{measures}</tbody></table>
 <script type="application/json" id="pair-data">{script_json(data)}</script>"""
-    return _page(title, body, "../")
+    return page_html(title, body, "../")
 
 
 def paper_section(frame, metrics: Sequence, paper: Mapping[tuple[str, str], str]) -> str:
@@ -205,10 +205,16 @@ def paper_section(frame, metrics: Sequence, paper: Mapping[tuple[str, str], str]
 
 
 def index_page(
-    rows: Sequence[Mapping[str, Any]], metrics: Sequence, source: str, videos: set[str], beside: str = ""
+    rows: Sequence[Mapping[str, Any]],
+    metrics: Sequence,
+    source: str,
+    videos: set[str],
+    beside: str = "",
+    references: str = "",
 ) -> str:
     """Every pair in one table, filtered in the page by model, family, level, prompt and outcome; ``beside``:
-    the paper's figures beside this store's (:func:`paper_section`), where a model is declared as the paper's."""
+    the paper's figures beside this store's (:func:`paper_section`), where a model is declared as the paper's;
+    ``references``: the table of reference episodes after the pairs' (``episodes.references_section``)."""
     options = {name: sorted({str(r[name]) for r in rows}) for name in FILTERS}
     options["outcome"] = [o for o in OUTCOMES.values() if o in options["outcome"]]  # in the order of OUTCOMES
     filters = "".join(
@@ -239,5 +245,6 @@ rollout by the same policy, base task, initial state, prompt condition and seed.
 <p id="count">{len(rows)} pairs</p>
 <table id="pairs"><thead><tr>{head}</tr></thead><tbody>
 {chr(10).join(body_rows)}
-</tbody></table>"""
-    return _page("conflictbench pairs", body, "")
+</tbody></table>
+{references}"""
+    return page_html("conflictbench pairs", body, "")
