@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from tiny_fixtures import MODEL_PYTHON, TINY_DIR, needs_model_env
 
 from conflictbench.hosting import ServerProcess, free_port
 from conflictbench.store import EpisodeStore
+from conflictbench.store.declarations import declarations
 from conflictbench.testing import episode_counts as counts
 from conflictbench.testing import run_cli as run_cli_on_one_case
 
@@ -119,3 +121,26 @@ def test_the_served_path_gives_the_actions_of_a_direct_lerobot_call(tmp_path, ti
         assert got.shape == (5, 7)
         np.testing.assert_array_equal(got, want[:5])
     assert not np.allclose(served[0], served[1])
+
+
+@needs_model_env
+def test_a_quick_reproduce_of_a_tiny_checkpoint_prints_the_published_figure_and_an_inconclusive_verdict(
+    tmp_path, tiny_checkpoints, tiny_env
+):
+    """The path and the table with a real plugin: the tiny π0.5's server, real episodes, the pi05-libero entry."""
+    import conflictbench
+
+    entry = conflictbench.plugins().published_results()["pi05-libero"]
+    argv = [sys.executable, "-m", "conflictbench.cli", "reproduce", "model=pi05", "model.published=pi05-libero",
+            f"model.checkpoint={tiny_checkpoints['pi05']}", "model.device=cpu", f"model.max_steps={STEPS}",
+            "--quick", "run.tasks=[libero_spatial/0]", "run.progress=false",
+            f"run.out={tmp_path / 'store'}"]  # fmt: skip
+    done = subprocess.run(argv, capture_output=True, text=True, cwd=tmp_path, env=model_process_env(tiny_env),
+                          stdin=subprocess.DEVNULL, timeout=900)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert counts(done.stderr) == (2, 0, 0)  # the first two initial states of the one task asked for
+    line = next(line for line in done.stdout.splitlines() if line.startswith("libero_spatial "))
+    assert f"{entry.success['libero_spatial']:.1f}" in line and line.split()[-1] == "inconclusive"
+    assert entry.url in done.stdout  # the citation under the table
+    assert (tmp_path / "store" / "report" / "reproduce-pi05-libero.csv").is_file()
+    assert list(declarations(tmp_path / "store").values()) == ["pi05-libero"]
