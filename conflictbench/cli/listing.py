@@ -19,12 +19,16 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     for name, spec in sorted(plugins.policies().items()):
         print(f"  {name:<20} {spec.plugin} {spec.plugin_version}")
     published = plugins.published_results()
-    print("published LIBERO results (conflictbench reproduce ... model.published=...):")
+    print("published LIBERO results (conflictbench reproduce ... model.published=...; [paper: X]: the paper's X,")
+    print("  whose figures then sit beside the run's):")
     if not published:
         print("  (none registered)")
     for name, result in published.items():
         suites = ", ".join(result.success)
-        print(f"  {name:<42} model={result.policy}  {suites}" + (" [secondary]" if result.status != "primary" else ""))
+        notes = ([f"[paper: {result.paper_model}]"] if result.paper_model else []) + (
+            ["[secondary]"] if result.status != "primary" else []
+        )
+        print(f"  {name:<42} model={result.policy}  {' '.join([suites, *notes])}")
     print("metrics (per pair):")
     metrics = plugins.metrics()
     if not metrics:
