@@ -48,6 +48,15 @@ def test_help_lists_the_verbs(cli):
         (["report", "/no/such/dir"], "no such directory: /no/such/dir"),
         (["report"], "the following arguments are required: DIR"),
         (["list", "--bogus"], "unrecognized arguments: --bogus"),
+        # a mistyped key gets one line naming the closest valid one, not Hydra's grammar, and Hydra's advice
+        # (+key) does not make it silently run with the default
+        (["run.init_state=2"], "run.init_state: the run has no option 'init_state' (did you mean init_states?)"),
+        (["+run.init_state=2"], "run.init_state: the run has no option 'init_state' (did you mean init_states?)"),
+        (["levl=L1"], "levl: no such option (did you mean level?)"),
+        (["+levl=L1"], "levl: no such option (did you mean level?)"),
+        (["suite.famlies=[spatial]"], "suite.famlies: the suite has no option 'famlies' (did you mean families?)"),
+        (["model=random", "+model.extra=1"], "model.extra: random has no setting 'extra'"),
+        (["reprot", "results"], "unknown command 'reprot' (did you mean report?)"),
     ],
 )
 def test_bad_input_is_one_clear_line_and_exit_code_2(cli, args, message):
@@ -154,7 +163,6 @@ def test_a_symlinked_store_folder_is_never_tidied_away(cli, tmp_path):
     [
         ["-m", "model=choice(random)", "model.seed=3"],  # a sweep function: Hydra checks
         ["--config-name", "other", "model.seed=3"],  # another config's default model
-        ["model=random", "+model.extra=1"],  # an append: Hydra's business
         ["model=random", "model.seed=3"],
     ],
 )
@@ -210,3 +218,33 @@ def test_the_list_of_this_projects_plugins_is_what_they_register():
         pytest.skip("no model plugin of this project is installed here")
     installed = set(registered.values())  # each installed plugin registers exactly the policies listed for it
     assert registered == {name: folder for name, folder in PROJECT_PLUGINS.items() if folder in installed}
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["hydra.run.dir=x", "hydra.job.chdir=true", "+hydra/launcher=ray", "hydra.sweeper.params.x=1"],
+        ["-m", "run.init_states=1,2", "level=L1,L2", "model.seed=3,4"],
+        ["--config-help"],
+        ["~run.tasks", "run.out=x", "suite.file=x.jsonl", "prompt.conditions=[p1]", "level.levels=[L1]"],
+        ["--config-dir", "mine", "+experiment=fast", "extra.key=1"],  # another config folder: Hydra checks
+    ],
+)
+def test_hydras_own_syntax_passes_the_key_check(argv):
+    from conflictbench.cli.overrides import check_known_keys
+
+    check_known_keys(argv)  # no UserError
+
+
+def test_every_verb_and_only_a_verb_is_taken_for_one():
+    from conflictbench.cli import VERBS
+    from conflictbench.cli.overrides import check_verb
+
+    for verb in VERBS:
+        check_verb([verb, "x"], VERBS)
+    for argv in (["model=noop"], ["-m", "x"], ["--config-help"], ["~run.tasks"], []):
+        check_verb(argv, VERBS)
+    with pytest.raises(conflictbench.core.UserError, match=r"unknown command 'lsit' \(did you mean list\?\)"):
+        check_verb(["lsit"], VERBS)
+    with pytest.raises(conflictbench.core.UserError, match="unknown command 'zzz'; commands: "):
+        check_verb(["zzz"], VERBS)

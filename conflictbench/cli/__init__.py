@@ -97,7 +97,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         import conflictbench
 
+        from .overrides import check_verb
+
         argv = _take_disabled_plugins(argv)
+        check_verb(argv, list(VERBS))  # before the plugins load: a typo should not wait on them
         plugins = conflictbench.plugins()
         module, rest = (VERBS[argv[0]], argv[1:]) if argv[:1] and argv[0] in VERBS else ("run", argv)
         return importlib.import_module(f"{__name__}.{module}").command(rest, plugins)

@@ -43,8 +43,9 @@ def default_model() -> str:
 
 def check_model_fields(argv: Sequence[str], plugins: Plugins) -> None:
     """Reject ``model.<field>=...`` for a field the chosen policies lack (one line naming theirs), before Hydra
-    answers with its multi-line "To append to your config use +model...". Where the model is not a plain choice
-    on this line (a sweep function, another config, a sweeper's params), Hydra checks; ``+model.x=`` too."""
+    answers with its multi-line "To append to your config use +model...", and ``+model.<field>=`` too (the
+    model would ignore it). Where the model is not a plain choice on this line (a sweep function, another config,
+    a sweeper's params), Hydra checks."""
     models = [default_model()]
     for arg in argv:
         key, _, value = arg.partition("=")
@@ -56,7 +57,8 @@ def check_model_fields(argv: Sequence[str], plugins: Plugins) -> None:
             models = [item.strip() for item in value.split(",")]
     for arg in argv:
         key = arg.partition("=")[0]
-        if arg.startswith(("-", "+", "~")) or not key.startswith("model.") or "=" not in arg:
+        key = key.lstrip("+")  # an append (+model.x=) of a field the model lacks would be silently ignored
+        if arg.startswith(("-", "~")) or not key.startswith("model.") or "=" not in arg:
             continue
         field = key.split(".")[1]
         for model in models:
@@ -94,3 +96,56 @@ def not_installed(model: str) -> str:
         f"scripts/setup.sh --models {folder} installs it with its model environment "
         f"(or pip install ./serving ./plugins/{folder}, see plugins/{folder}/README.md)"
     )
+
+
+#: Flags that bring in another configuration (its own groups and keys): then Hydra alone knows what is valid.
+OTHER_CONFIG_FLAGS = ("-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir")
+
+
+def group_keys(group: str) -> list[str]:
+    """The options of a YAML group (``run``, ``suite``...): the keys of any of its files."""
+    folder = resources.files("conflictbench.conf") / group
+    keys = set()
+    for path in folder.iterdir():
+        if path.name.endswith(".yaml"):
+            keys |= {str(k) for k in OmegaConf.load(str(path)) if k != "defaults"}
+    return sorted(keys)
+
+
+def _closest(name: str, choices: Sequence[str], what: str) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(name, choices, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]}?)" if close else f"; {what}: {', '.join(choices)}"
+
+
+def check_known_keys(argv: Sequence[str]) -> None:
+    """Reject a key the configuration does not have (``run.init_state=2``, ``levl=L1``), and the same key
+    appended (``+run.init_state=2``, which Hydra advises and which would run silently with the default): one line
+    naming the closest valid key. ``model.<field>`` is check_model_fields'; Hydra's own keys pass."""
+    if any(arg.partition("=")[0] in OTHER_CONFIG_FLAGS for arg in argv):
+        return
+    for arg in argv:
+        if arg.startswith(("-", "~")) or "=" not in arg:
+            continue
+        key = arg.partition("=")[0].lstrip("+")
+        if key == "hydra" or key.startswith(("hydra.", "hydra/")) or "@" in key:
+            continue  # Hydra's settings, launcher/sweeper groups, and package overrides
+        head, _, field = key.partition(".")
+        if head not in GROUPS:
+            raise UserError(f"{key}: no such option{_closest(head, GROUPS, 'options')}")
+        if field and head != "model":
+            keys = group_keys(head)
+            name = field.split(".")[0]
+            if name not in keys:
+                raise UserError(
+                    f"{head}.{name}: the {head} has no option {name!r}{_closest(name, keys, 'its options')}"
+                )
+
+
+def check_verb(argv: Sequence[str], verbs: Sequence[str]) -> None:
+    """A first word that is neither an override (``key=value``, ``~key``) nor a flag is a mistyped verb."""
+    first = argv[0] if argv else ""
+    if not first or first.startswith(("-", "~", "+")) or "=" in first or first in verbs:
+        return
+    raise UserError(f"unknown command {first!r}{_closest(first, sorted(verbs), 'commands')}")

@@ -27,7 +27,14 @@ from conflictbench.core import (
 from conflictbench.core.plugins import Plugins
 from conflictbench.sim import BACKENDS
 
-from .overrides import GROUPS, check_group_overrides, check_model_fields, default_model, group_choices
+from .overrides import (
+    GROUPS,
+    check_group_overrides,
+    check_known_keys,
+    check_model_fields,
+    default_model,
+    group_choices,
+)
 
 __all__ = ["GROUPS", "check_group_overrides", "check_model_fields", "command", "default_model", "group_choices"]
 
@@ -307,6 +314,7 @@ def play(argv: list[str], plugins: Plugins, *, declared: str | None = None, fini
     register_model_configs(plugins)
     check_group_overrides(argv, plugins)
     check_model_fields(argv, plugins)
+    check_known_keys(argv)
     state = {"started": False}
     here = PluginsHere(plugins)
 
