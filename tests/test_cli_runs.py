@@ -77,6 +77,18 @@ def test_a_pip_installed_plugin_runs_end_to_end_and_its_metric_is_reported(cli, 
     assert np.isclose(np.abs(conflict.raw_actions[:, 0]).max(), 0.8, atol=0.05)  # model.amplitude reached it
 
 
+def test_a_second_models_run_keeps_the_first_in_the_stores_report(cli, tmp_path):
+    """<run.out>/report/ describes the whole store (every model in it); the terminal shows this run's episodes."""
+    quick = ("suite=physical", "level=L1", "run.libero_suites=[libero_object]", "run.max_steps=3")
+    first = cli("model=noop", *quick)
+    assert first.returncode == 0, first.stderr[-3000:]
+    second = cli("model=demo-wave", *quick)
+    assert second.returncode == 0, second.stderr[-3000:]
+    table = pd.read_csv(tmp_path / "results" / "report" / "table1_overall.csv")
+    assert sorted(table["model"]) == ["demo-wave", "noop"]
+    assert "demo-wave" in second.stdout and "noop" not in second.stdout
+
+
 @pytest.mark.e2e
 def test_a_sweep_shares_one_store_and_never_replays_a_reference(cli, tmp_path, suite_file):
     out = cli("-m", "model=demo-wave", "suite=spatial,physical", "level=L3", f"suite.file={suite_file}")

@@ -268,7 +268,15 @@ def run_job(
     if finish is not None:
         finish(store, list(result.episode_ids))
     elif options.report:
-        report_store(store, plugins, episode_ids=result.episode_ids, out_dir=report_dir, metrics=options.metrics)
+        whole_store = job is None  # a sweep's job writes its own tables; the sweep's end, the combined ones
+        report_store(store, plugins, episode_ids=result.episode_ids, metrics=options.metrics,
+                     out_dir=None if whole_store else report_dir)  # fmt: skip
+        if whole_store:  # the files describe every model stored (as `report DIR` does), not just this run's
+            import io
+
+            report_store(store, plugins, out_dir=report_dir, metrics=options.metrics, stream=io.StringIO(),
+                         suite=suite.label, suite_cases={c.case_id for c in suite.accepted()})  # fmt: skip
+            print(f"the store's report (every model in {store.root}/) written to {report_dir}/")
     return 0
 
 
