@@ -108,6 +108,24 @@ def test_nobody_listening_stops_with_the_url_after_the_configured_retries():
     assert "\n" not in message and caught.value.exit_code == 3
 
 
+@pytest.mark.parametrize("scheme", ["http", "tcp"])  # tcp: GR00T's ZeroMQ, whose connect() never fails itself
+def test_an_unreachable_server_is_retried_aloud_and_given_up_on_as_quickly_as_any(scheme, capsys):
+    if scheme == "tcp":
+        pytest.importorskip("zmq")
+    from conflictbench.hosting.transport import HttpJsonTransport
+    from conflictbench.hosting.zeromq import ZmqTransport
+
+    url = f"{scheme}://127.0.0.1:{free_port()}" + ("/act" if scheme == "http" else "")
+    transport = ZmqTransport if scheme == "tcp" else HttpJsonTransport
+    client = PolicyClient(url, transport, connect_timeout_s=10, connect_retries=2, backoff_s=0.05)
+    start = time.monotonic()
+    with pytest.raises(ServerUnavailable, match="connection refused; 3 attempt"):
+        client.open()
+    assert time.monotonic() - start < 3.0  # the waits between attempts, never a connect timeout per attempt
+    said = [line for line in capsys.readouterr().err.splitlines() if url in line]
+    assert len(said) == 2 and "attempt 1 of 3" in said[0] and "attempt 2 of 3" in said[1], said
+
+
 def test_a_server_that_never_accepts_hits_the_connect_timeout():
     with socket.socket() as listener:
         listener.bind(("127.0.0.1", 0))

@@ -54,6 +54,7 @@ Another protocol passes its own transport: ``PolicyClient.from_config(cfg, trans
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -221,7 +222,9 @@ class _Stream:
             except OSError as exc:
                 self.transport.close()
                 reason = _describe(exc, client.connect_timeout_s)
-                if attempt < len(delays):
+                if attempt < len(delays):  # said at once: a run waiting on a server is never silent
+                    print(f"conflictbench: {client.url}: {reason}; attempt {attempt + 1} of {len(delays) + 1}, "
+                          f"trying again in {delays[attempt]:g} s", file=sys.stderr, flush=True)  # fmt: skip
                     time.sleep(delays[attempt])
         raise ServerUnavailable(
             client.url, f"{reason}; {len(delays) + 1} attempt(s) over {time.monotonic() - started:.1f} s"

@@ -14,6 +14,7 @@ and sends it again, or stops the run), not a slow model. ``{"error": ...}`` repl
 
 from __future__ import annotations
 
+import socket as net
 import time
 import urllib.parse
 from typing import Any
@@ -43,6 +44,10 @@ class ZmqTransport(Transport):
 
     def connect(self, timeout: float) -> None:
         self.close()
+        # ZeroMQ connects in the background and would wait out the whole timeout on a closed port: a plain TCP
+        # connection first says at once that nobody listens (connection refused), as HTTP and websockets do.
+        parts = urllib.parse.urlsplit(self.url)
+        net.create_connection((parts.hostname, parts.port), timeout=timeout).close()
         socket = self._context.socket(zmq.REQ)
         socket.setsockopt(zmq.LINGER, 0)
         self._monitor = socket.get_monitor_socket(zmq.EVENT_DISCONNECTED)
