@@ -73,11 +73,13 @@ def test_a_rejected_run_leaves_no_file_behind_and_keeps_an_existing_store(cli, t
     kept = tmp_path / "kept"
     (kept / "episodes").mkdir(parents=True)
     (kept / "episodes" / "x.parquet").write_bytes(b"stored")
-    for out_dir, sweep in ((tmp_path / "fresh", []), (tmp_path / "swept", ["-m"]), (kept, [])):
+    (tmp_path / "mine").mkdir()  # a folder the user made beforehand stays, even empty
+    for out_dir, sweep in ((tmp_path / "fresh", []), (tmp_path / "swept", ["-m"]), (kept, []), (tmp_path / "mine", [])):
         out = cli(*sweep, "suite.file=/no/such/suite.jsonl", f"run.out={out_dir}")
         assert out.returncode == 2 and "suite file not found" in out.stderr, out.stderr[-2000:]
-    assert [p for p in (tmp_path / "fresh").rglob("*")] == [] and [p for p in (tmp_path / "swept").rglob("*")] == []
+    assert not (tmp_path / "fresh").exists() and not (tmp_path / "swept").exists()  # run.out was made for it
     assert sorted(str(p.relative_to(kept)) for p in kept.rglob("*")) == ["episodes", "episodes/x.parquet"]
+    assert (tmp_path / "mine").is_dir() and not any((tmp_path / "mine").iterdir())
 
 
 @pytest.mark.parametrize("run_dir", ["${run.out}", ".", "elsewhere"])

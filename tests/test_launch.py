@@ -118,3 +118,16 @@ def test_a_proxy_in_the_environment_does_not_catch_the_local_health_check(tmp_pa
     monkeypatch.setenv("no_proxy", "")
     with server(tmp_path, HEALTH_SERVER, "0") as process:
         assert process.running
+
+
+def test_a_servers_log_goes_where_the_run_says_not_to_the_temporary_directory(tmp_path, monkeypatch):
+    """A run puts its servers' logs under its store (<run.out>/logs/servers), named in every failure."""
+    from conflictbench.hosting.launch import SERVER_LOG_DIR_VARIABLE
+
+    monkeypatch.setenv(SERVER_LOG_DIR_VARIABLE, str(tmp_path / "results" / "logs" / "servers"))
+    process = ServerProcess(
+        [sys.executable, "-c", "print('no model here'); exit(137)"], name="t", health_url="http://127.0.0.1:9/healthz"
+    )
+    with pytest.raises(ServerUnavailable, match="its log: " + str(tmp_path / "results" / "logs" / "servers")):
+        process.start()
+    assert process.log_path.read_text().strip() == "no model here"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -35,6 +34,7 @@ from .overrides import (
     default_model,
     group_choices,
 )
+from .rejected import out_not_yet_made, remove_hydra_output
 
 __all__ = ["GROUPS", "check_group_overrides", "check_model_fields", "command", "default_model", "group_choices"]
 
@@ -227,6 +227,9 @@ def run_job(
             "this selection plans no episodes (no accepted case matches the suite/level/LIBERO-suite filters)"
         )
     store = EpisodeStore(options.out)
+    from conflictbench.hosting.launch import SERVER_LOG_DIR_VARIABLE
+
+    os.environ[SERVER_LOG_DIR_VARIABLE] = os.path.abspath(store.root / "logs" / "servers")  # beside the episodes
     conflicts = sum(e.case is not None for e in plan)
     print(
         f"conflictbench: model={model} suite={'+'.join(families)} level={'+'.join(levels)} "
@@ -325,6 +328,7 @@ def play(argv: list[str], plugins: Plugins, *, declared: str | None = None, fini
     check_known_keys(argv)
     state = {"started": False}
     here = PluginsHere(plugins)
+    new_out = out_not_yet_made(argv)
 
     @hydra.main(version_base=None, config_path=CONFIG_PACKAGE, config_name="config")
     def task(cfg) -> int:
@@ -339,6 +343,9 @@ def play(argv: list[str], plugins: Plugins, *, declared: str | None = None, fini
                 record_failure(job[0], job[1], exc.exit_code, str(exc))
             if isinstance(exc, UserError):  # a rejected command leaves nothing behind, not even Hydra's folder
                 remove_hydra_output(Path(hydra_config.runtime.output_dir), Path(cfg.run.out), hydra_config.job.name)
+                if new_out is not None and Path(os.path.abspath(cfg.run.out)) == new_out:
+                    with contextlib.suppress(OSError):
+                        new_out.rmdir()  # made for this command (by Hydra, by the store): only where empty
             if job is not None:
                 return exc.exit_code
             raise SystemExit(exc.exit_code) from None
@@ -354,6 +361,9 @@ def play(argv: list[str], plugins: Plugins, *, declared: str | None = None, fini
         return int(exc.code or 0)
     finally:
         sys.argv = saved
+        if new_out is not None and sweep.failed_exit_code == 2:  # a sweep's record is taken back at its end
+            with contextlib.suppress(OSError):
+                new_out.rmdir()  # only where empty
     return sweep.failed_exit_code  # a sweep whose jobs failed (each said why)
 
 
@@ -397,39 +407,3 @@ def hydra_argv(argv: Sequence[str]) -> list[str]:
         (flags if arg in HYDRA_SWITCHES or arg in HYDRA_VALUE_FLAGS or arg.startswith("--") else rest).append(arg)
         i += 1
     return [*flags, *rest]
-
-
-#: The folders our config has Hydra make under ``<run.out>/hydra/``: a run's, a sweep's and a sweep job's.
-RUN_FOLDER = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}(-\d{6})?")  # (older versions: to the second)
-SWEEP_FOLDER = re.compile(r"multirun_" + RUN_FOLDER.pattern)
-
-
-def remove_hydra_output(folder: Path, out: Path, job_name: str = "conflictbench") -> None:
-    """Take back what Hydra wrote for a rejected job: its record files and log, and the folders that leaves
-    empty, below ``<run.out>/hydra``. Only in our own layout (a ``hydra.run.dir`` or ``hydra.sweep.dir`` set
-    elsewhere is left alone), only the files Hydra writes, only empty folders: nothing of the user's goes."""
-    try:
-        folder, out = Path(os.path.abspath(folder)), Path(os.path.abspath(out))
-        hydra_root = out / "hydra"
-        sweep = folder.parent if SWEEP_FOLDER.fullmatch(folder.parent.name) and folder.name.isdigit() else None
-        if sweep is not None:
-            run_folder_ok = sweep.parent == hydra_root
-        else:
-            run_folder_ok = folder.parent == hydra_root and RUN_FOLDER.fullmatch(folder.name) is not None
-        if not run_folder_ok or hydra_root.is_symlink() or out.is_symlink():
-            return
-        for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
-            (folder / ".hydra" / name).unlink(missing_ok=True)
-        (folder / f"{job_name}.log").unlink(missing_ok=True)
-        for empty in (folder / ".hydra", folder):
-            with contextlib.suppress(OSError):
-                empty.rmdir()  # only where empty
-        if sweep is not None:  # a rejected sweep job ends the sweep: its record goes where no job kept a folder
-            if [p.name for p in sweep.iterdir()] == ["multirun.yaml"]:
-                (sweep / "multirun.yaml").unlink()
-            with contextlib.suppress(OSError):
-                sweep.rmdir()
-        with contextlib.suppress(OSError):
-            hydra_root.rmdir()  # run.out itself stays
-    except OSError:
-        pass  # tidying up after a rejection must never hide its one line

@@ -59,6 +59,10 @@ def model_environment(name: str) -> Path:
     return Path(sys.prefix) / "models" / name
 
 
+#: Where a started server logs when not told: a run sets it to ``<run.out>/logs/servers`` (its workers inherit it).
+SERVER_LOG_DIR_VARIABLE = "CONFLICTBENCH_SERVER_LOG_DIR"
+
+
 class ServerProcess:
     """One server process: started, waited for, stopped. Use as a context manager or call start/stop."""
 
@@ -77,7 +81,8 @@ class ServerProcess:
         self._ready = ready  # a protocol's own readiness check (a ZeroMQ ping); else GET health_url
         self.env = {**os.environ, **(env or {})}
         self.startup_timeout_s = startup_timeout_s
-        folder = Path(log_dir) if log_dir is not None else Path(tempfile.gettempdir()) / "conflictbench-servers"
+        default = os.environ.get(SERVER_LOG_DIR_VARIABLE) or Path(tempfile.gettempdir()) / "conflictbench-servers"
+        folder = Path(log_dir) if log_dir is not None else Path(default)
         stamp = f"{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}-{next(_log_numbers)}"
         self.log_path = folder / f"{name}-{stamp}.log"
         self.process: subprocess.Popen | None = None
