@@ -23,8 +23,8 @@ from conflictbench.doctor.replaying import parse_perturbations, play_group
 from conflictbench.doctor.simulator import jobs_of
 from conflictbench.sim.libero_env import EnvSettings
 
-#: name -> the --perturb texts; the defaults LIBERO's scenes set are iterations 100? tolerance 1e-10? timestep 0.002
-#: (printed by the script from the model itself).
+#: name -> the --perturb texts. LIBERO's scenes' solver defaults (printed from the model itself): 100 iterations,
+#: tolerance 1e-8, timestep 0.002. A run's figures are beside doctor's TOLERANCE_M (conflictbench/doctor/physics.py).
 PERTURBATIONS = {
     "none": [],
     "qpos_ulp=1": ["qpos_ulp=1"],
