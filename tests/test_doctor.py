@@ -208,3 +208,14 @@ def test_print_checks_prints_one_line_each_and_says_whether_all_passed(capsys):
     assert not print_checks([Check("physics", True, "fine"), Check("rendering", False, "differs")], sys.stdout)
     assert capsys.readouterr().out == "physics    ok   fine\nrendering  FAIL differs\n"
     assert print_checks([], sys.stdout)
+
+
+def test_model_checks_say_so_in_one_line_where_this_conflictbench_has_none():
+    import importlib.util
+
+    from conflictbench.cli.doctor import _model_checks
+
+    if importlib.util.find_spec("conflictbench.doctor.models") is not None:
+        pytest.skip("this conflictbench has model checks: their own tests cover them")
+    (check,) = _model_checks(["model=pi05"], plugins=None)
+    assert check.name == "model" and not check.passed and "not available" in check.text
