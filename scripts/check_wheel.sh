@@ -5,7 +5,8 @@
 # read what the wheel must carry or find what it must declare (the config tree, plugin discovery, the public API's
 # import paths, imports without the simulator), not the whole selection again;
 # then add the simulator and, from an empty directory, run `conflictbench list`, a real run of the default model
-# (one reference and one conflict episode of libero_spatial, about 25 s) and the viewer on it; last, each model
+# (one reference and one conflict episode of libero_spatial, about 25 s), the viewer on it and `conflictbench doctor`
+# (the packaged goldens replayed in this fresh environment); last, each model
 # plugin installed alone (not editable) beside it, as `pip install . ./serving ./plugins/NAME` would.
 #
 #   scripts/check_wheel.sh          PYTHON=... picks the interpreter (default: .venv's)
@@ -87,7 +88,11 @@ cat "$work/view.log" >&2
 grep -q "1 pair page, 1 reference episode page, 2 videos rendered" "$work/view.log" && [ -s results/view/assets/viewer.js ] \
   || { say "the viewer did not write its site with both videos"; exit 1; }
 
-# 6. Each model plugin as a user installs it (not editable), alone beside the wheel and the server half: a plugin
+# 6. doctor from the wheel: its goldens are packaged, and this environment (not the one that made them) replays
+#    them as the reference simulator (exit 0: physics within tolerance, rendering identical or another renderer's).
+"$work/venv/bin/conflictbench" doctor || { say "doctor says this simulator is not the reference one"; exit 1; }
+
+# 7. Each model plugin as a user installs it (not editable), alone beside the wheel and the server half: a plugin
 #    needs conflictbench and conflictbench-serving, never another plugin (pip brings none, and it loads alone).
 say "each model plugin alone, not editable"
 install "$work/src/serving"

@@ -38,6 +38,7 @@ ROLLOUT_PACKAGES = ("conflictbench.core", "conflictbench.hosting", "conflictbenc
 NOT_ROLLOUT = {
     "conflictbench": "the package's entry: re-exports and plugin discovery (core's)",
     "conflictbench.cli": "the command: composes the run (its settings are in the identity) and prints",
+    "conflictbench.doctor": "replays shipped golden episodes to check this machine's simulator; plays no run's episode",
     "conflictbench.conf": "the config tree: its values are settings, which are in the identity",
     "conflictbench.metrics": "computed from stored episodes, after the rollout",
     "conflictbench.report": "tables and figures from stored episodes",
