@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -210,12 +211,12 @@ def test_print_checks_prints_one_line_each_and_says_whether_all_passed(capsys):
     assert print_checks([], sys.stdout)
 
 
-def test_model_checks_say_so_in_one_line_where_this_conflictbench_has_none():
-    import importlib.util
+def test_a_mistake_in_the_models_overrides_is_said_before_any_replay(capsys):
+    from conflictbench.cli import main
 
-    from conflictbench.cli.doctor import _model_checks
-
-    if importlib.util.find_spec("conflictbench.doctor.models") is not None:
-        pytest.skip("this conflictbench has model checks: their own tests cover them")
-    (check,) = _model_checks(["model=pi05"], plugins=None)
-    assert check.name == "model" and not check.passed and "not available" in check.text
+    started = time.perf_counter()
+    assert main(["doctor", "model=pi05", "model.chekpoint=/x"]) == 2
+    assert "no setting 'chekpoint'" in capsys.readouterr().err
+    assert main(["doctor", "model.checkpoint=/x"]) == 2  # a setting without the model it belongs to
+    assert "one model at a time" in capsys.readouterr().err
+    assert time.perf_counter() - started < 30  # the replays take minutes: none ran

@@ -9,18 +9,6 @@ from conflictbench.cli.args import Parser
 from conflictbench.core.plugins import Plugins
 
 
-def _model_checks(overrides: list[str], plugins: Plugins):
-    try:
-        from conflictbench.doctor.models import model_checks
-    except ModuleNotFoundError as exc:
-        if exc.name != "conflictbench.doctor.models":
-            raise
-        from conflictbench.doctor.checks import Check
-
-        return [Check("model", False, "model checks are not available in this conflictbench (no doctor.models)")]
-    return model_checks(overrides, plugins)
-
-
 def command(argv: Sequence[str], plugins: Plugins) -> int:
     parser = Parser(
         prog="conflictbench doctor",
@@ -42,12 +30,16 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     stray = [arg for arg in args.overrides if "=" not in arg]
     if stray:
         raise UserError(f"conflictbench doctor: unexpected argument {stray[0]!r} (models are given as model=NAME)")
+    from conflictbench.doctor.models import model_checks, model_overrides
+
+    if args.overrides:
+        model_overrides(args.overrides, plugins)  # a mistake is said now, not after minutes of replays
     from conflictbench.doctor.checks import print_checks
     from conflictbench.doctor.replaying import parse_perturbations
     from conflictbench.doctor.simulator import simulator_checks
 
     perturbations = parse_perturbations(args.perturb)
     passed = print_checks(simulator_checks(args.goldens, perturbations, progress=sys.stderr), sys.stdout)
-    if any(arg.startswith("model=") for arg in args.overrides):
-        passed = print_checks(_model_checks(args.overrides, plugins), sys.stdout) and passed
+    if args.overrides:
+        passed = print_checks(model_checks(args.overrides, plugins), sys.stdout) and passed
     return 0 if passed else 1
