@@ -363,3 +363,13 @@ def test_a_policy_without_settings_gets_a_play_again_command():
     record = episode("c", case=case, policy="noop", policy_settings="null")  # what the store holds for noop
     command = play_again_command(record)
     assert "model=noop" in command and "model." not in command.replace("model=noop", "")
+
+
+def test_an_index_of_one_pair_says_one_pair(tmp_path, plugins):
+    goal3 = next(c for c in SHIPPED if (c.suite, c.task_id) == ("libero_goal", 3))
+    store = EpisodeStore(tmp_path / "r")
+    store.write(episode("ref", seed=1))
+    store.write(episode("c1", case=goal3, seed=2))
+    build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    index = (tmp_path / "site" / "index.html").read_text()
+    assert "<h1>conflictbench: 1 pair</h1>" in index and '<p id="count">1 pair</p>' in index
