@@ -28,20 +28,31 @@ README = REPO / "README.md"
 BEGIN = "<!-- scripts/readme_figures.py writes what follows, from a real default run; do not edit it by hand -->"
 END = "<!-- end of scripts/readme_figures.py -->"
 TABLES = ("table1_overall", "table2_by_family", "table3_qualified_failures")
-TIME = re.compile(r", played in \d+ min \d+ s on a \d+-core machine")
+TIME = re.compile(r", played in \d+ min \d+ s on a \d+-core machine(?: \(.*? when it started\))?")
 
 
-def play(folder: Path) -> tuple[Path, float]:
-    """The default run (``conflictbench`` as a user types it, no bar) into ``folder/results``; its store, seconds."""
+def cpu_name() -> str:
+    """The processor's model name (Linux), or "CPU"."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return "CPU"
+    return next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")), "CPU")
+
+
+def play(folder: Path) -> tuple[Path, float, float]:
+    """The default run (``conflictbench`` as a user types it, no bar) into ``folder/results``; its store, seconds
+    and the load average when it started (other work on the machine stretches the time)."""
+    load = os.getloadavg()[0]
     started = time.monotonic()
     command = [sys.executable, "-m", "conflictbench.cli", "run.progress=false"]
     done = subprocess.run(command, cwd=folder, capture_output=True, text=True, timeout=3600)
     if done.returncode != 0:
         sys.exit(f"[readme_figures] the default run exited {done.returncode}:\n{done.stderr[-3000:]}")
-    return folder / "results", time.monotonic() - started
+    return folder / "results", time.monotonic() - started, load
 
 
-def block(store: Path, seconds: float | None) -> str:
+def block(store: Path, seconds: float | None, load: float | None = None) -> str:
     """README's block for the report of the default run in ``store``."""
     report = store / "report"
     missing = [name for name in TABLES if not (report / f"{name}.md").is_file()]
@@ -50,6 +61,7 @@ def block(store: Path, seconds: float | None) -> str:
     episodes = len(list((store / "episodes").rglob("*.parquet")))
     took = (
         f", played in {int(seconds // 60)} min {int(seconds % 60)} s on a {os.cpu_count()}-core machine"
+        + (f" ({cpu_name()}, no GPU used, load average {load:.1f} when it started)" if load is not None else "")
         if seconds
         else ""
     )
@@ -77,8 +89,8 @@ def main() -> int:
         new = block(args.store, None)  # how long it took is not known: the block says nothing of it
     else:
         with tempfile.TemporaryDirectory(prefix="readme-figures-") as folder:
-            store, seconds = play(Path(folder))
-            new = block(store, seconds)
+            store, seconds, load = play(Path(folder))
+            new = block(store, seconds, load)
     if args.check:
         left, right = TIME.sub("", old), TIME.sub("", new)
         if left != right:

@@ -23,6 +23,8 @@ def test_a_sweep_reports_its_jobs_apart_and_then_together(tmp_path):
     assert "random" in random and "noop" not in random
     assert "== the sweep's 2 jobs together (noop, random) ==" in out.stdout
     assert out.stdout.rstrip().endswith(f"tables and figures written to {report}/")
+    assert out.stdout.count("Legend\n") == 1  # once, with the combined report
+    assert out.stdout.index("== the sweep's 2 jobs") < out.stdout.index("Legend\n")
 
 
 def test_variants_of_one_policy_are_stored_with_their_settings_and_reported_by_them(tmp_path):

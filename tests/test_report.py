@@ -342,3 +342,17 @@ def test_conflict_episodes_stored_before_the_suite_was_recorded_are_shown_and_sa
     assert "4 conflict episode(s) were stored before their suite was recorded and are shown as this suite's" in (
         capsys.readouterr().out
     )
+
+
+def test_one_of_a_thing_is_counted_in_the_singular(plugins):
+    records = [episode("gamma", None, 0.1, 0.2, True), episode("gamma", "c1", 0.3, 0.1, False, "grounding", "L1")]
+    text = _report_text(records, plugins)
+    assert "2 episodes (1 reference, 1 conflict), 1 pair\n" in text
+
+
+def test_a_report_can_leave_its_legend_to_another_but_its_files_keep_it(plugins, tmp_path):
+    """A sweep's jobs: the legend is printed once, with the combined report."""
+    stream = io.StringIO()
+    report_records(two_models(), plugins, stream=stream, out_dir=tmp_path, figures=False, print_legend=False)
+    assert "Legend\n" not in stream.getvalue() and "== Table 1" in stream.getvalue()
+    assert "### Legend" in (tmp_path / "report.md").read_text()

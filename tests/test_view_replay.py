@@ -231,3 +231,32 @@ def test_a_pair_named_gets_its_videos_without_narrowing_the_site(mover_site, tmp
                        progress=False)  # fmt: skip
     assert (again.pairs, again.rendered) == (2, 2)  # the pair's conflict episode and its reference
     assert (tmp_path / "site" / "pairs" / f"{second}.html").read_text().count("<video") == 2
+
+
+@pytest.mark.sim
+def test_the_pages_are_there_before_the_first_video_and_show_it_at_the_end(mover_site, tmp_path, capsys):
+    import threading
+
+    plugins, store, _ = mover_site
+    out = tmp_path / "site"
+    seen, done = [], threading.Event()
+
+    def watch():  # while videos render: whenever one exists, the index must exist already
+        while not done.is_set():
+            if any((out / "videos").glob("*.mp4")):
+                seen.append((out / "index.html").is_file())
+            time.sleep(0.01)
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    try:
+        build_site(store.root, out, plugins, Selection(), videos=None, progress=False)
+    finally:
+        done.set()
+        watcher.join()
+    assert seen and all(seen)
+    plan = capsys.readouterr().err
+    assert "2 pairs, 1 reference episode page, 3 episodes to replay" in plan and "open file://" in plan
+    assert "index.html now" in plan
+    pages = [p.read_text() for p in (out / "pairs").glob("*.html")]
+    assert len(pages) == 2 and all("No video rendered" not in p and ".mp4" in p for p in pages)

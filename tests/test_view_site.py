@@ -363,3 +363,30 @@ def test_a_policy_without_settings_gets_a_play_again_command():
     record = episode("c", case=case, policy="noop", policy_settings="null")  # what the store holds for noop
     command = play_again_command(record)
     assert "model=noop" in command and "model." not in command.replace("model=noop", "")
+
+
+def test_an_index_of_one_pair_says_one_pair(tmp_path, plugins):
+    goal3 = next(c for c in SHIPPED if (c.suite, c.task_id) == ("libero_goal", 3))
+    store = EpisodeStore(tmp_path / "r")
+    store.write(episode("ref", seed=1))
+    store.write(episode("c1", case=goal3, seed=2))
+    build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    index = (tmp_path / "site" / "index.html").read_text()
+    assert "<h1>conflictbench: 1 pair</h1>" in index and '<p id="count">1 pair</p>' in index
+
+
+def test_the_replay_estimate_counts_frames_and_workers():
+    from conflictbench.view.build import replay_estimate
+
+    steps = [200] * 28  # the default slice's videos: 28 episodes of about 200 steps
+    frames = 28 * 200 // FRAME_EVERY
+    assert replay_estimate(steps, workers=2) == pytest.approx(frames * 0.1 / 2)
+    assert replay_estimate(steps[:1], workers=4) == pytest.approx(200 // FRAME_EVERY * 0.1)  # one replay at a time
+    assert replay_estimate([], workers=2) == 0
+
+
+def test_the_plan_is_said_before_anything_is_built(store, plugins, tmp_path, capsys):
+    store, _ = store
+    build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    first = capsys.readouterr().err.splitlines()[0]
+    assert first.startswith("conflictbench view: 2 pairs, 1 reference episode page, 0 episodes to replay")

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 
 from conflictbench.cli.args import Parser, store_dir
 from conflictbench.core.plugins import Plugins
+from conflictbench.core.words import counted
 
 
 def command(argv: Sequence[str], plugins: Plugins) -> int:
@@ -31,12 +32,14 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     size = sum(s.bytes for s in old) / 1e6
     by_policy = ", ".join(f"{policy} {n}" for policy, n in sorted(Counter(s.policy for s in old).items()))
     if not old:
-        print(f"conflictbench: none of the {total} episodes in {root} is superseded", file=sys.stderr)
+        print(f"conflictbench: none of the {counted(total, 'episode')} in {root} is superseded", file=sys.stderr)
         return 0
     for item in old:
         print(item.path)
     verb = "removed" if args.delete else "superseded (--delete removes them)"
-    print(f"conflictbench: {len(old)} of {total} episodes {verb}: {by_policy}; {size:.1f} MB", file=sys.stderr)
+    print(
+        f"conflictbench: {len(old)} of {counted(total, 'episode')} {verb}: {by_policy}; {size:.1f} MB", file=sys.stderr
+    )
     if args.delete:
         for item in old:
             item.path.unlink(missing_ok=True)

@@ -24,6 +24,7 @@ from conflictbench.core import (
     UserError,
 )
 from conflictbench.core.plugins import Plugins
+from conflictbench.core.words import counted
 from conflictbench.sim import BACKENDS
 
 from .overrides import (
@@ -233,7 +234,8 @@ def run_job(
     conflicts = sum(e.case is not None for e in plan)
     print(
         f"conflictbench: model={model} suite={'+'.join(families)} level={'+'.join(levels)} "
-        f"prompt={'+'.join(prompts)}: {len(plan)} episodes ({conflicts} conflict, {len(plan) - conflicts} reference) "
+        f"prompt={'+'.join(prompts)}: {counted(len(plan), 'episode')} ({conflicts} conflict, "
+        f"{len(plan) - conflicts} reference) "
         f"from suite {suite.name} {suite.version}; store {store.root}/"
         + (f"; every episode capped at {n} steps (run.max_steps)" if (n := options.max_steps) else ""),
         file=sys.stderr,
@@ -273,7 +275,7 @@ def run_job(
     elif options.report:
         whole_store = job is None  # a sweep's job writes its own tables; the sweep's end, the combined ones
         report_store(store, plugins, episode_ids=result.episode_ids, metrics=options.metrics,
-                     out_dir=None if whole_store else report_dir)  # fmt: skip
+                     out_dir=None if whole_store else report_dir, print_legend=whole_store)  # fmt: skip
         if whole_store:  # the files describe every model stored (as `report DIR` does), not just this run's
             import io
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from conflictbench.cli.args import Parser
 from conflictbench.core import LEVELS, LIBERO_SUITES, PROMPT_CONDITIONS, UserError
 from conflictbench.core.plugins import Plugins
+from conflictbench.core.words import counted
 
 SUBCOMMANDS = ("validate", "stats", "sample", "export", "build", "review-sheets", "review-merge")
 USAGE = """usage: conflictbench suite validate [FILE]          re-check every case (shipped suite by default)
@@ -65,7 +66,7 @@ def _validate(argv: Sequence[str], plugins: Plugins) -> int:
     bad = len({cid for cid, _ in failures})
     where = args.file or f"the shipped suite ({suite.name} {suite.version})"
     print(
-        f"{checked} cases checked in {time.perf_counter() - start:.1f} s: "
+        f"{counted(checked, 'case')} checked in {time.perf_counter() - start:.1f} s: "
         f"{'all valid' if not bad else f'{bad} invalid'} ({where})",
         file=sys.stderr,
     )
@@ -127,7 +128,7 @@ def _sample(argv: Sequence[str], plugins: Plugins) -> int:
     if args.out:
         _write(Path(args.out), "\n".join(lines) + "\n")
         print(
-            f"wrote {len(lines)} cases to {args.out}; to have them read, give their ids to "
+            f"wrote {counted(len(lines), 'case')} to {args.out}; to have them read, give their ids to "
             "`conflictbench suite review-sheets --only`, then `review-merge` the verdicts (--round 2 for a recheck)",
             file=sys.stderr,
         )
@@ -221,7 +222,7 @@ def _build(argv: Sequence[str], plugins: Plugins) -> int:
         )
         return 0 if same else 1
     _write(target, text)
-    print(f"wrote {text.count(chr(10)) - 1} cases to {target} (seed {seed})", file=sys.stderr)
+    print(f"wrote {counted(text.count(chr(10)) - 1, 'case')} to {target} (seed {seed})", file=sys.stderr)
     return 0
 
 

@@ -1,7 +1,8 @@
 """A sweep's report: each job's tables in a folder of its own, and one report over every job at the end.
 
 Each job of ``conflictbench -m ...`` records what it played (``conflictbench-job.json`` in its Hydra folder)
-and writes its tables under ``<run.out>/report/jobs/<job>-<model>/``; when the sweep ends, Hydra calls
+and writes its tables under ``<run.out>/report/jobs/<job>-<model>/`` (printing them without the legend, printed
+once at the end); when the sweep ends, Hydra calls
 :class:`CombinedReport`, which reports the episodes of all jobs together into ``<run.out>/report/``. It finds
 the jobs' records below the sweep's folder (``hydra.sweep.dir``, on storage the jobs share): a sweep over
 ``run.out`` itself puts its jobs' folders elsewhere and gets only the per-job reports.
@@ -81,19 +82,21 @@ class CombinedReport(Callback):
         if not config.run.get("report", True):
             return
         jobs = [json.loads(path.read_text()) for path in sorted(Path(config.hydra.sweep.dir).rglob(JOB_RECORD))]
-        if len(jobs) < 2:
-            return  # one job's own report is the sweep's
-        by_store: dict[str, list[dict]] = defaultdict(list)
-        for job in jobs:
-            by_store[job["store"]].append(job)
-        if not by_store:
+        if not jobs:
             return
         import conflictbench
-        from conflictbench.report import report_store
+        from conflictbench.report import report_store, select_metrics
+        from conflictbench.report.summary import legend
         from conflictbench.store import EpisodeStore
 
         plugins = conflictbench.plugins()
         metrics = list(config.run.metrics) if config.run.get("metrics") is not None else None
+        if len(jobs) < 2:  # one job's own report is the sweep's; the jobs leave the legend to the sweep's end
+            print("\n" + legend(select_metrics(plugins, metrics)), file=sys.stdout)
+            return
+        by_store: dict[str, list[dict]] = defaultdict(list)
+        for job in jobs:
+            by_store[job["store"]].append(job)
         for root, store_jobs in by_store.items():
             ids = list(dict.fromkeys(i for job in store_jobs for i in job["episode_ids"]))
             models = ", ".join(dict.fromkeys(job["model"] for job in store_jobs))

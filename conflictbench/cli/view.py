@@ -58,7 +58,8 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
                            workers=args.workers, suite_file=args.suite, progress=not args.no_progress,
                            command=["conflictbench", "view", *argv])  # fmt: skip
     except KeyboardInterrupt:
-        print("\nconflictbench: interrupted; every finished video is kept, and the same command goes on from them",
+        print("\nconflictbench: interrupted; the pages are written, every finished video is kept, and the same "
+              "command goes on from them",
               file=sys.stderr)  # fmt: skip
         return 130
     failed = f", {built.failed} failed (see their pages)" if built.failed else ""

@@ -27,6 +27,7 @@ from tabulate import tabulate
 
 from conflictbench.core import ERROR_KINDS, EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
+from conflictbench.core.words import counted
 from conflictbench.metrics import (
     GROUPINGS,
     aggregate,
@@ -190,12 +191,13 @@ def report_records(
     figures: bool = True,
     directions: Mapping[str, str] | None = None,
     paper: Mapping[tuple[str, str], str] | None = None,
+    print_legend: bool = True,
 ) -> dict[str, pd.DataFrame]:
     """Print the tables for these episodes and, with ``out_dir``, write them and the figures.
 
     ``metrics`` restricts the columns (default: every registered metric); ``directions`` maps a
     metric or outcome name to "higher"/"lower", overriding the direction its registration gives
-    (a metric registered without one is unmarked otherwise); ``paper`` as :func:`report_frame`'s.
+    (a metric registered without one is unmarked otherwise); ``paper`` and ``print_legend`` as :func:`report_frame`'s.
     Returns the frames by name: ``pairs``,
     ``overall``, ``family``, ``qualified_failures``, ``aggregates_<grouping>``, ``prompt_couples``,
     ``prompt_differences``.
@@ -206,7 +208,7 @@ def report_records(
         [p.reference for p in pairs], [p.conflict for p in pairs], plugins=plugins, metrics=[m.name for m in chosen]
     )
     return report_frame(frame, counts, chosen, out_dir=out_dir, stream=stream, figures=figures, directions=directions,
-                        paper=paper)  # fmt: skip
+                        paper=paper, print_legend=print_legend)  # fmt: skip
 
 
 def report_frame(
@@ -219,11 +221,13 @@ def report_frame(
     figures: bool = True,
     directions: Mapping[str, str] | None = None,
     paper: Mapping[tuple[str, str], str] | None = None,
+    print_legend: bool = True,
 ) -> dict[str, pd.DataFrame]:
     """Everything after the per-pair frame: aggregates, tables, differences, files and figures.
     Each metric is shown as its registration says (label, unit, direction). ``paper`` maps a (policy, settings
     hash) declared to be one of the paper's checkpoints to the paper's model: its P0 rows get the paper's
-    figures beside them (:mod:`.paper`), shown and never computed with."""
+    figures beside them (:mod:`.paper`), shown and never computed with. ``print_legend=False`` leaves the legend out of
+    what is printed (the files keep it)."""
     stream = stream or sys.stdout
     metrics = paper_order(metrics)  # the differences table follows table 1's column order
     names = [m.name for m in metrics]
@@ -236,12 +240,13 @@ def report_frame(
 
     for spec in specs:
         print("\n" + render_text(aggregates[spec.grouping], spec, declared), file=stream)
-    print("\n" + legend(metrics), file=stream)
+    if print_legend:  # a sweep's jobs leave it to the combined report, printed once
+        print("\n" + legend(metrics), file=stream)
     if len(differences):
         print("\n" + render_differences(differences, metrics), file=stream)
     print(
-        f"\n{counts.episodes} episodes ({counts.references} reference, {counts.episodes - counts.references} "
-        f"conflict), {counts.pairs} pairs",
+        f"\n{counted(counts.episodes, 'episode')} ({counts.references} reference, "
+        f"{counts.episodes - counts.references} conflict), {counted(counts.pairs, 'pair')}",
         file=stream,
     )
     if counts.policy_errors:

@@ -1,29 +1,52 @@
-"""Building the viewer's site from an episode store: measures, videos by replay, pages, index."""
+"""Building the viewer's site from an episode store: the plan said at once, pages and index first, then videos by
+replay, then the pages again with the videos that landed."""
 
 from __future__ import annotations
 
 import os
-import shlex
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib import resources
-from itertools import islice
 from pathlib import Path
-
-import pandas as pd
 
 from conflictbench.core import UserError
 from conflictbench.core.plugins import Plugins
-from conflictbench.metrics import evaluate_pairs
-from conflictbench.report.from_store import CHUNK_PAIRS, loaded_pairs, paper_beside
-from conflictbench.report.summary import select_metrics
+from conflictbench.core.words import counted
+from conflictbench.sim.progress import duration
 from conflictbench.store import EpisodeStore
 
-from .episodes import episode_page, reference_episodes, references_section
+from .episodes import reference_episodes
+from .pages import Site
 from .pairs import Selection, choose
-from .site import index_page, pair_page, paper_section
-from .videos import current_meta, playable, render_videos, write_atomic
+from .videos import FRAME_EVERY, lacking_videos, render_videos
+
+#: A replay's cost per rendered frame on a CPU (software rendering, the simulation between frames included).
+SECONDS_PER_FRAME = 0.1
+
+
+def replay_estimate(steps: Sequence[int], workers: int) -> float:
+    """Seconds to replay episodes of these step counts, ``workers`` at a time, on an idle CPU."""
+    if not steps:
+        return 0.0
+    frames = sum(n // FRAME_EVERY for n in steps)
+    return frames * SECONDS_PER_FRAME / max(1, min(workers, len(steps)))
+
+
+def plan_line(pairs: int, references: int, steps: Sequence[int], workers: int, out: Path) -> str:
+    """What a build is about to do, said before it starts: the pages, the replays and their time."""
+    text = (
+        f"conflictbench view: {counted(pairs, 'pair')}, {counted(references, 'reference episode page')}, "
+        f"{counted(len(steps), 'episode')} to replay for videos"
+    )
+    index = (out / "index.html").resolve().as_uri()
+    if not steps:
+        return text + f"; the pages come next: {index}"
+    estimate = duration(replay_estimate(steps, workers))
+    return (
+        f"{text} (about {estimate} with {workers} worker(s) on an idle CPU, longer under load); the pages come "
+        f"first: open {index} now and reload it as videos land"
+    )
 
 
 @dataclass
@@ -88,55 +111,16 @@ def build_site(
     alone = [r for _, r in references if r.episode_id not in wanted]
     wanted.update({r.episode_id: r for r in (alone if budget is None else alone[:budget])})
     by_task = sorted(wanted.values(), key=lambda r: (r.suite, r.task_id, r.episode_id))  # an env per task, once
-    rendered, failed, render_s = render_videos(store, out, [(r.episode_id, r.policy) for r in by_task], workers,
-                                               progress)  # fmt: skip
+    todo = lacking_videos(store, out, [(r.episode_id, r.policy) for r in by_task])
+    print(plan_line(len(pairs), len(references), [steps for _, _, steps in todo], workers, out), file=sys.stderr)
 
     rerun = list(command or ["conflictbench", "view", str(store_dir), "--out", str(out)])
-    metrics = select_metrics(plugins, None)
-    measure_names = [m.name for m in metrics]
-    with_both: set[str] = set()
-    index_rows: list[dict] = []
-    frames = []
-    loaded = loaded_pairs(store, pairs)  # each pair's arrays read once: measured, then its page written
-    while chunk := list(islice(loaded, CHUNK_PAIRS)):
-        frame = evaluate_pairs([r for r, _ in chunk], [c for _, c in chunk], plugins=plugins, metrics=measure_names)
-        frames.append(frame)
-        for (reference, conflict), measured in zip(chunk, frame[measure_names].to_dict("records"), strict=True):
-            i = len(index_rows)
-            row = {**rows.iloc[i].to_dict(), **measured}
-            index_rows.append(row)
-            metas = {r.episode_id: meta for r in (reference, conflict) if (meta := current_meta(out, r))}
-            if all(playable(metas.get(r.episode_id)) for r in (reference, conflict)):
-                with_both.add(conflict.episode_id)
-            neighbours = (names[i - 1] if i else None, names[i + 1] if i + 1 < len(names) else None)
-            hint = "Render it with: " + shlex.join([*rerun, "--pair", conflict.episode_id])
-            page = pair_page(row, reference, conflict, cases.get(conflict.case_id or ""), metrics, metas,
-                             neighbours, hint)  # fmt: skip
-            write_atomic(out / "pairs" / f"{conflict.episode_id}.html", page)
-    shown_references = set()
-    hint = "Render it with: " + shlex.join([*rerun, "--videos", "all"])
-    for start in range(0, len(references), CHUNK_PAIRS):  # arrays (what a video's note is checked against) by chunk
-        part = references[start : start + CHUNK_PAIRS]
-        loaded_refs = {r.episode_id: r for r in store.load([(r.episode_id, r.policy) for _, r in part])}
-        for label, light in part:
-            record = loaded_refs[light.episode_id]
-            meta = current_meta(out, record)
-            write_atomic(out / "episodes" / f"{record.episode_id}.html", episode_page(label, record, meta, hint))
-            if playable(meta):
-                shown_references.add(record.episode_id)
-    for stale in (out / "episodes").glob("*.html"):
-        if stale.stem not in {r.episode_id for _, r in references}:
-            stale.unlink(missing_ok=True)
-    shown = set(names)
-    for stale in (out / "pairs").glob("*.html"):  # pages of pairs this build does not show (filters, a new store)
-        if stale.stem not in shown:
-            stale.unlink(missing_ok=True)
-    beside = (
-        paper_section(pd.concat(frames, ignore_index=True), metrics, paper_beside(store, plugins)) if frames else ""
-    )
-    listed = references_section(references, shown_references)
-    write_atomic(out / "index.html", index_page(index_rows, metrics, str(store_dir), with_both, beside, listed))
-    for name in ("viewer.js", "viewer.css"):
-        write_atomic(out / "assets" / name, (resources.files("conflictbench.view") / "assets" / name).read_bytes())
+    site = Site(store, out, plugins, pairs, rows, references, cases, rerun, str(store_dir))
+    site.write()  # first: the pages are of use while the videos render
+    rendered = failed = 0
+    render_s = 0.0
+    if todo:
+        rendered, failed, render_s = render_videos(store, out, [(i, p) for i, p, _ in todo], workers, progress)
+        site.write()  # again, now with the videos that landed
     size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     return Built(len(pairs), len(references), rendered, failed, time.perf_counter() - started, render_s, size, out)

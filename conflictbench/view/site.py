@@ -9,6 +9,7 @@ from html import escape
 from typing import Any
 
 from conflictbench.core import ConflictCase, EpisodeRecord
+from conflictbench.core.words import counted
 
 from .pairs import FILTERS, OUTCOMES, episode_data, play_again_command
 
@@ -237,12 +238,12 @@ def index_page(
         tds += "".join(f"<td class='num'>{format_value(r.get(m.name), m)}</td>" for m in metrics)
         tds += f"<td>{'yes' if r['conflict_episode'] in videos else ''}</td>"
         body_rows.append(f"<tr {attrs}>{tds}</tr>")
-    body = f"""<h1>conflictbench: {len(rows)} pairs</h1>
+    body = f"""<h1>conflictbench: {counted(len(rows), "pair")}</h1>
 <p>From the episode store <code>{escape(source)}</code>. Each pair is a conflict rollout and the reference
 rollout by the same policy, base task, initial state, prompt condition and seed.</p>
 {beside}
 <form id="filters">{filters}</form>
-<p id="count">{len(rows)} pairs</p>
+<p id="count">{counted(len(rows), "pair")}</p>
 <table id="pairs"><thead><tr>{head}</tr></thead><tbody>
 {chr(10).join(body_rows)}
 </tbody></table>

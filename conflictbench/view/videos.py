@@ -78,17 +78,21 @@ def _chunks(store: EpisodeStore, keys: Sequence[tuple[str, str]]) -> Iterator[Ep
         yield from store.load(keys[start : start + LOAD_CHUNK])
 
 
+def lacking_videos(store: EpisodeStore, out: Path, keys: Sequence[tuple[str, str]]) -> list[tuple[str, str, int]]:
+    """(episode id, policy, steps) of those given that have no video showing the episode as stored now, or one
+    whose replay failed (tried again), in the order given."""
+    remove_dead_temporaries(out / "videos")
+    return [(r.episode_id, r.policy, r.steps) for r in _chunks(store, keys) if not playable(current_meta(out, r))]
+
+
 def render_videos(
-    store: EpisodeStore, out: Path, keys: Sequence[tuple[str, str]], workers: int, progress: bool
+    store: EpisodeStore, out: Path, todo: Sequence[tuple[str, str]], workers: int, progress: bool
 ) -> tuple[int, int, float]:
-    """Replay the (episode id, policy) given (in that order: by base task) that lack a current video; returns
+    """Replay the (episode id, policy) given (in that order: by base task; from :func:`lacking_videos`); returns
     (rendered, failed, seconds)."""
     from conflictbench.core.policy import DEFAULT_WARMUP_STEPS
     from conflictbench.sim.replay import ReplayJob, replay_all
 
-    remove_dead_temporaries(out / "videos")
-    # what has no video showing the episode as stored now, or one whose replay failed (tried again)
-    todo = [(r.episode_id, r.policy) for r in _chunks(store, keys) if not playable(current_meta(out, r))]
     notes: dict[str, dict[str, Any]] = {}
 
     def jobs() -> Iterator[ReplayJob]:  # arrays loaded a chunk at a time, as the replays need them

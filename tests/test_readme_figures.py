@@ -1,0 +1,31 @@
+"""README's default-run time says on what machine and under what load it was measured (scripts/readme_figures.py)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "readme_figures.py"
+
+
+def load_script():
+    spec = importlib.util.spec_from_file_location("readme_figures", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def fake_store(tmp_path: Path, tables) -> Path:
+    (tmp_path / "report").mkdir()
+    for name in tables:
+        (tmp_path / "report" / f"{name}.md").write_text(f"### {name}\n")
+    return tmp_path
+
+
+def test_the_time_names_the_machine_and_its_load_and_the_check_ignores_them(tmp_path):
+    figures = load_script()
+    store = fake_store(tmp_path, figures.TABLES)
+    text = figures.block(store, 698.0, load=1.63)
+    line = next(line for line in text.splitlines() if "played in" in line)
+    assert "played in 11 min 38 s on a" in line and "load average 1.6 when it started" in line
+    assert figures.TIME.sub("", text) == figures.TIME.sub("", figures.block(store, None))
