@@ -141,32 +141,53 @@ def play(job: DoctorJob, settings: EnvSettings, perturbations=()) -> Replayed:
 
 
 def play_group(jobs: list[DoctorJob], settings: EnvSettings, perturbations=()) -> Group:
-    """In a fresh process: set it up as a simulator worker is, probe its stack, play every job."""
+    """In a fresh process: set it up as a simulator worker is, probe its stack, play every job one way
+    (``scripts/doctor_tolerance.py`` measures with it)."""
     from conflictbench.sim import libero_env
     from conflictbench.sim.stack import stack_probe
 
     libero_env.configure_process(settings)
-    stack = stack_probe(settings.needs_images)  # with cameras: the GL this process renders the frames with
+    stack = stack_probe(settings.needs_images)
     return Group(settings.needs_images, stack, [play(job, settings, perturbations) for job in jobs])
 
 
+def play_half(jobs: list[DoctorJob], image_size: int, perturbations=()) -> tuple[dict[str, str], list[Replayed]]:
+    """In a fresh process set up as a camera worker is: probe its stack (the GL it renders the frames with), then
+    play each job without cameras and then with them, one after the other, so each scene compiles once here
+    (a process keeps its last compiled scene: ``sim.compiled_models``); a camera-less env never touches the GL."""
+    from conflictbench.sim import libero_env
+    from conflictbench.sim.stack import stack_probe
+
+    with_cameras = EnvSettings(True, image_size)
+    libero_env.configure_process(with_cameras)
+    stack = stack_probe(True)
+    replays = []
+    for job in jobs:
+        replays.append(play(job, EnvSettings(False, image_size), perturbations))
+        replays.append(play(job, with_cameras, perturbations))
+    return stack, replays
+
+
 def play_both_ways(jobs: list[DoctorJob], image_size: int, perturbations=()) -> tuple[Group, Group]:
-    """Every job without cameras and with them, the two ways at once in two processes (spawned: the GL backend is
-    chosen per process). A simulator that cannot start raises :class:`SimulatorUnavailable`."""
+    """Every job without cameras and with them, in two processes (spawned: the GL backend is chosen per process),
+    each taking every other job both ways. A simulator that cannot start raises :class:`SimulatorUnavailable`."""
     from conflictbench.sim.pool import sigint_ignored
 
+    halves = [jobs[0::2], jobs[1::2]]
     executor = ProcessPoolExecutor(max_workers=2, mp_context=mp.get_context("spawn"))
     try:
         with sigint_ignored():  # its processes are born (on a submit) ignoring Ctrl-C, as the replays': we end them
-            futures = [
-                executor.submit(play_group, jobs, EnvSettings(images, image_size), perturbations)
-                for images in (False, True)
-            ]
-        blind, seeing = (future.result() for future in futures)
+            futures = [executor.submit(play_half, half, image_size, perturbations) for half in halves if half]
+        said = [future.result() for future in futures]
     except BaseException:
         for process in list(getattr(executor, "_processes", {}).values()):
             process.terminate()
         executor.shutdown(wait=False, cancel_futures=True)
         raise
     executor.shutdown()
-    return blind, seeing
+    stack = said[0][0]
+    replays = [replay for _, half in said for replay in half]
+    return (
+        Group(False, stack, [r for r in replays if not r.cameras]),
+        Group(True, stack, [r for r in replays if r.cameras]),
+    )
