@@ -77,6 +77,7 @@ def test_a_pip_installed_plugin_runs_end_to_end_and_its_metric_is_reported(cli, 
     assert np.isclose(np.abs(conflict.raw_actions[:, 0]).max(), 0.8, atol=0.05)  # model.amplitude reached it
 
 
+@pytest.mark.e2e
 def test_a_second_models_run_keeps_the_first_in_the_stores_report(cli, tmp_path):
     """<run.out>/report/ describes the whole store (every model in it); the terminal shows this run's episodes."""
     quick = ("suite=physical", "level=L1", "run.libero_suites=[libero_object]", "run.max_steps=3")

@@ -56,8 +56,29 @@ def alter_a_frame(folder: Path) -> None:
     Image.fromarray(frame).save(path)
 
 
+def one_golden(tmp_path: Path) -> Path:
+    """This stack's goldens with their first episode only (libero_spatial's, the shortest): a real doctor run in a
+    fraction of the whole's minute, for the default selection."""
+    folder = this_stacks_goldens(tmp_path)
+    meta = json.loads((folder / golden_files.META).read_text())
+    meta["episodes"] = meta["episodes"][:1]
+    (folder / golden_files.META).write_text(json.dumps(meta))
+    return folder
+
+
 # -- the doctor, run ---------------------------------------------------------------------------------------------
 @pytest.mark.sim
+def test_doctor_replays_one_golden_with_and_without_cameras_and_passes(tmp_path):
+    done = doctor("--goldens", str(one_golden(tmp_path)))
+    said = lines(done)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "max path deviation 0 m" in said["physics"] and "success steps equal 2/2" in said["physics"]
+    assert "agentview identical (3 frames)" in said["rendering"]
+    assert "robot0_eye_in_hand identical (3 frames)" in said["rendering"]
+
+
+@pytest.mark.sim
+@pytest.mark.slow
 def test_doctor_passes_on_the_stack_that_made_its_goldens():
     done = doctor()
     said = lines(done)

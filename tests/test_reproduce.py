@@ -126,13 +126,6 @@ def test_noop_is_below_a_half_consistent_with_ten_and_quick_mode_is_inconclusive
     assert (store / "report" / "reproduce-noop-ten.csv").read_text().splitlines()[1].startswith("libero_goal,16,0,0,")
     # one identity (the initial states are not part of it): the latest declaration stands
     assert list(declarations(store).values()) == ["noop-ten"]
-    # what the output's last line promises: the viewer opens its episodes (one replayed to a video here)
-    from conflictbench.cli.view import command as view_command
-
-    assert view_command([str(store), "--videos", "1", "--no-progress"], stand_in_plugins()) == 0
-    assert "0 pair pages, 16 reference episode pages, 1 video rendered" in capsys.readouterr().out
-    pages = sorted((store / "view" / "episodes").glob("*.html"))
-    assert len(pages) == 16 and sum("<video" in page.read_text() for page in pages) == 1
 
 
 @pytest.mark.sim
@@ -154,6 +147,20 @@ def test_the_plain_run_records_the_declaration_and_reproduce_reuses_its_episodes
     reproduce(tmp_path, capsys, "model=noop", "model.published=noop-half", "--quick", "run.max_steps=3")
     assert EpisodeStore(store).stored_ids() == before  # the same episodes: the declaration is no model setting
     assert declarations(store) == {declared[0]: "noop-half"}
+
+
+@pytest.mark.sim
+@pytest.mark.e2e
+def test_the_viewer_opens_what_reproduce_stored(tmp_path, capsys):
+    """What reproduce's last line promises: `conflictbench view` opens its episodes (one replayed to a video)."""
+    from conflictbench.cli.view import command as view_command
+
+    reproduce(tmp_path, capsys, "model=noop", "model.published=noop-half", "--quick", "run.max_steps=3")
+    store = tmp_path / "store"
+    assert view_command([str(store), "--videos", "1", "--no-progress"], stand_in_plugins()) == 0
+    assert "0 pair pages, 2 reference episode pages, 1 video rendered" in capsys.readouterr().out
+    pages = sorted((store / "view" / "episodes").glob("*.html"))
+    assert len(pages) == 2 and sum("<video" in page.read_text() for page in pages) == 1
 
 
 @pytest.mark.sim

@@ -12,6 +12,7 @@ from conflictbench.core.plugins import Plugins
 
 from . import run
 from .published import KEY, check_declaration, take_declaration
+from .run_options import INIT_STATES_PER_TASK
 
 QUICK_INIT_STATES = 2
 USAGE = (
@@ -38,7 +39,7 @@ def command(argv: list[str], plugins: Plugins) -> int:
         "prompt=p0",
         "run.cases_per_cell=0",  # references only: the original instructions
         f"run.libero_suites=[{','.join(entry.success)}]",
-        f"run.init_states={QUICK_INIT_STATES if quick else run.INIT_STATES_PER_TASK}",
+        f"run.init_states={QUICK_INIT_STATES if quick else INIT_STATES_PER_TASK}",
     ]
 
     def finish(store, episode_ids: list[str]) -> None:
