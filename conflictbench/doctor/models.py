@@ -26,16 +26,15 @@ from .checks import Check
 #: The request a doctor sends: an observation as a worker sends it (two renders, an 8-D state), its instruction
 #: one of LIBERO's own.
 INSTRUCTION = "put the black bowl on the plate"
-#: Settings that are declarations, not the model's: the doctor takes them from a run's command line and ignores them.
-DECLARATIONS = ("model.published",)
 
 
 def model_overrides(argv: Sequence[str], plugins: Plugins) -> tuple[str, dict[str, Any]]:
     """The model's name and its settings from ``model=NAME model.FIELD=VALUE ...`` (values typed as Hydra types
     them); any other word is a user mistake."""
     from conflictbench.cli.overrides import check_group_overrides, check_model_fields
+    from conflictbench.cli.published import KEY as DECLARATION  # a run's declaration, not a setting: ignored here
 
-    kept = [arg for arg in argv if arg.partition("=")[0] not in DECLARATIONS]
+    kept = [arg for arg in argv if arg.partition("=")[0].lstrip("+") != DECLARATION]
     for arg in kept:
         key = arg.partition("=")[0]
         if "=" not in arg or not (key == "model" or key.startswith("model.")) or key.count(".") > 1:
