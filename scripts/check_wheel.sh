@@ -119,5 +119,36 @@ print(f"[check_wheel] {dist} alone: {', '.join(mine)}", file=sys.stderr)
 PY
   uninstall "$dist"
 done
+
+# 8. Each plugin's server half built as a wheel from the clean copy (its package lives beside it, ../conflictbench_X):
+#    the whole package with its server modules, the entry point conflictbench-serve finds, and no requirement of
+#    conflictbench. Installing it means its model's stack (torch, LeRobot): the model environments' build does that.
+say "each model plugin's server half, as a wheel"
+for server in "$work"/src/plugins/*/server/; do
+  "$PYTHON" -m pip wheel -q --no-deps --wheel-dir "$work/servers" "$server"
+done
+"$PYTHON" - "$work/servers" "$work/src/plugins" <<'PY'
+import sys
+import zipfile
+from email.parser import Parser
+from pathlib import Path
+
+wheels, plugins = Path(sys.argv[1]), Path(sys.argv[2])
+for source in sorted(plugins.glob("*/server")):
+    package = next(source.parent.glob("conflictbench_*/serve.py")).parent
+    wheel = next(wheels.glob(f"{package.name}_server-*.whl"), None)
+    if wheel is None:
+        sys.exit(f"[check_wheel] no wheel for {source}")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    missing = {f"{package.name}/{p.relative_to(package)}" for p in package.rglob("*.py")} - names
+    info = next(n for n in names if n.endswith(".dist-info/METADATA")).rpartition("/")[0]
+    metadata = Parser().parsestr(zipfile.ZipFile(wheel).read(f"{info}/METADATA").decode())
+    requires = [r.split(";")[0].split("[")[0].split("=")[0].split("<")[0].split(">")[0].strip().lower()
+                for r in metadata.get_all("Requires-Dist", [])]
+    points = zipfile.ZipFile(wheel).read(f"{info}/entry_points.txt").decode()
+    if missing or "conflictbench" in requires or "[conflictbench_serving]" not in points:
+        sys.exit(f"[check_wheel] {wheel.name}: missing {sorted(missing)}, requires {requires}, entry points {points!r}")
+    print(f"[check_wheel] {wheel.name}: {len(names)} files, requires {len(requires)}, no conflictbench", file=sys.stderr)
+PY
 say "ok: the installed wheel passes the tests without a simulator, lists its plugins, plays real episodes and shows" \
-  "them, and each model plugin installs and loads alone"
+  "them, each model plugin installs and loads alone, and each server half builds whole without conflictbench"

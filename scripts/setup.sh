@@ -4,8 +4,9 @@
 #   scripts/setup.sh                      the main job: conflictbench with the pinned LIBERO simulator and the Mesa
 #                                         EGL libraries (what `.venv/bin/conflictbench` plays the default policy with)
 #   scripts/setup.sh --models pi0,gr00t   also these model plugins: each one's client here, and its model
-#                                         environment, a Python 3.12 at .venv/models/NAME holding the model's backend
-#                                         (LeRobot, transformers, torch) and the plugin's server; `all` for every one;
+#                                         environment, a Python 3.12 at .venv/models/NAME holding the plugin's server
+#                                         half (plugins/NAME/server: its server with the model's backend, LeRobot or
+#                                         transformers, and torch); `all` for every one;
 #                                         `subject`: the learned subject's training environment
 #   scripts/setup.sh --cluster            also the cluster extra (Ray, Hydra's submitit launcher)
 #   scripts/setup.sh --tests              everything the tests need: the main job, the test tools and Chromium, the
@@ -14,6 +15,9 @@
 #   PYTHON=python3.12 scripts/setup.sh    the interpreter (default: python3.11, else python3.12)
 #   VENV=/path/to/venv scripts/setup.sh   where the environment goes (default: .venv)
 #   MODEL_PYTHON=python3.12 scripts/setup.sh --models pi0   the model environments' interpreter (default: a 3.12)
+#
+# It says what it does in [setup] lines; what the installers print goes to $VENV/setup.log. A step that fails stops
+# it with one line, and so does an environment with an unmet requirement (uv pip check).
 set -euo pipefail
 
 MODELS=""
@@ -26,7 +30,7 @@ while (($#)); do
     --models=*) MODELS=${1#--models=}; MODELS_GIVEN=1; shift ;;
     --tests) TESTS=1; shift ;;
     --cluster) CLUSTER=1; shift ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
     *) echo "[setup] unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -35,8 +39,27 @@ done
 
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
-
 say() { printf '[setup] %s\n' "$*" >&2; }
+
+# What the installers print goes to $VENV/setup.log (this run's), the terminal gets these [setup] lines only, and a
+# step that fails stops set-up with one line: what failed, the installer's last words and where the rest is.
+mkdir -p "$VENV"
+LOG=$VENV/setup.log
+: >"$LOG"
+step() {  # step WHAT COMMAND...: run it with its output in the log; if it fails, one line and exit 1
+  local what=$1 from said reason
+  shift
+  from=$(($(wc -l <"$LOG") + 1))
+  printf '[setup] %s: %s\n' "$what" "$*" >>"$LOG"
+  "$@" </dev/null >>"$LOG" 2>&1 && return
+  # The installer's reason in one line: its first cause (uv's "cause:" or "Caused by:"), else its first error line
+  # (uv's "error:", pip's "ERROR:", apt's "E:"), else its last words.
+  said=$(tail -n +"$((from + 1))" "$LOG" | sed -E 's/^[[:space:]]*((×|╰─▶|│)[[:space:]]*)*//' | grep -v '^[[:space:]]*$' || true)
+  reason=$(grep -m 1 -E '^(cause|Caused by):' <<<"$said" || grep -m 1 -E '^(error|ERROR|E):' <<<"$said" \
+    || tail -n 1 <<<"$said" || true)
+  say "failed: $what: $(cut -c 1-240 <<<"${reason:-it said nothing}") (all of it: $LOG)"
+  exit 1
+}
 
 # 1. Mesa's EGL for headless rendering (camera-based policies and the viewer's videos; the rest run without GL),
 #    and, for the tests, Chromium, in which they open the viewer's pages.
@@ -53,8 +76,9 @@ if ((${#missing[@]})); then
     SUDO=""
     [ "$(id -u)" -ne 0 ] && SUDO="sudo"
     say "installing ${missing[*]}"
-    $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    step "apt-get update" $SUDO apt-get update -qq
+    step "installing ${missing[*]} with apt" $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+      --no-install-recommends "${missing[@]}"
   fi
 fi
 
@@ -79,7 +103,7 @@ esac
 #    The stamp holds the extras installed: asking for more installs again.
 if [ ! -x "$VENV/bin/python" ]; then
   say "creating $VENV with $PYTHON ($version)"
-  "$PYTHON" -m venv "$VENV"
+  step "creating $VENV" "$PYTHON" -m venv "$VENV"
 fi
 # Installs go through uv: it resolves as pip does, from the same index (PyPI, or UV_INDEX_URL / UV_EXTRA_INDEX_URL;
 # PIP_INDEX_URL is passed on), and links each file from its cache (UV_CACHE_DIR, default ~/.cache/uv) instead of
@@ -87,13 +111,13 @@ fi
 # (measured here: the main job 36 s against 181 s, a model environment 20 s against about 120 s once torch is
 # cached). pip itself installs uv, once.
 if [ ! -x "$VENV/bin/uv" ]; then
-  "$VENV/bin/python" -m pip install -q "uv>=0.9,<1"
+  step "installing uv with pip" "$VENV/bin/python" -m pip install "uv>=0.9,<1"
 fi
 [ -n "${PIP_INDEX_URL:-}" ] && export UV_INDEX_URL=${UV_INDEX_URL:-$PIP_INDEX_URL}
-install_into() {  # install_into ENVIRONMENT ARGS...: `pip install ARGS` into that environment's Python, by uv
-  local env_dir=$1
-  shift
-  "$VENV/bin/uv" pip install --quiet --python "$env_dir/bin/python" "$@"
+install_into() {  # install_into WHAT ENVIRONMENT ARGS...: `pip install ARGS` into that environment's Python, by uv
+  local what=$1 env_dir=$2
+  shift 2
+  step "$what" "$VENV/bin/uv" pip install --python "$env_dir/bin/python" "$@"
 }
 extras=sim
 ((CLUSTER)) && extras+=,cluster
@@ -103,15 +127,15 @@ installed=$(cat "$stamp" 2>/dev/null || true)
 wanted=$(echo "$extras,$installed" | tr , '\n' | sed '/^$/d' | sort -u | paste -sd, -)
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$wanted" != "$installed" ]; then
   say "installing conflictbench [$wanted] (the first time: about a minute)"
-  install_into "$VENV" -e ".[$wanted]"
+  install_into "installing conflictbench [$wanted]" "$VENV" -e ".[$wanted]"
   echo "$wanted" >"$stamp"
 fi
 
 # 4. Model plugins: all of them for the tests (their clients' tests need no model environment), else those
 #    --models names. First the server half they share (serving/: not on PyPI, so pip must find it installed
 #    before a plugin asks for it); the tests also install each plugin's `test` extra (upstream counterparts).
-has_server() {  # a plugin whose pyproject has a `server` extra has a model environment to build
-  grep -q '^server = \[' "plugins/$1/pyproject.toml" 2>/dev/null
+has_server() {  # a plugin with a server half (plugins/NAME/server) has a model environment to build
+  [ -f "plugins/$1/server/pyproject.toml" ]
 }
 SUBJECT=0  # the subject's training environment: with every model environment, or by name
 case "$MODELS" in
@@ -132,7 +156,7 @@ clients=$MODELS
 if [ -n "$clients" ]; then
   stamp="$VENV/.conflictbench-serving"
   if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ]; then
-    install_into "$VENV" -e serving
+    install_into "installing the plugins' shared server half (serving/)" "$VENV" -e serving
     touch "$stamp"
   fi
 fi
@@ -143,18 +167,19 @@ for name in $clients; do
   stamp="$VENV/.conflictbench-plugin-$name"
   if [ ! -f "$stamp" ] || [ "$plugin/pyproject.toml" -nt "$stamp" ] || [ "$(cat "$stamp")" != "$extra" ]; then
     say "installing the $name plugin's client"
-    install_into "$VENV" -e "$plugin$extra"
+    install_into "installing the $name plugin's client" "$VENV" -e "$plugin$extra"
     echo "$extra" >"$stamp"
   fi
 done
 
 # 5. Model environments: Python 3.12 (LeRobot needs >= 3.12 and numpy 2, which the simulator's stack cannot
-#    share). Each gets the shared server half (serving/), its plugin without dependencies (no conflictbench, no
-#    simulator), exactly the plugin's `server` extra, and its `server-test` extra without dependencies (upstream
-#    servers the tests compare with). About 5 GB each, nearly all of it torch, which uv links from its cache: the
-#    first build downloads it (about a minute here), the others take seconds and no more disk. The packages go in
-#    without bytecode (uv's default): each environment holds about 11,000 modules, of which a server imports a few
-#    hundred and compiles those on first use.
+#    share). Each holds the shared server half (serving/) and the plugin's own (plugins/NAME/server: its package
+#    with what its server imports, never conflictbench), resolved together, so every requirement of everything in
+#    it is met; the tests add upstream's counterparts (the server half's `test` extra) without their dependencies,
+#    and only their requirements may be unmet. About 5 GB each, nearly all of it torch, which uv links from its
+#    cache: the first build downloads it (about a minute here), the others take seconds and no more disk. The
+#    packages go in without bytecode (uv's default): each environment holds about 11,000 modules, of which a server
+#    imports a few hundred and compiles those on first use.
 if [ -n "$MODELS" ] || ((SUBJECT)); then
   if [ -z "${MODEL_PYTHON:-}" ]; then
     for candidate in python3.12 $(pyenv root 2>/dev/null)/versions/3.12*/bin/python3.12; do
@@ -173,23 +198,31 @@ if [ -n "$MODELS" ] || ((SUBJECT)); then
     exit 1
   fi
 fi
-build_model_env() {  # build_model_env NAME: the plugin's model environment
-  local name=$1 plugin=plugins/$1 env_dir="$VENV/models/$1" requirements counterparts
+consistent() {  # consistent ENVIRONMENT [PACKAGE...]: every requirement met, but those of the PACKAGEs named
+  local env_dir=$1 unmet excused
+  shift
+  unmet=$("$VENV/bin/uv" pip check --python "$env_dir/bin/python" 2>&1 | grep '^The package `[^`]*` requires' || true)
+  for excused in "$@"; do
+    unmet=$(grep -v "^The package \`$excused\`" <<<"$unmet" || true)
+  done
+  [ -z "$unmet" ] || { say "failed: $env_dir has an unmet requirement: $(head -n 1 <<<"$unmet") (uv pip check)"; exit 1; }
+}
+build_model_env() {  # build_model_env NAME: the plugin's model environment, from empty (nothing of an earlier build,
+  # or of an earlier layout, stays)
+  local name=$1 server=plugins/$1/server env_dir="$VENV/models/$1" counterparts=()
   say "building the $name model environment in $env_dir with $MODEL_PYTHON (first time: a few minutes)"
-  [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
-  install_into "$env_dir" -e serving
-  mapfile -t requirements < <("$env_dir/bin/python" - "$plugin/pyproject.toml" <<'EOF'
-import sys, tomllib
-extra = tomllib.load(open(sys.argv[1], "rb"))["project"].get("optional-dependencies", {})
-print(" ".join(extra.get("server-test", [])))  # counterparts for the tests, installed without their pins
-print("\n".join(extra.get("server", [])))
-EOF
-)
-  ((${#requirements[@]} < 2)) || install_into "$env_dir" "${requirements[@]:1}"
-  read -ra counterparts <<<"${requirements[0]}"
-  ((${#counterparts[@]} == 0)) || install_into "$env_dir" --no-deps "${counterparts[@]}"
-  install_into "$env_dir" --no-deps -e "$plugin"
-  touch "$env_dir/.conflictbench-installed"
+  rm -rf "$env_dir"
+  step "creating $env_dir" "$MODEL_PYTHON" -m venv "$env_dir"
+  install_into "installing the $name server half into $env_dir" "$env_dir" -e serving -e "$server"
+  if ((TESTS)); then
+    mapfile -t counterparts < <("$env_dir/bin/python" -c 'import sys, tomllib
+for requirement in tomllib.load(open(sys.argv[1], "rb"))["project"].get("optional-dependencies", {}).get("test", []):
+    print(requirement)' "$server/pyproject.toml")
+    ((${#counterparts[@]} == 0)) || install_into "installing the $name server's test counterparts into $env_dir" \
+      "$env_dir" --no-deps "${counterparts[@]}"
+  fi
+  consistent "$env_dir" "${counterparts[@]%%[=<>!~ ;[]*}"
+  echo "$TESTS" >"$env_dir/.conflictbench-installed"  # 1: with the tests' counterparts
 }
 
 # 6. The learned subject's training environment (`conflictbench train-subject`): Python 3.12 with LeRobot's
@@ -199,8 +232,9 @@ SUBJECT_REQUIREMENTS=conflictbench/policies/subject/training-requirements.txt
 build_subject_env() {
   local env_dir="$VENV/models/subject"
   say "building the subject's training environment in $env_dir with $MODEL_PYTHON"
-  [ -x "$env_dir/bin/python" ] || "$MODEL_PYTHON" -m venv "$env_dir"
-  install_into "$env_dir" -r "$SUBJECT_REQUIREMENTS"
+  [ -x "$env_dir/bin/python" ] || step "creating $env_dir" "$MODEL_PYTHON" -m venv "$env_dir"
+  install_into "installing the subject's training requirements into $env_dir" "$env_dir" -r "$SUBJECT_REQUIREMENTS"
+  consistent "$env_dir"
   touch "$env_dir/.conflictbench-installed"
 }
 
@@ -210,7 +244,8 @@ build_subject_env() {
 builds=()
 for name in $MODELS; do
   stamp="$VENV/models/$name/.conflictbench-installed"
-  if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ] || [ "plugins/$name/pyproject.toml" -nt "$stamp" ]; then
+  if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ] || [ "plugins/$name/server/pyproject.toml" -nt "$stamp" ] \
+    || { ((TESTS)) && [ "$(cat "$stamp")" != 1 ]; }; then  # the tests want the counterparts, not yet there
     builds+=("build_model_env $name")
   fi
 done
@@ -219,9 +254,12 @@ if ((SUBJECT)) && { [ ! -f "$stamp" ] || [ "$SUBJECT_REQUIREMENTS" -nt "$stamp" 
   builds+=(build_subject_env)
 fi
 for build in "${builds[@]}"; do
-  $build || { say "a model environment failed to build (see above)"; exit 1; }
+  $build  # not `$build || ...`: that would switch errexit off inside it
 done
 if ((${#builds[@]})); then
-  "$VENV/bin/python" scripts/link_identical.py "$VENV/models"
+  step "sharing identical files between the model environments" "$VENV/bin/python" scripts/link_identical.py \
+    "$VENV/models"
+  say "$(tail -n 1 "$LOG" | sed 's/^\[setup\] //')"
 fi
+consistent "$VENV"
 say "ready: $VENV/bin/conflictbench"

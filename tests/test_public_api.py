@@ -97,3 +97,33 @@ def test_no_model_plugin_imports_or_requires_another():
         other_dists = {canonicalize_name(p["name"]) for p in projects.values()} - {canonicalize_name(project["name"])}
         requirements = [*project.get("dependencies", []), *chain(*project.get("optional-dependencies", {}).values())]
         assert [r for r in requirements if canonicalize_name(Requirement(r).name) in other_dists] == [], folder.name
+
+
+def test_each_server_half_is_its_plugins_package_with_the_servers_requirements_and_never_conflictbench():
+    """``plugins/NAME/server`` is what a model environment holds: the client's package (not a copy), requiring
+    neither conflictbench nor any plugin's client, so every requirement in that environment can be met; it declares
+    the same ``conflictbench_serving`` entry point and command as the client, which says where they run."""
+    plugins = Path(__file__).resolve().parents[1] / "plugins"
+    served = sorted(folder.name for folder in plugins.iterdir() if list(folder.glob("conflictbench_*/serve.py")))
+    halves = sorted(folder.name for folder in plugins.iterdir() if (folder / "server" / "pyproject.toml").is_file())
+    assert served == halves and len(halves) >= 5  # every plugin with a server has its server half, and only those
+    clients = {
+        canonicalize_name(tomllib.loads((plugins / n / "pyproject.toml").read_text())["project"]["name"])
+        for n in halves
+    }
+    for name in halves:
+        client_toml = tomllib.loads((plugins / name / "pyproject.toml").read_text())
+        server_toml = tomllib.loads((plugins / name / "server" / "pyproject.toml").read_text())
+        client, server = client_toml["project"], server_toml["project"]
+        package = client_toml["tool"]["setuptools"]["packages"]
+        assert canonicalize_name(server["name"]) == canonicalize_name(client["name"]) + "-server"
+        assert server_toml["tool"]["setuptools"]["packages"] == package
+        assert server_toml["tool"]["setuptools"]["package-dir"] == {package[0]: f"../{package[0]}"}
+        requirements = [*server["dependencies"], *chain(*server.get("optional-dependencies", {}).values())]
+        named = {canonicalize_name(Requirement(r).name) for r in requirements}
+        assert "conflictbench-serving" in named and not named & (clients | {"conflictbench"}), name
+        assert server["entry-points"] == {"conflictbench_serving": client["entry-points"]["conflictbench_serving"]}
+        assert server["scripts"] == client["scripts"]
+        assert "optional-dependencies" not in client or not {"server", "server-test"} & set(
+            client["optional-dependencies"]
+        )

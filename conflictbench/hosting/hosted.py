@@ -246,8 +246,8 @@ class HostedPolicy(ServedPolicy):
         setup = f"`scripts/setup.sh --models {environment}`"
         if not python.exists():
             raise UserError(
-                f"no model environment at {python}: build it with {setup}, "
-                "or point model.python= at a Python with the plugin's server extra"
+                f"no model environment at {python}: build it with {setup}, or point model.python= at a Python with "
+                f"the plugin's server half (`pip install ./serving ./plugins/{environment}/server`)"
             )
         if cls.served is not None:
             probe = f"from conflictbench_serving.command import served_model; served_model({name!r})"
