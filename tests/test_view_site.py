@@ -376,13 +376,35 @@ def test_an_index_of_one_pair_says_one_pair(tmp_path, plugins):
 
 
 def test_the_replay_estimate_counts_frames_and_workers():
-    from conflictbench.view.build import replay_estimate
+    from conflictbench.view.build import SECONDS_PER_FRAME, replay_estimate
 
     steps = [200] * 28  # the default slice's videos: 28 episodes of about 200 steps
     frames = 28 * 200 // FRAME_EVERY
-    assert replay_estimate(steps, workers=2) == pytest.approx(frames * 0.1 / 2)
-    assert replay_estimate(steps[:1], workers=4) == pytest.approx(200 // FRAME_EVERY * 0.1)  # one replay at a time
+    assert replay_estimate(steps, workers=2) == pytest.approx(frames * SECONDS_PER_FRAME / 2)
+    assert replay_estimate(steps[:1], workers=4) == pytest.approx(
+        200 // FRAME_EVERY * SECONDS_PER_FRAME
+    )  # one at a time
+    assert replay_estimate(steps, workers=2, per_frame=0.3) == pytest.approx(frames * 0.3 / 2)
     assert replay_estimate([], workers=2) == 0
+
+
+def test_the_estimate_goes_by_what_a_frame_cost_the_sites_earlier_replays(tmp_path):
+    from conflictbench.view.build import plan_line, seconds_per_frame
+
+    out = tmp_path / "site"
+    assert seconds_per_frame(out) is None
+    assert "(about 8 s with 1 worker(s) on an idle CPU, longer under load)" in plan_line(1, 0, [100], 1, out)
+    (out / "videos").mkdir(parents=True)
+    notes = {"a": (200, 20.0, None), "b": (100, 10.0, None), "c": (100, 99.0, "the replay failed")}
+    for name, (steps, seconds, error) in notes.items():
+        meta = {"steps": steps, "frame_every": 2, "seconds": seconds, "error": error}
+        (out / "videos" / f"{name}.json").write_text(json.dumps(meta))
+    (out / "videos" / "torn.json").write_text("{")  # a note cut short is no basis
+    assert seconds_per_frame(out) == pytest.approx(30.0 / 150)  # failed replays left out
+    line = plan_line(1, 0, [100], 1, out)
+    assert (
+        "(about 10 s with 1 worker(s) at the 0.20 s a frame of this site's earlier replays, longer under load)" in line
+    )
 
 
 def test_the_plan_is_said_before_anything_is_built(store, plugins, tmp_path, capsys):

@@ -3,6 +3,7 @@ replay, then the pages again with the videos that landed."""
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
@@ -21,20 +22,37 @@ from .pages import Site
 from .pairs import Selection, choose
 from .videos import FRAME_EVERY, lacking_videos, render_videos
 
-#: A replay's cost per rendered frame on a CPU (software rendering, the simulation between frames included).
-SECONDS_PER_FRAME = 0.1
+#: A replay's cost per rendered frame on a CPU (software rendering, the simulation between frames included) where
+#: the site has no replays of its own to go by: README's viewer figures, 81 ms a replayed step with a frame every
+#: second step, on 2 cores.
+SECONDS_PER_FRAME = 0.16
 
 
-def replay_estimate(steps: Sequence[int], workers: int) -> float:
-    """Seconds to replay episodes of these step counts, ``workers`` at a time, on an idle CPU."""
+def seconds_per_frame(out: Path) -> float | None:
+    """What a frame cost this site's earlier replays, from their notes (``videos/<episode>.json``); None without."""
+    seconds = frames = 0
+    for note in (out / "videos").glob("*.json"):
+        try:
+            meta = json.loads(note.read_text())
+        except (OSError, ValueError):
+            continue
+        if meta.get("error") is None and meta.get("steps") and meta.get("seconds"):
+            seconds += meta["seconds"]
+            frames += meta["steps"] // meta.get("frame_every", FRAME_EVERY)
+    return seconds / frames if frames else None
+
+
+def replay_estimate(steps: Sequence[int], workers: int, per_frame: float = SECONDS_PER_FRAME) -> float:
+    """Seconds to replay episodes of these step counts, ``workers`` at a time, at ``per_frame`` seconds a frame."""
     if not steps:
         return 0.0
     frames = sum(n // FRAME_EVERY for n in steps)
-    return frames * SECONDS_PER_FRAME / max(1, min(workers, len(steps)))
+    return frames * per_frame / max(1, min(workers, len(steps)))
 
 
 def plan_line(pairs: int, references: int, steps: Sequence[int], workers: int, out: Path) -> str:
-    """What a build is about to do, said before it starts: the pages, the replays and their time."""
+    """What a build is about to do, said before it starts: the pages, the replays and their time (at what a frame
+    cost this site's earlier replays, else on an idle CPU as measured for README)."""
     text = (
         f"conflictbench view: {counted(pairs, 'pair')}, {counted(references, 'reference episode page')}, "
         f"{counted(len(steps), 'episode')} to replay for videos"
@@ -42,9 +60,11 @@ def plan_line(pairs: int, references: int, steps: Sequence[int], workers: int, o
     index = (out / "index.html").resolve().as_uri()
     if not steps:
         return text + f"; the pages come next: {index}"
-    estimate = duration(replay_estimate(steps, workers))
+    measured = seconds_per_frame(out)
+    basis = "on an idle CPU" if measured is None else f"at the {measured:.2f} s a frame of this site's earlier replays"
+    estimate = duration(replay_estimate(steps, workers, SECONDS_PER_FRAME if measured is None else measured))
     return (
-        f"{text} (about {estimate} with {workers} worker(s) on an idle CPU, longer under load); the pages come "
+        f"{text} (about {estimate} with {workers} worker(s) {basis}, longer under load); the pages come "
         f"first: open {index} now and reload it as videos land"
     )
 
