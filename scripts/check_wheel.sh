@@ -14,6 +14,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 repo=$PWD
 PYTHON=${PYTHON:-.venv/bin/python}
+case $PYTHON in */*) [[ $PYTHON == /* ]] || PYTHON=$repo/$PYTHON ;; esac  # a path holds from any directory
 
 say() { printf '[check_wheel] %s\n' "$*" >&2; }
 work=$(mktemp -d "${TMPDIR:-/tmp}/conflictbench-wheel.XXXXXX")
