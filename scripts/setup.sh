@@ -52,11 +52,12 @@ step() {  # step WHAT COMMAND...: run it with its output in the log; if it fails
   from=$(($(wc -l <"$LOG") + 1))
   printf '[setup] %s: %s\n' "$what" "$*" >>"$LOG"
   "$@" </dev/null >>"$LOG" 2>&1 && return
-  # The installer's reason in one line: its first cause (uv's "cause:" or "Caused by:"), else its first error line
-  # (uv's "error:", pip's "ERROR:", apt's "E:"), else its last words.
-  said=$(tail -n +"$((from + 1))" "$LOG" | sed -E 's/^[[:space:]]*((×|╰─▶|│)[[:space:]]*)*//' | grep -v '^[[:space:]]*$' || true)
-  reason=$(grep -m 1 -E '^(cause|Caused by):' <<<"$said" || grep -m 1 -E '^(error|ERROR|E):' <<<"$said" \
-    || tail -n 1 <<<"$said" || true)
+  # The installer's reason in one line: its innermost cause (uv's last "cause:" or "Caused by:"), else its first
+  # error line (uv's "error:", pip's "ERROR:", apt's "E:"), else its last words.
+  said=$(tail -n +"$((from + 1))" "$LOG" | sed -E 's/^[[:space:]]*((×|├─▶|╰─▶|│)[[:space:]]*)*//' \
+    | grep -v '^[[:space:]]*$' || true)
+  reason=$(grep -E '^(cause|Caused by):' <<<"$said" | tail -n 1)
+  [ -n "$reason" ] || reason=$(grep -m 1 -E '^(error|ERROR|E):' <<<"$said" || tail -n 1 <<<"$said")
   say "failed: $what: $(cut -c 1-240 <<<"${reason:-it said nothing}") (all of it: $LOG)"
   exit 1
 }
@@ -117,7 +118,7 @@ fi
 install_into() {  # install_into WHAT ENVIRONMENT ARGS...: `pip install ARGS` into that environment's Python, by uv
   local what=$1 env_dir=$2
   shift 2
-  step "$what" "$VENV/bin/uv" pip install --python "$env_dir/bin/python" "$@"
+  step "$what" "$VENV/bin/uv" --color never pip install --python "$env_dir/bin/python" "$@"
 }
 extras=sim
 ((CLUSTER)) && extras+=,cluster
@@ -199,13 +200,26 @@ if [ -n "$MODELS" ] || ((SUBJECT)); then
   fi
 fi
 consistent() {  # consistent ENVIRONMENT [PACKAGE...]: every requirement met, but those of the PACKAGEs named
-  local env_dir=$1 unmet excused
+  local env_dir=$1 said status=0 unmet excused
   shift
-  unmet=$("$VENV/bin/uv" pip check --python "$env_dir/bin/python" 2>&1 | grep '^The package `[^`]*` requires' || true)
-  for excused in "$@"; do
+  said=$("$VENV/bin/uv" --color never pip check --python "$env_dir/bin/python" 2>&1) || status=$?
+  printf '[setup] uv pip check --python %s\n%s\n' "$env_dir/bin/python" "$said" >>"$LOG"
+  if ((status > 1)); then  # 1: it found something (below); more: it could not look
+    say "failed: checking the requirements in $env_dir: $(tail -n 1 <<<"$said") (all of it: $LOG)"
+    exit 1
+  fi
+  unmet=$(grep '^The package `[^`]*` requires' <<<"$said" || true)
+  for excused in "$@"; do  # as uv names them: lower case, - for _ and .
+    excused=$(tr 'A-Z_.' 'a-z--' <<<"$excused")
     unmet=$(grep -v "^The package \`$excused\`" <<<"$unmet" || true)
   done
-  [ -z "$unmet" ] || { say "failed: $env_dir has an unmet requirement: $(head -n 1 <<<"$unmet") (uv pip check)"; exit 1; }
+  if [ -n "$unmet" ]; then
+    local count more=""
+    count=$(wc -l <<<"$unmet")
+    ((count == 1)) || more=" (and $((count - 1)) more)"
+    say "failed: $env_dir has an unmet requirement: $(head -n 1 <<<"$unmet")$more (all of it: $LOG)"
+    exit 1
+  fi
 }
 build_model_env() {  # build_model_env NAME: the plugin's model environment, from empty (nothing of an earlier build,
   # or of an earlier layout, stays)
@@ -215,9 +229,12 @@ build_model_env() {  # build_model_env NAME: the plugin's model environment, fro
   step "creating $env_dir" "$MODEL_PYTHON" -m venv "$env_dir"
   install_into "installing the $name server half into $env_dir" "$env_dir" -e serving -e "$server"
   if ((TESTS)); then
-    mapfile -t counterparts < <("$env_dir/bin/python" -c 'import sys, tomllib
+    local listed
+    listed=$("$env_dir/bin/python" -c 'import sys, tomllib
 for requirement in tomllib.load(open(sys.argv[1], "rb"))["project"].get("optional-dependencies", {}).get("test", []):
-    print(requirement)' "$server/pyproject.toml")
+    print(requirement)' "$server/pyproject.toml" 2>>"$LOG") \
+      || { say "failed: reading the test extra of $server/pyproject.toml (all of it: $LOG)"; exit 1; }
+    [ -z "$listed" ] || mapfile -t counterparts <<<"$listed"
     ((${#counterparts[@]} == 0)) || install_into "installing the $name server's test counterparts into $env_dir" \
       "$env_dir" --no-deps "${counterparts[@]}"
   fi
@@ -244,8 +261,9 @@ build_subject_env() {
 builds=()
 for name in $MODELS; do
   stamp="$VENV/models/$name/.conflictbench-installed"
+  # The stamp says 1 with the tests' counterparts, 0 without; anything else is an earlier layout's.
   if [ ! -f "$stamp" ] || [ serving/pyproject.toml -nt "$stamp" ] || [ "plugins/$name/server/pyproject.toml" -nt "$stamp" ] \
-    || { ((TESTS)) && [ "$(cat "$stamp")" != 1 ]; }; then  # the tests want the counterparts, not yet there
+    || ! grep -qx '[01]' "$stamp" || { ((TESTS)) && [ "$(cat "$stamp")" != 1 ]; }; then
     builds+=("build_model_env $name")
   fi
 done

@@ -247,7 +247,7 @@ class HostedPolicy(ServedPolicy):
         if not python.exists():
             raise UserError(
                 f"no model environment at {python}: build it with {setup}, or point model.python= at a Python with "
-                f"the plugin's server half (`pip install ./serving ./plugins/{environment}/server`)"
+                f"the plugin's server half (`pip install ./serving ./plugins/{environment}/server` in a checkout)"
             )
         if cls.served is not None:
             probe = f"from conflictbench_serving.command import served_model; served_model({name!r})"
