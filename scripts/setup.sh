@@ -56,7 +56,7 @@ step() {  # step WHAT COMMAND...: run it with its output in the log; if it fails
   # error line (uv's "error:", pip's "ERROR:", apt's "E:"), else its last words.
   said=$(tail -n +"$((from + 1))" "$LOG" | sed -E 's/^[[:space:]]*((×|├─▶|╰─▶|│)[[:space:]]*)*//' \
     | grep -v '^[[:space:]]*$' || true)
-  reason=$(grep -E '^(cause|Caused by):' <<<"$said" | tail -n 1)
+  reason=$(grep -E '^(cause|Caused by):' <<<"$said" | tail -n 1 || true)  # no cause: grep fails, errexit would end here
   [ -n "$reason" ] || reason=$(grep -m 1 -E '^(error|ERROR|E):' <<<"$said" || tail -n 1 <<<"$said")
   say "failed: $what: $(cut -c 1-240 <<<"${reason:-it said nothing}") (all of it: $LOG)"
   exit 1

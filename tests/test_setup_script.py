@@ -87,6 +87,14 @@ def test_a_failing_install_stops_set_up_with_one_line_and_leaves_the_installers_
     assert not (venv / ".conflictbench-installed").exists()  # nothing is marked done that was not
 
 
+def test_a_failure_without_a_cause_line_still_gets_its_one_line(tmp_path):
+    """An environment without pip cannot install uv: Python's own one-line complaint is the reason."""
+    venv = _environment(tmp_path)
+    (venv / "bin" / "uv").unlink()
+    failure = _one_failure_line(_setup(venv, tmp_path), "installing uv with pip")
+    assert "No module named pip" in failure and failure.endswith(f"(all of it: {venv / 'setup.log'})")
+
+
 def test_a_model_environment_that_fails_to_build_stops_set_up_and_is_not_marked_built(tmp_path):
     model_python = _python312()
     if model_python is None:
