@@ -124,9 +124,10 @@ done
 # 8. Each plugin's server half built as a wheel from the clean copy (its package lives beside it, ../conflictbench_X):
 #    the whole package with its server modules, the entry point conflictbench-serve finds, and no requirement of
 #    conflictbench. Installing it means its model's stack (torch, LeRobot): the model environments' build does that.
+#    Built by this Python whatever the half requires (the LeRobot ones, 3.12): a wheel is only read here.
 say "each model plugin's server half, as a wheel"
 for server in "$work"/src/plugins/*/server/; do
-  "$PYTHON" -m pip wheel -q --no-deps --wheel-dir "$work/servers" "$server"
+  "$PYTHON" -m pip wheel -q --no-deps --ignore-requires-python --wheel-dir "$work/servers" "$server"
 done
 "$PYTHON" - "$work/servers" "$work/src/plugins" <<'PY'
 import sys
