@@ -23,21 +23,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from conflictbench.testing.observations import processor  # the name pinned actions record too
+
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
 BEGIN = "<!-- scripts/readme_figures.py writes what follows, from a real default run; do not edit it by hand -->"
 END = "<!-- end of scripts/readme_figures.py -->"
 TABLES = ("table1_overall", "table2_by_family", "table3_qualified_failures")
 TIME = re.compile(r", played in \d+ min \d+ s on a \d+-core machine(?: \(.*? when it started\))?")
-
-
-def cpu_name() -> str:
-    """The processor's model name (Linux), or "CPU"."""
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-    except OSError:
-        return "CPU"
-    return next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")), "CPU")
 
 
 def play(folder: Path) -> tuple[Path, float, float]:
@@ -61,7 +54,7 @@ def block(store: Path, seconds: float | None, load: float | None = None) -> str:
     episodes = len(list((store / "episodes").rglob("*.parquet")))
     took = (
         f", played in {int(seconds // 60)} min {int(seconds % 60)} s on a {os.cpu_count()}-core machine"
-        + (f" ({cpu_name()}, no GPU used, load average {load:.1f} when it started)" if load is not None else "")
+        + (f" ({processor()}, no GPU used, load average {load:.1f} when it started)" if load is not None else "")
         if seconds
         else ""
     )
