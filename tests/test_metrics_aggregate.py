@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from conflictbench.core import EpisodeRecord
 from conflictbench.metrics import (
@@ -181,14 +182,34 @@ def test_paired_prompt_differences_match_p0_and_p1_of_the_same_case_and_state():
     frame = frame_of(records)
     couples = prompt_couples(frame, ["ams"])
     assert len(couples) == 4
-    summary = prompt_differences(couples, ["ams"]).iloc[0]
-    assert summary["couples"] == 4
+    summary = prompt_differences(couples, ["ams"], ranges={"ams": (0.0, 1.0)}).iloc[0]
+    assert summary["pairs"] == 4 and summary["clusters"] == 1
     # RGSR: (3 - 1) / 4 = +0.5 on the matched couples; AMS: 0.5 - 0.75 = -0.25 for each couple
-    assert summary["RGSR_diff"] == pytest.approx(0.5) and summary["RGSR_n"] == 4
-    assert summary["ams_diff"] == pytest.approx(-0.25) and summary["ams_ci95"] == pytest.approx(0.0, abs=1e-12)
-    assert summary["PCSR_diff"] == 0.0
-    # sd of the RGSR differences (1, 0, 1, 0) is sqrt(1/3): half-width 1.96 * sqrt(1/3) / 2
-    assert summary["RGSR_ci95"] == pytest.approx(1.96 * math.sqrt(1 / 3) / 2)
+    assert summary["RGSR"] == pytest.approx(0.5) and summary["RGSR_n"] == 4
+    assert (summary["RGSR_a"], summary["RGSR_b"]) == (0.75, 0.25)
+    assert summary["ams"] == pytest.approx(-0.25)
+    assert summary["PCSR"] == 0.0
+    # one base task: nothing measures how tasks differ, so every interval is the whole range and nothing is called
+    assert (summary["RGSR_lo"], summary["RGSR_hi"], summary["RGSR_p"]) == (-1.0, 1.0, 1.0)
+
+
+def test_paired_prompt_differences_rest_on_base_tasks():
+    records = []
+    # 10 base tasks, one case each: under P0 the conflict completes the original goal in every task, under P1
+    # in none; the references succeed under both
+    for task in range(10):
+        for prompt, ok in (("p0", True), ("p1", False)):
+            records += [
+                episode(success=True, prompt=prompt, task=task),
+                episode("c1", prompt=prompt, task=task, success=ok, family="spatial"),
+            ]
+    summary = prompt_differences(prompt_couples(frame_of(records), []), []).iloc[0]
+    assert (summary["pairs"], summary["clusters"], summary["RGSR"]) == (10, 10, 1.0)
+    # every couple differs by +1: Wilson's bound for none of 10 base tasks differing, on the range [-1, 1]
+    q = stats.t.ppf(0.975, 9)
+    assert summary["RGSR_lo"] == pytest.approx(1 - 2 * q**2 / (10 + q**2)) and summary["RGSR_hi"] == 1.0
+    assert summary["RGSR_p"] < 0.05
+    assert summary["PCSR"] == 0.0 and summary["PCSR_lo"] < 0 < summary["PCSR_hi"] and summary["PCSR_p"] == 1.0
 
 
 def test_aggregates_of_nothing_are_empty_not_errors():

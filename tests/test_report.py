@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+from testing_support import in_tasks
 
 import conflictbench
 from conflictbench.cli.report import command as report_command
@@ -93,7 +94,9 @@ def test_tables_from_a_parquet_store_match_hand_counts(tmp_path, plugins):
     assert alpha["AMS"] == pytest.approx(25.0) and beta["AMS"] == pytest.approx(100.0) and beta["AMS_n"] == 2
 
     t3 = pd.read_csv(tmp_path / "report" / "table3_qualified_failures.csv").set_index("model")
-    assert list(t3.columns[:3]) == ["prompt", "FR", "FR_k"]
+    assert list(t3.columns[:8]) == ["prompt", "tasks", "FR", "FR_lo", "FR_hi", "FR_k", "FR_n", "FR_clusters"]
+    # one base task: nothing measures how tasks differ, so the interval is the whole range
+    assert (t3.loc["alpha", "tasks"], t3.loc["alpha", "FR_lo"], t3.loc["alpha", "FR_hi"]) == (1, 0.0, 100.0)
     assert (t3.loc["alpha", "FR"], t3.loc["alpha", "FR_k"], t3.loc["alpha", "FR_n"]) == (50.0, 1, 2)
     assert t3.loc["beta", "FR"] == 100.0
     # over D_QF only: alpha's qualified failure is c1 alone
@@ -112,25 +115,39 @@ def test_tables_from_a_parquet_store_match_hand_counts(tmp_path, plugins):
     assert len(frames["pairs"]) == 4
 
 
-def test_most_favourable_values_are_marked_in_every_format(tmp_path, plugins):
+def test_most_favourable_values_are_marked_where_a_paired_comparison_tells_them_apart(tmp_path, plugins):
     out = io.StringIO()
-    report_records(two_models(), plugins, out_dir=tmp_path, stream=out, figures=False)
+    report_records(in_tasks(two_models(), 20), plugins, out_dir=tmp_path, stream=out, figures=False)
     rows = {}
     for line in out.getvalue().splitlines():
         if line.startswith(("alpha ", "beta ")):
             rows.setdefault(line.split()[0], line)
-    # table 1 is printed first: beta has the lower RGSR and TAR, the higher dSR and AMS;
-    # both have PCSR 100: a tie marks nothing
+    # table 1 is printed first: in each of 20 base tasks beta has the lower RGSR and TAR, the higher dSR and AMS;
+    # both have PCSR 100: a tie marks nothing, and is no value left unmarked
     beta, alpha = rows["beta"], rows["alpha"]
-    assert "0.0 (0/2)*" in beta and "100.0 (n=2)*" in beta
-    assert "*" not in alpha.split("100.0 (2/2)")[1].split("(1/2)")[0]
-    assert "100.0 (2/2)*" not in alpha and "100.0 (2/2)*" not in beta
+    assert "0.0 (0/40)*" in beta and "100.0 (n=40)*" in beta
+    assert "*" not in alpha
+    assert "100.0 (40/40)*" not in beta
+    table1 = out.getvalue().split("== Table 2")[0]
+    assert "not marked" not in table1
     md = (tmp_path / "table1_overall.md").read_text()
     cells = [[c.strip() for c in line.strip("|").split("|")] for line in md.splitlines() if line.startswith("|")]
-    assert ["beta", "p0", "100.0 (2/2)", "**0.0 (0/2)**", "**100.0 (n=2)**", "**0.0 (n=2)**"] in [c[:6] for c in cells]
-    assert cells[1][1].startswith(":-") and cells[1][2].endswith("-:")  # keys left, values right
+    beta_cells = next(c for c in cells if c[0] == "beta")
+    assert beta_cells[:4] == ["beta", "p0", "20", "100.0 [82.0, 100.0] (40/40)"]  # nothing differs: 0 of 20 tasks
+    assert beta_cells[4].startswith("**0.0 [0.0, ") and beta_cells[4].endswith("] (0/40)**")
+    assert cells[1][1].startswith(":-") and cells[1][3].endswith("-:")  # keys left, values right
     tex = (tmp_path / "table1_overall.tex").read_text()
-    assert r"\textbf{0.0}\,{\scriptsize (0/2)}" in tex and r"\begin{tabular}" in tex
+    assert r"\textbf{0.0}\,{\scriptsize [0.0, " in tex and r"\begin{tabular}" in tex
+
+
+def test_a_best_value_a_paired_comparison_cannot_tell_apart_is_not_marked_and_the_note_says_so(tmp_path, plugins):
+    out = io.StringIO()
+    report_records(two_models(), plugins, out_dir=tmp_path, stream=out, figures=False)  # one base task
+    table1 = out.getvalue().split("== Table 2")[0]
+    assert "*" not in table1.split("\n", 4)[-1].split("rates and means")[0]  # no value of the rows is marked
+    assert "not marked: RGSR, dSR, TAR, Early20 TS, TS, AMS (in some prompt condition" in table1
+    md = (tmp_path / "table1_overall.md").read_text()
+    assert "**" not in md and "not marked: RGSR, dSR" in md
 
 
 def test_figures_are_written_as_png(tmp_path, plugins):
@@ -143,8 +160,9 @@ def test_figures_are_written_as_png(tmp_path, plugins):
         data = (tmp_path / name).read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000
     differences = pd.read_csv(tmp_path / "prompt_differences.csv")
-    assert list(differences["couples"]) == [3, 2]  # alpha: c1 x 2 states + c2; beta: c1, c2
-    assert list(differences["RGSR_diff"]) == [0.0, 0.0]  # the same outcomes under both prompts
+    assert list(differences["pairs"]) == [3, 2]  # alpha: c1 x 2 states + c2; beta: c1, c2
+    assert list(differences["RGSR"]) == [0.0, 0.0]  # the same outcomes under both prompts
+    assert list(differences["RGSR_p"]) == [1.0, 1.0]
 
 
 def test_the_outcome_figure_draws_each_rate_with_its_counts_and_says_na_where_nothing_was_played(plugins):

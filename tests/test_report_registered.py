@@ -8,6 +8,7 @@ import io
 import numpy as np
 import pandas as pd
 import pytest
+from testing_support import in_tasks
 
 import conflictbench
 from conflictbench.core import EpisodeRecord, Plugins, UserError, hookimpl
@@ -80,12 +81,15 @@ def table_lines(text: str, model: str) -> list[str]:
 def test_a_plugin_metric_shows_with_its_label_as_a_percentage_and_marked_where_lowest(tmp_path):
     plugins = Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[PathRatio()])
     out = io.StringIO()
-    report_records(records(), plugins, out_dir=tmp_path, stream=out, figures=False)
+    played = in_tasks(records(), 8)  # the same pairs in 8 base tasks: a paired comparison tells them apart
+    report_records(played, plugins, out_dir=tmp_path, stream=out, figures=False)
     t1 = pd.read_csv(tmp_path / "table1_overall.csv").set_index("model")
-    assert list(t1.columns)[-2:] == ["Path ratio", "Path ratio_n"]  # after the built-ins
+    assert list(t1.columns)[-5:] == ["Path ratio", "Path ratio_lo", "Path ratio_hi", "Path ratio_n",
+                                     "Path ratio_clusters"]  # after the built-ins  # fmt: skip
     assert t1.loc["alpha", "Path ratio"] == pytest.approx(37.5) and t1.loc["beta", "Path ratio"] == 100.0
+    assert t1.loc["alpha", "Path ratio_lo"] < 37.5 < t1.loc["alpha", "Path ratio_hi"] < 100.0
     alpha, beta = table_lines(out.getvalue(), "alpha")[0], table_lines(out.getvalue(), "beta")[0]
-    assert alpha.endswith("37.5 (n=2)*") and beta.endswith("100.0 (n=2)")
+    assert alpha.endswith("37.5 (n=16)*") and beta.endswith("100.0 (n=16)")
     assert "Path ratio" in out.getvalue().splitlines()[2]  # the header row
     assert "lower RGSR, TAR, Early20 TS, TS, Path ratio" in out.getvalue()  # the legend
     md = (tmp_path / "table1_overall.md").read_text()
@@ -97,13 +101,14 @@ def test_a_plugin_metric_shows_with_its_label_as_a_percentage_and_marked_where_l
             if line.startswith("| alpha") or line.startswith("| beta")
         )
     }
-    assert last == {"alpha": "**37.5 (n=2)**", "beta": "100.0 (n=2)"}
+    low, high = t1.loc["alpha", "Path ratio_lo"], t1.loc["alpha", "Path ratio_hi"]
+    assert last == {"alpha": f"**37.5 [{low:.1f}, {high:.1f}] (n=16)**", "beta": "100.0 [58.9, 100.0] (n=16)"}
     tex = (tmp_path / "table1_overall.tex").read_text()
-    assert r"Path ratio \\" in tex and r"\textbf{37.5}\,{\scriptsize (n=2)}" in tex
+    assert r"Path ratio \\" in tex and rf"\textbf{{37.5}}\,{{\scriptsize [{low:.1f}, {high:.1f}] (n=16)}}" in tex
     # a direction given to the report overrides the registered one
     flipped = io.StringIO()
-    report_records(records(), plugins, stream=flipped, figures=False, directions={"path_ratio": "higher"})
-    assert table_lines(flipped.getvalue(), "beta")[0].endswith("100.0 (n=2)*")
+    report_records(played, plugins, stream=flipped, figures=False, directions={"path_ratio": "higher"})
+    assert table_lines(flipped.getvalue(), "beta")[0].endswith("100.0 (n=16)*")
 
 
 def test_a_metric_in_its_own_unit_without_a_direction_is_shown_as_measured_and_unmarked(tmp_path):
@@ -117,7 +122,8 @@ def test_a_metric_in_its_own_unit_without_a_direction_is_shown_as_measured_and_u
     t1 = pd.read_csv(tmp_path / "table1_overall.csv").set_index("model")
     assert t1.loc["alpha", "Left_over & #"] == pytest.approx(0.25)  # as measured, not x100
     tex = (tmp_path / "table1_overall.tex").read_text()
-    assert r"Left\_over \& \#" in tex and r"0.25 m\,{\scriptsize (n=2)}" in tex  # escaped by tabulate
+    # escaped by tabulate; one base task: no interval for a measure without a range
+    assert r"Left\_over \& \#" in tex and r"0.25 m\,{\scriptsize [n/a] (n=2)}" in tex
     assert "Left_over & #" not in tex
 
 
@@ -126,16 +132,18 @@ def test_a_registry_without_the_builtins_reports_without_them(tmp_path):
     out = io.StringIO()
     frames = report_records(records(), plugins, out_dir=tmp_path, stream=out)
     t1 = pd.read_csv(tmp_path / "table1_overall.csv")
-    assert [c for c in t1.columns if not c.endswith(("_k", "_n"))] == [
+    assert [c for c in t1.columns if not c.endswith(("_k", "_n", "_lo", "_hi", "_clusters"))] == [
         "model",
         "prompt",
+        "tasks",
         "PCSR",
         "RGSR",
         "dSR",
         "Path ratio",
     ]
     t3 = pd.read_csv(tmp_path / "table3_qualified_failures.csv")
-    assert [c for c in t3.columns if not c.endswith(("_k", "_n"))] == ["model", "prompt", "FR", "Path ratio"]
+    kept = [c for c in t3.columns if not c.endswith(("_k", "_n", "_lo", "_hi", "_clusters"))]
+    assert kept == ["model", "prompt", "tasks", "FR", "Path ratio"]
     assert not {"tar", "ts", "early20_ts", "ams"} & set(frames["pairs"].columns)
     for label in ("TAR", "TS", "AMS"):
         assert f" {label} " not in out.getvalue()
@@ -156,7 +164,7 @@ def test_figures_scale_a_metric_as_registered(tmp_path):
     cons = [r for r in episodes if r.case_id is not None]
     frame = with_model(evaluate_pairs([refs[(c.policy, c.prompt)] for c in cons], cons, plugins=plugins))
     differences = prompt_differences(prompt_couples(frame, ["steps_left"]), ["steps_left"])
-    assert list(differences["steps_left_diff"]) == [0.0, 0.0]
+    assert list(differences["steps_left"]) == [0.0, 0.0]
     for path in (
         figures.qualified_failure_distributions(frame, tmp_path / "qf.png", [spec]),
         figures.prompt_difference_figure(differences, tmp_path / "diff.png", [spec]),

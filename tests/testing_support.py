@@ -33,3 +33,11 @@ def pip_install_into(target: Path, source: Path, upgrade: bool = False) -> Path:
     command = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--no-compile"]
     subprocess.run([*command, *(["--upgrade"] if upgrade else []), "--target", str(target), str(source)], check=True)
     return target
+
+
+def in_tasks(records, tasks: int) -> list:
+    """``records`` played again in ``tasks`` base tasks (task ids 0..tasks-1, episode ids kept apart): the same
+    outcomes in many clusters, so that intervals and paired comparisons have base tasks to rest on."""
+    from dataclasses import replace
+
+    return [replace(r, task_id=t, episode_id=f"{r.episode_id}-t{t}") for t in range(tasks) for r in records]

@@ -103,7 +103,7 @@ def conflictbench_register_metrics(register):
     """Declare per-pair metrics.
 
     Call ``register(name, compute=..., description="", label=None, unit="", higher_is_better=None,
-    compute_many=None)`` once per metric:
+    compute_many=None, bounds=None)`` once per metric:
 
     - ``compute(pair) -> float | None`` gets a :class:`Pair` (``pair.reference`` and
       ``pair.conflict`` are :class:`EpisodeRecord`) and returns ``None`` where the measure is
@@ -113,7 +113,10 @@ def conflictbench_register_metrics(register):
       is required);
     - ``label``: the column title in tables and figures (default: the name); ``unit``: ``"%"`` for a
       fraction in [0, 1] shown as a percentage, other text (``"m"``) shown after the value;
-      ``higher_is_better``: which way reports mark the most favourable value (``None``: unmarked).
+      ``higher_is_better``: which way reports mark the most favourable value (``None``: unmarked);
+    - ``bounds``: ``(low, high)``, the range every value lies in (a ``"%"`` metric's is [0, 1] unless given).
+      Reports give every mean a 95 % interval; with a range it is a score interval that stays inside it and
+      does not collapse where every pair gives the same value, without one a t interval (none in that case).
 
     A metric is averaged over the pairs where it is defined and appears in every report and CSV,
     shown only as its registration says. The built-in TAR, TS, Early20 TS and AMS register through

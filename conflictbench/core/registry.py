@@ -7,6 +7,7 @@ metric can always say where it came from, and the episode identity can name the 
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -82,10 +83,18 @@ class MetricSpec:
     """Which way is more favourable (reports mark the best value); None: neither, left unmarked."""
     compute_many: Callable[[Sequence[Any], Sequence[Any]], Sequence[float | None]] | None = None
     """Optional batched form: ``compute_many(references, conflicts)`` -> one value per pair, aligned."""
+    declared_bounds: tuple[float, float] | None = None
+    """The range every value lies in, as registered (``bounds=``)."""
 
     @property
     def percent(self) -> bool:
         return self.unit == "%"
+
+    @property
+    def bounds(self) -> tuple[float, float] | None:
+        """The range of its values: as registered, else [0, 1] for a "%" metric, else unknown (None). Reports
+        give a measure with a range a score interval that stays inside it (README, "Uncertainty")."""
+        return self.declared_bounds or ((0.0, 1.0) if self.percent else None)
 
     @property
     def direction(self) -> str | None:
@@ -143,6 +152,7 @@ def metric_spec(
     unit: str = "",
     higher_is_better: bool | None = None,
     compute_many: Callable[..., Sequence[float | None]] | None = None,
+    bounds: Sequence[float] | None = None,
 ) -> MetricSpec:
     if compute is None and compute_many is None:
         raise PluginError(f"{where}: give compute(pair) or compute_many(references, conflicts)")
@@ -152,9 +162,18 @@ def metric_spec(
         raise PluginError(f"{where}: higher_is_better must be True, False or None")
     if not isinstance(unit, str) or (label is not None and not isinstance(label, str)):
         raise PluginError(f"{where}: label and unit must be strings")
+    if bounds is not None:
+        try:
+            low, high = (float(b) for b in bounds)
+        except (TypeError, ValueError):
+            raise PluginError(f"{where}: bounds must be two numbers (low, high), got {bounds!r}") from None
+        if not (math.isfinite(low) and math.isfinite(high) and low < high):
+            raise PluginError(f"{where}: bounds must be finite with low < high, got {bounds!r}")
+        bounds = (low, high)
     return MetricSpec(
-        name, compute, description, src.distribution, src.version, label or name, unit, higher_is_better, compute_many
-    )
+        name, compute, description, src.distribution, src.version, label or name, unit, higher_is_better, compute_many,
+        bounds,
+    )  # fmt: skip
 
 
 def operator_spec(

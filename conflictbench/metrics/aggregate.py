@@ -11,13 +11,17 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, PROMPT_CONDITIONS
+
+from .intervals import Bounds
+from .measures import PCSR, RGSR, group_index, intervals, metric_measure, report_measures
+from .paired import DIFFERENCE_SUFFIXES, EXPERIMENT_KEYS, SIDE_COLUMNS, SIDES, differences, match
 
 #: Grouping keys the report uses; ``model`` is the policy, told apart by settings when needed.
 GROUPINGS = {
@@ -29,7 +33,7 @@ GROUPINGS = {
     "case": ("model", "prompt", "suite", "task_id", "case_id", "family", "level"),
 }
 #: Keys that make a P0 conflict episode and a P1 one the same experiment apart from the prompt.
-PROMPT_PAIR_KEYS = ("policy", "config_hash", "suite", "task_id", "init_state", "case_id", "seed")
+PROMPT_PAIR_KEYS = ("policy", "config_hash", *(k for k in EXPERIMENT_KEYS if k != "prompt"))
 _ORDER = {"family": FAMILIES, "level": LEVELS, "prompt": PROMPT_CONDITIONS, "suite": LIBERO_SUITES}
 
 
@@ -93,112 +97,87 @@ def sort_groups(frame: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
     return frame.sort_values(list(by), key=key, kind="stable").reset_index(drop=True)
 
 
-def _grouped(work: pd.DataFrame, by: Sequence[str]):
-    # dropna=False: a group whose key is missing (e.g. no family) is still a row
-    return work.groupby(list(by), dropna=False, sort=False)
-
-
-def _with_keys(parts: dict[str, pd.Series], by: Sequence[str]) -> pd.DataFrame:
-    out = pd.DataFrame(parts)
-    out.index.names = list(by)
-    return out.reset_index()
-
-
-def aggregate(frame: pd.DataFrame, by: Sequence[str], metrics: Sequence[str]) -> pd.DataFrame:
-    """One row per group of ``by``: outcome rates with counts, then each metric over all pairs and D_QF."""
+def aggregate(
+    frame: pd.DataFrame, by: Sequence[str], metrics: Sequence[str], ranges: Mapping[str, Bounds] | None = None
+) -> pd.DataFrame:
+    """One row per group of ``by``: outcome rates with counts, then each metric over all pairs and D_QF; each
+    measure ``X`` with its 95 % interval ``X_lo``, ``X_hi`` and the base tasks it rests on, ``X_clusters``
+    (:mod:`.intervals`), and ``clusters``, the base tasks of the group's pairs. ``ranges``: a metric's bounds
+    (name -> (low, high); a metric not named has none, so a t interval)."""
     frame = with_model(frame) if "model" in by else frame
-    columns = [*by, "pairs", "PCSR_k", "PCSR", "RGSR_k", "RGSR", "dSR", "FR_k", "FR_n", "FR"]
-    for m in metrics:
-        columns += [m, f"{m}_n", f"{m}_qf", f"{m}_qf_n"]
+    columns = aggregate_columns(by, metrics)
     if frame.empty:
         return pd.DataFrame({c: pd.Series([], dtype=object if c in by else np.float64) for c in columns})
-    ref = frame["reference_success"].astype(bool)
-    con = frame["conflict_success"].astype(bool)
-    qf = ref & ~con
-    work = frame[list(by)].assign(_ref=ref, _con=con, _qf=qf)
+    measures = report_measures(metrics, ranges)
+    out = intervals(frame, by, measures)
+    group, keys = group_index(frame, by)
+    ref = frame["reference_success"].to_numpy(dtype=bool)
+    qf = ref & ~frame["conflict_success"].to_numpy(dtype=bool)
+
+    def count(weights) -> np.ndarray:
+        return np.bincount(group, weights, minlength=len(keys)).round().astype(np.int64)
+
+    out["pairs"] = count(None)
+    out["PCSR_k"] = count(ref)
+    out["RGSR_k"] = count(frame["conflict_success"].to_numpy(dtype=bool))
+    out["FR_k"] = count(qf)
+    out["FR_n"] = count(ref)
     for m in metrics:
-        work[m] = frame[m].astype(np.float64)
-        work[f"{m}_qf"] = work[m].where(qf)
-    gb = _grouped(work, by)
-    parts = {
-        "pairs": gb.size(),
-        "PCSR_k": gb["_ref"].sum(),
-        "RGSR_k": gb["_con"].sum(),
-        "FR_k": gb["_qf"].sum(),
-        "FR_n": gb["_ref"].sum(),
-    }
-    for m in metrics:
-        parts[m] = gb[m].mean()
-        parts[f"{m}_n"] = gb[m].count()
-        parts[f"{m}_qf"] = gb[f"{m}_qf"].mean()
-        parts[f"{m}_qf_n"] = gb[f"{m}_qf"].count()
-    out = _with_keys(parts, by)
-    for c in (
-        "pairs",
-        "PCSR_k",
-        "RGSR_k",
-        "FR_k",
-        "FR_n",
-        *(f"{m}_n" for m in metrics),
-        *(f"{m}_qf_n" for m in metrics),
-    ):
-        out[c] = out[c].astype(np.int64)
-    out["PCSR"] = out["PCSR_k"] / out["pairs"]
-    out["RGSR"] = out["RGSR_k"] / out["pairs"]
-    out["dSR"] = out["PCSR"] - out["RGSR"]
-    out["FR"] = np.where(out["FR_n"] > 0, out["FR_k"] / out["FR_n"].where(out["FR_n"] > 0, 1), np.nan)
+        defined = np.isfinite(frame[m].to_numpy(dtype=np.float64))
+        out[f"{m}_n"] = count(defined)
+        out[f"{m}_qf_n"] = count(defined & qf)
     return sort_groups(out[columns], by)
+
+
+def aggregate_columns(by: Sequence[str], metrics: Sequence[str]) -> list[str]:
+    def measure(x: str) -> list[str]:
+        return [x, f"{x}_lo", f"{x}_hi", f"{x}_clusters"]
+
+    columns = [*by, "pairs", "clusters", "PCSR_k", *measure("PCSR"), "RGSR_k", *measure("RGSR"), *measure("dSR")]
+    columns += ["FR_k", "FR_n", *measure("FR")]
+    for m in metrics:
+        columns += [*measure(m), f"{m}_n", *measure(f"{m}_qf"), f"{m}_qf_n"]
+    return columns
 
 
 def prompt_couples(frame: pd.DataFrame, metrics: Sequence[str]) -> pd.DataFrame:
-    """P0 and P1 pairs of the same conflict case, init state and policy settings, side by side.
-
-    Columns: the keys, ``model``, ``family``, ``level``, and for each measure ``X_p0``, ``X_p1``
-    and ``X_diff`` = P0 - P1, where X is ``PCSR``/``RGSR`` (reference / conflict success as 0/1)
-    or a metric (NaN unless defined in both).
-    """
+    """P0 and P1 pairs of the same conflict case, init state, seed, step budget and policy settings, side by
+    side: the keys, ``model``, ``family``, ``level``, each side's ``reference_success`` and
+    ``conflict_success`` and each metric (NaN unless defined under both), suffixed ``_p0`` and ``_p1``, and
+    ``X_diff`` = P0 - P1 for ``PCSR`` and ``RGSR`` (reference / conflict success as 0/1) and each metric."""
     frame = with_model(frame)
-    measures = ["PCSR", "RGSR", *metrics]
     columns = [*PROMPT_PAIR_KEYS, "model", "family", "level"]
-    columns += [f"{x}_{s}" for x in measures for s in ("p0", "p1", "diff")]
-    values = (
-        frame.assign(
-            PCSR=frame["reference_success"].astype(np.float64), RGSR=frame["conflict_success"].astype(np.float64)
-        )
-        if len(frame)
-        else frame
-    )
-    p0 = values[values["prompt"] == "p0"] if len(frame) else frame
-    p1 = values[values["prompt"] == "p1"] if len(frame) else frame
+    sides = [*SIDE_COLUMNS, *metrics]
+    columns += [f"{x}_{s}" for x in sides for s in ("p0", "p1")]
+    columns += [f"{x}_diff" for x in ("PCSR", "RGSR", *metrics)]
+    p0 = frame[frame["prompt"] == "p0"] if len(frame) else frame
+    p1 = frame[frame["prompt"] == "p1"] if len(frame) else frame
     if p0.empty or p1.empty:
-        return pd.DataFrame({c: pd.Series([], dtype=object if c in columns[:10] else np.float64) for c in columns})
-    keys = list(PROMPT_PAIR_KEYS)
-    left = p0[[*keys, "model", "family", "level", *measures]].drop_duplicates(keys)
-    right = p1[[*keys, *measures]].drop_duplicates(keys)
-    merged = left.merge(right, on=keys, suffixes=("_p0", "_p1"), how="inner")
-    for x in measures:
-        merged[f"{x}_p0"] = merged[f"{x}_p0"].astype(np.float64)
-        merged[f"{x}_p1"] = merged[f"{x}_p1"].astype(np.float64)
-        merged[f"{x}_diff"] = merged[f"{x}_p0"] - merged[f"{x}_p1"]
-    return sort_groups(merged[columns], ["model", "suite", "task_id", "case_id", "init_state"])
+        return pd.DataFrame({c: pd.Series([], dtype=object if c in columns[:13] else np.float64) for c in columns})
+    matched = match(p0, p1, PROMPT_PAIR_KEYS, metrics, carry=PROMPT_PAIR_KEYS + ("model",)).frame
+    matched = matched.rename(columns={f"{x}{a}": f"{x}_{p}" for x in sides for a, p in zip(SIDES, ("p0", "p1"))})
+    for x, column in (("PCSR", "reference_success"), ("RGSR", "conflict_success"), *((m, m) for m in metrics)):
+        matched[f"{x}_diff"] = matched[f"{column}_p0"].astype(np.float64) - matched[f"{column}_p1"].astype(np.float64)
+    for c in columns:
+        if c not in matched.columns:
+            matched[c] = None
+    return sort_groups(matched[columns], ["model", "suite", "task_id", "case_id", "init_state"])
 
 
-def prompt_differences(couples: pd.DataFrame, metrics: Sequence[str], by: Sequence[str] = ("model",)) -> pd.DataFrame:
-    """Mean paired P0 - P1 difference per group, with its count and a 95% interval half-width.
-
-    The half-width is 1.96 * sd / sqrt(n) (normal approximation; NaN when n < 2).
-    """
-    measures = ["PCSR", "RGSR", *metrics]
-    columns = [*by, "couples"] + [f"{x}_{s}" for x in measures for s in ("diff", "n", "ci95")]
+def prompt_differences(
+    couples: pd.DataFrame,
+    metrics: Sequence[str],
+    by: Sequence[str] = ("model",),
+    ranges: Mapping[str, Bounds] | None = None,
+) -> pd.DataFrame:
+    """P0 - P1 per group over its couples, for PCSR, RGSR and each metric, as :func:`.paired.differences`
+    gives it: ``pairs``, ``clusters``, and per measure the difference, each side's value, the 95 % interval
+    clustered by base task, the p-value and the base tasks (``X``, ``X_a``, ``X_b``, ``X_lo``, ``X_hi``,
+    ``X_p``, ``X_clusters``)."""
+    ranges = ranges or {}
+    measures = [PCSR, RGSR, *(metric_measure(m, ranges.get(m)) for m in metrics)]
     if couples.empty:
-        return pd.DataFrame({c: pd.Series([], dtype=object if c in by else np.float64) for c in columns})
-    gb = _grouped(couples, by)
-    parts = {"couples": gb.size()}
-    for x in measures:
-        d = gb[f"{x}_diff"]
-        n = d.count()
-        parts[f"{x}_diff"] = d.mean()
-        parts[f"{x}_n"] = n
-        parts[f"{x}_ci95"] = (1.96 * d.std(ddof=1) / np.sqrt(n)).where(n >= 2)
-    out = _with_keys(parts, by)
-    return sort_groups(out[columns], by)
+        names = ["pairs", "clusters"] + [f"{x.name}{s}" for x in measures for s in DIFFERENCE_SUFFIXES]
+        return pd.DataFrame({c: pd.Series([], dtype=object if c in by else np.float64) for c in [*by, *names]})
+    out = differences(couples, by, measures, suffixes=("_p0", "_p1"))
+    return sort_groups(out, by)

@@ -44,6 +44,8 @@ KEY_COLUMNS = (
     "case_id",
     "family",
     "level",
+    "max_steps",
+    "conflict_suite",
 )
 CHUNK_PAIRS = 2048
 

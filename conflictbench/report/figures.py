@@ -124,37 +124,36 @@ def prompt_difference_figure(
         if not models:
             _empty(ax, "n/a: no matched P0/P1\nconflict pairs (n=0)")
             continue
-        diff = factor * summary[f"{measure}_diff"].astype(float).to_numpy()
-        ci = factor * summary[f"{measure}_ci95"].astype(float).to_numpy()
+        diff = factor * summary[measure].astype(float).to_numpy()
+        low = factor * summary[f"{measure}_lo"].astype(float).to_numpy()
+        high = factor * summary[f"{measure}_hi"].astype(float).to_numpy()
         n = summary[f"{measure}_n"].astype(int).to_numpy()
+        tasks = summary[f"{measure}_clusters"].astype(int).to_numpy()
         y = np.arange(len(models))
         shown = np.nan_to_num(diff)
-        ax.barh(
-            y,
-            shown,
-            color="#4C72B0",
-            alpha=0.85,
-            xerr=np.where(np.isnan(ci), 0, ci),
-            error_kw={"elinewidth": 1, "capsize": 2},
-        )
+        whiskers = np.nan_to_num(np.vstack([diff - low, high - diff]))
+        ax.barh(y, shown, color="#4C72B0", alpha=0.85, xerr=whiskers, error_kw={"elinewidth": 1, "capsize": 2})
         ax.axvline(0, color="black", linewidth=0.8)
-        span = float(np.nanmax(np.abs(diff) + np.nan_to_num(ci))) if np.isfinite(diff).any() else 0.0
+        reach = np.concatenate([np.abs(low), np.abs(high), np.abs(diff)])
+        span = float(np.nanmax(reach)) if np.isfinite(reach).any() else 0.0
         span = max(5.0, span) if unit == "pp" else (span or 1.0)  # at least +-5 pp around zero
         ax.set_xlim(-1.35 * span, 1.35 * span)
-        for yi, d, k in zip(y, diff, n):
-            note = f"n={k}" if np.isfinite(d) else "n/a (n=0)"
+        for yi, d, k, g in zip(y, diff, n, tasks):
+            note = f"n={k}, {g} task{'s' if g != 1 else ''}" if np.isfinite(d) else "n/a (n=0)"
             ax.text(1.33 * span, yi, note, va="center", ha="right", fontsize=6, color="0.3")
         ax.set_yticks(y, models, fontsize=8)
         ax.set_ylim(len(models) - 0.5, -0.5)
         ax.grid(axis="x", alpha=0.3)
     fig.suptitle(
-        "Mean paired difference P0 − P1 per model (bar; > 0: higher under P0), 95% interval (whiskers)", fontsize=9
+        "Paired difference P0 − P1 per model (bar; > 0: higher under P0), 95% interval clustered by base task "
+        "(whiskers)",
+        fontsize=9,
     )
     return _save(fig, path)
 
 
 def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
-    """dSR (%) per conflict family x level, one panel per model and prompt condition."""
+    """dSR (%) per conflict family x level with its 95 % interval, one panel per model and prompt condition."""
     panels = (
         family_level[["model", "prompt"]].drop_duplicates().itertuples(index=False, name=None)
         if len(family_level)
@@ -165,7 +164,7 @@ def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
     nrows = -(-len(panels) // ncols)
     present = set(family_level["family"].dropna()) if len(family_level) else set()
     families = [*FAMILIES, *sorted(str(f) for f in present - set(FAMILIES))]  # plugin families after ours
-    fig = Figure(figsize=(3.4 * ncols, (1.0 + 0.48 * len(families)) * nrows), layout="constrained")
+    fig = Figure(figsize=(3.4 * ncols, (1.0 + 0.6 * len(families)) * nrows), layout="constrained")
     axes = fig.subplots(nrows, ncols, squeeze=False)
     image = None
     for ax, (model, prompt) in zip(axes.flat, panels):
@@ -176,18 +175,21 @@ def dsr_heatmap(family_level: pd.DataFrame, path: Path) -> Path:
         )
         grid = np.full((len(families), len(LEVELS)), np.nan)
         counts = np.zeros_like(grid, dtype=int)
+        bounds = np.full((*grid.shape, 2), np.nan)
         for row in sub.itertuples(index=False):
             if row.family in families and row.level in LEVELS:
                 i, j = families.index(row.family), LEVELS.index(row.level)
                 grid[i, j] = 100 * row.dSR
                 counts[i, j] = row.pairs
+                bounds[i, j] = (100 * row.dSR_lo, 100 * row.dSR_hi)
         image = ax.imshow(np.ma.masked_invalid(grid), cmap="RdBu", vmin=-100, vmax=100, aspect="auto")
         ax.set_facecolor("0.9")
         for i in range(len(families)):
             for j in range(len(LEVELS)):
-                text = f"{grid[i, j]:.1f}\nn={counts[i, j]}" if counts[i, j] else "n/a\nn=0"
+                low, high = bounds[i, j]
+                text = f"{grid[i, j]:.1f}\n[{low:.0f}, {high:.0f}]\nn={counts[i, j]}" if counts[i, j] else "n/a\nn=0"
                 dark = np.isfinite(grid[i, j]) and abs(grid[i, j]) > 60
-                ax.text(j, i, text, ha="center", va="center", fontsize=7, color="white" if dark else "black")
+                ax.text(j, i, text, ha="center", va="center", fontsize=6, color="white" if dark else "black")
         ax.set_xticks(range(len(LEVELS)), LEVELS, fontsize=8)
         ax.set_yticks(range(len(families)), families, fontsize=8)
         ax.set_title(f"{model} {prompt.upper()}".strip() + ": dSR (%)", fontsize=9)
@@ -204,7 +206,8 @@ def outcome_bars(family_level: pd.DataFrame, path: Path) -> Path:
 
 def outcome_figure(family_level: pd.DataFrame) -> Figure:
     """PCSR and RGSR (%) per level, one panel per conflict family and prompt condition, models side by side
-    (solid: PCSR, hatched: RGSR), each bar with its k/n; a level no pair reached says "n/a"."""
+    (solid: PCSR, hatched: RGSR), each bar with its 95 % interval (whiskers, clustered by base task) and its
+    k/n; a level no pair reached says "n/a"."""
     prompts = [p for p in PROMPT_CONDITIONS if len(family_level) and p in set(family_level["prompt"])] or ["p0"]
     models = sorted(set(family_level["model"])) if len(family_level) else []
     present = set(family_level["family"].dropna()) if len(family_level) else set()
@@ -219,7 +222,7 @@ def outcome_figure(family_level: pd.DataFrame) -> Figure:
             ax.set_title(f"{family} {prompt.upper()}", fontsize=9)
             ax.set_xticks(range(len(LEVELS)), LEVELS, fontsize=8)
             ax.set_xlim(-0.5, len(LEVELS) - 0.5)
-            ax.set_ylim(0, 118)
+            ax.set_ylim(0, 125)
             cell = (
                 family_level[(family_level["prompt"] == prompt) & (family_level["family"] == family)] if models else []
             )
@@ -236,9 +239,12 @@ def outcome_figure(family_level: pd.DataFrame) -> Figure:
                             ax.text(x, 2, "n/a", ha="center", va="bottom", fontsize=5, rotation=90, color="0.4")
                             continue
                         value = 100 * getattr(row, measure)
+                        low, high = 100 * getattr(row, f"{measure}_lo"), 100 * getattr(row, f"{measure}_hi")
                         ax.bar(x, value, width, color=colours[m], hatch=hatch, edgecolor="white", linewidth=0.3)
+                        ax.errorbar(x, value, yerr=[[value - low], [high - value]], fmt="none", ecolor="0.2",
+                                    elinewidth=0.6, capsize=1.2)  # fmt: skip
                         label = f"{getattr(row, f'{measure}_k')}/{row.pairs}"
-                        ax.text(x, value + 1.5, label, ha="center", va="bottom", fontsize=5, rotation=90)
+                        ax.text(x, high + 1.5, label, ha="center", va="bottom", fontsize=5, rotation=90)
     for r in range(len(prompts)):
         axes[r, 0].set_ylabel("%", fontsize=8)
     handles = [_patch(colours[m], model) for m, model in enumerate(models)]

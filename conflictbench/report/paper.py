@@ -62,14 +62,16 @@ def paper_value(table: str, model: str, column_value: str, family: str | None = 
 
 
 def with_paper_rows(
-    body: Sequence[tuple[list[str], list[tuple[str, str, bool]]]],
+    body: Sequence[tuple[list[str], list[tuple[str, str, str, bool]]]],
     spec,
     declared: Mapping[str, str] | None,
-) -> list[tuple[list[str], list[tuple[str, str, bool]]]]:
-    """The table's rows (``tables._body``), each P0 row of a declared model followed by the paper's row for it.
+) -> list[tuple[list[str], list[tuple[str, str, str, bool]]]]:
+    """The table's rows (``tables._body``: keys, then the row's base tasks; cells (value, interval, counts,
+    marked)), each P0 row of a declared model followed by the paper's row for it.
 
     ``declared`` maps a model's label in the report to the paper's model name. A paper row's cells carry
-    ``(paper)`` where a row of ours carries its counts, and are never marked most favourable."""
+    ``(paper)`` where a row of ours carries its counts, no interval (the paper gives no counts to derive one
+    from) and no base tasks, and are never marked most favourable."""
     if not declared or spec.name not in PAPER_FILES:
         return list(body)
     key_index = {key: i for i, key in enumerate(spec.keys)}
@@ -81,10 +83,11 @@ def with_paper_rows(
             continue
         family = keys[key_index["family"]] if "family" in key_index else None
         paper_keys = [PAPER_ROW_LABEL.format(model=model) if k == "model" else keys[i] for i, k in enumerate(spec.keys)]
+        paper_keys += ["-"] * (len(keys) - len(spec.keys))
         paper_cells = []
         for column in spec.columns:
             value = paper_value(spec.name, model, column.value, family)
-            paper_cells.append((f"{value:.1f}", PAPER_COUNTS, False) if value is not None else ("", "", False))
+            paper_cells.append((f"{value:.1f}", "", PAPER_COUNTS, False) if value is not None else ("", "", "", False))
         out.append((paper_keys, paper_cells))
     return out
 
@@ -96,7 +99,8 @@ def beside_note(declared: Mapping[str, str] | None) -> str | None:
     pairs = ", ".join(f"{label} as {model}" for label, model in sorted(declared.items()))
     return (
         f"paper: rows of the ConflictVLA-Bench paper (tables 1-3, P0) beside the checkpoints declared as its ({pairs}):"
-        " same definitions, other cases (the paper's suite is not this one); shown, never computed with"
+        " same definitions, other cases (the paper's suite is not this one); shown, never computed with, and without"
+        " an interval (the paper gives no counts)"
     )
 
 

@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import TextIO
 
 import pandas as pd
-from tabulate import tabulate
 
 from conflictbench.core import ERROR_KINDS, EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
@@ -38,10 +37,14 @@ from conflictbench.metrics import (
     prompt_differences,
     with_model,
 )
+from conflictbench.metrics.measures import report_measures
 
+from .differences import render_prompt_differences
+from .marking import paired_marks
 from .paper import declared_labels
 from .tables import (
     PAPER_METRICS,
+    Marked,
     TableSpec,
     csv_frame,
     paper_order,
@@ -51,8 +54,6 @@ from .tables import (
     render_text,
 )
 
-#: The outcome rates compared between P0 and P1 (this report's own columns, fractions shown in %).
-OUTCOME_DIFFERENCES = ("PCSR", "RGSR")
 TABLE_KEYS = {
     "table1_overall": "overall",
     "table2_by_family": "family",
@@ -65,30 +66,9 @@ def select_metrics(plugins: Plugins, names: Sequence[str] | None) -> list[Metric
     return metric_specs(plugins, names)
 
 
-def _signed(value: float, ci: float, n: int, unit: str = "%") -> str:
-    if n == 0 or pd.isna(value):
-        return f"n/a (n={n})"
-    if unit != "%":  # a metric in its own units
-        return f"{value:+.4g}{f' {unit}' if unit else ''}{'' if pd.isna(ci) else f' ±{ci:.2g}'} (n={n})"
-    half = "" if pd.isna(ci) else f" ±{100 * ci:.1f}"
-    return f"{100 * value:+.1f}{half} (n={n})"
-
-
-def render_differences(summary: pd.DataFrame, metrics: Sequence[MetricSpec]) -> str:
-    """Mean paired P0 - P1 differences per model (percentage points where the unit is "%"), ±95% half-widths."""
-    measures = [(m, m, "%") for m in OUTCOME_DIFFERENCES] + [(m.name, m.label, m.unit) for m in metrics]
-    header = ["model", "couples", *(label for _, label, _ in measures)]
-    rows = [
-        [str(r["model"]), str(int(r["couples"]))]
-        + [_signed(r[f"{name}_diff"], r[f"{name}_ci95"], int(r[f"{name}_n"]), unit) for name, _, unit in measures]
-        for _, r in summary.iterrows()
-    ]
-    return "\n".join(
-        [
-            "== Paired P0 - P1 differences (same case, init state and settings; percentage points, ±95%) ==",
-            tabulate(rows, header, tablefmt="simple", disable_numparse=True),
-        ]
-    )
+def metric_ranges(metrics: Sequence[MetricSpec]) -> dict[str, tuple[float, float] | None]:
+    """Each metric's range (its interval stays inside it; :attr:`MetricSpec.bounds`)."""
+    return {m.name: m.bounds for m in metrics}
 
 
 @dataclass
@@ -231,19 +211,22 @@ def report_frame(
     stream = stream or sys.stdout
     metrics = paper_order(metrics)  # the differences table follows table 1's column order
     names = [m.name for m in metrics]
+    ranges = metric_ranges(metrics)
     frame = with_model(frame)
     declared = declared_labels(frame, paper)
-    aggregates = {grouping: aggregate(frame, by, names) for grouping, by in GROUPINGS.items()}
+    aggregates = {grouping: aggregate(frame, by, names, ranges) for grouping, by in GROUPINGS.items()}
     specs = paper_tables(metrics, directions)
+    measures = {m.name: m for m in report_measures(names, ranges)}
+    marked = {s.name: paired_marks(frame, aggregates[s.grouping], s, measures) for s in specs}
     couples = prompt_couples(frame, names)
-    differences = prompt_differences(couples, names)
+    differences = prompt_differences(couples, names, ranges=ranges)
 
     for spec in specs:
-        print("\n" + render_text(aggregates[spec.grouping], spec, declared), file=stream)
+        print("\n" + render_text(aggregates[spec.grouping], spec, declared, marked[spec.name]), file=stream)
     if print_legend:  # a sweep's jobs leave it to the combined report, printed once
         print("\n" + legend(metrics), file=stream)
     if len(differences):
-        print("\n" + render_differences(differences, metrics), file=stream)
+        print("\n" + render_prompt_differences(differences, metrics), file=stream)
     print(
         f"\n{counted(counts.episodes, 'episode')} ({counts.references} reference, "
         f"{counts.episodes - counts.references} conflict), {counted(counts.pairs, 'pair')}",
@@ -280,7 +263,8 @@ def report_frame(
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        write_files(out, frame, aggregates, specs, couples, differences, metrics, figures=figures, declared=declared)
+        write_files(out, frame, aggregates, specs, couples, differences, metrics, figures=figures, declared=declared,
+                    marked=marked)  # fmt: skip
         if counts.gone_cases:
             (out / GONE_FILE).write_text("".join(f"{c}\n" for c in counts.gone_cases), encoding="utf-8")
         print(f"tables{' and figures' if figures else ''} written to {out}/", file=stream)
@@ -298,13 +282,15 @@ def write_files(
     *,
     figures: bool = True,
     declared: Mapping[str, str] | None = None,
+    marked: Mapping[str, Marked] | None = None,
 ) -> list[Path]:
     written = []
     report = ["# conflictbench report", ""]
+    marked = marked or {}
     for spec in specs:
         table = aggregates[spec.grouping]
-        markdown = render_markdown(table, spec, declared)
-        for suffix, text in ((".md", markdown), (".tex", render_latex(table, spec, declared))):
+        markdown = render_markdown(table, spec, declared, marked.get(spec.name))
+        for suffix, text in ((".md", markdown), (".tex", render_latex(table, spec, declared, marked.get(spec.name)))):
             path = out / f"{spec.name}{suffix}"
             path.write_text(text)
             written.append(path)
@@ -317,10 +303,10 @@ def write_files(
         report += [line, ""]
     if len(differences):
         report += [
-            "### Paired P0 - P1 differences (percentage points, ±95%)",
+            "### Paired P0 - P1 differences (percentage points, 95 % intervals)",
             "",
             "```",
-            render_differences(differences, metrics),
+            render_prompt_differences(differences, metrics),
             "```",
             "",
         ]

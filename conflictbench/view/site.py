@@ -188,20 +188,21 @@ def paper_section(frame, metrics: Sequence, paper: Mapping[tuple[str, str], str]
 
     from conflictbench.metrics.aggregate import GROUPINGS, aggregate, with_model
     from conflictbench.report.paper import declared_labels
-    from conflictbench.report.tables import paper_note, paper_tables, table_header, table_rows
+    from conflictbench.report.tables import INTERVAL_NOTE, paper_note, paper_tables, table_header, table_rows
 
     frame = with_model(frame)
     declared = declared_labels(frame, paper)
     if not declared:
         return ""
     spec = paper_tables(metrics)[0]
-    table = aggregate(frame, GROUPINGS[spec.grouping], [m.name for m in metrics])
+    ranges = {m.name: m.bounds for m in metrics}
+    table = aggregate(frame, GROUPINGS[spec.grouping], [m.name for m in metrics], ranges)
     rows = [
-        keys + [f"{value} {counts}".strip() for value, counts, _ in cells]
+        keys + [" ".join(p for p in (value, interval, counts) if p) for value, interval, counts, _ in cells]
         for keys, cells in table_rows(table, spec, declared)
     ]
     html = tabulate(rows, table_header(spec), tablefmt="html", disable_numparse=True)
-    note = "".join(f"<p class='note'>{escape(n)}</p>" for n in paper_note(spec, declared))
+    note = "".join(f"<p class='note'>{escape(n)}</p>" for n in [f"In %, {INTERVAL_NOTE}.", *paper_note(spec, declared)])
     return f"<h2>Beside the paper (P0)</h2>\n{html}\n{note}"
 
 
