@@ -4,6 +4,7 @@
     conflictbench list                listing.py  policies, metrics, families, levels, prompts, presets
     conflictbench reproduce ...       reproduce.py  a checkpoint's LIBERO success beside its authors' published figure
     conflictbench report DIR          report.py   tables from an episode store, running nothing
+    conflictbench compare DIR A B     compare.py  paired differences between two models, settings or prompts
     conflictbench view DIR            view.py     a static HTML site of the store's pairs, videos by replay
     conflictbench merge OUT SHARD...  merge.py    one store from stores written on different machines
     conflictbench prune DIR           prune.py    the superseded episodes, listed or removed
@@ -33,6 +34,7 @@ from conflictbench.core import PluginError, PolicyStalled, ServerUnavailable, Si
 VERBS = {
     "list": "listing",
     "report": "report",
+    "compare": "compare",
     "reproduce": "reproduce",
     "suite": "suite",
     "view": "view",
@@ -45,6 +47,7 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench -m [OVERRIDE ...]     sweep, e.g. -m model=noop,random prompt=p0,p1
        conflictbench list                  what can be chosen, and which package provides it
        conflictbench report DIR            tables from the episode store in DIR
+       conflictbench compare DIR A B       is the difference real? A, B: models (pi0, subject@p1), paired
        conflictbench reproduce model=M model.checkpoint=DIR model.published=ENTRY [--quick]
                                            does the checkpoint score what its authors published? (LIBERO)
        conflictbench view DIR              a web page per pair (videos, paths, measures): DIR/view/index.html

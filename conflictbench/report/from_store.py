@@ -13,9 +13,9 @@ from itertools import tee
 
 import pandas as pd
 
-from conflictbench.core import EpisodeRecord, Pair
+from conflictbench.core import EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
-from conflictbench.metrics import evaluate_pairs
+from conflictbench.metrics import evaluate_pairs, with_model
 from conflictbench.store import EpisodeStore
 from conflictbench.store.schema import ARRAY_COLUMNS, SCHEMA, normalize_scalars
 
@@ -58,6 +58,35 @@ def paper_beside(store: EpisodeStore, plugins: Plugins) -> dict[tuple[str, str],
     from conflictbench.store.declarations import declarations
 
     return declared_paper_models(declarations(store.root), plugins.published_results())
+
+
+def store_frame(
+    store: EpisodeStore,
+    plugins: Plugins,
+    metrics: Sequence[MetricSpec],
+    *,
+    suite: str | None = None,
+    suite_cases: Iterable[str] | None = None,
+    models: Iterable[str] | None = None,
+) -> tuple[pd.DataFrame, list[str]]:
+    """The per-pair frame (with ``model``) of the store's pairs, only those of ``models`` (labels as the report
+    gives them) where named, and every model label the store has (of ``suite``, as :func:`report_store`)."""
+    pairs, _ = pair_up(light_records(store), suite, suite_cases)
+    keys = pd.DataFrame(
+        {
+            "policy": [p.conflict.policy for p in pairs],
+            "config_hash": [p.conflict.config_hash for p in pairs],
+            "policy_settings": [p.conflict.policy_settings for p in pairs],
+        }
+    )
+    labels = with_model(keys)["model"].tolist() if len(pairs) else []
+    wanted = None if models is None else set(models)
+    chosen = [(p, label) for p, label in zip(pairs, labels) if wanted is None or label in wanted]
+    first, second = tee(loaded_pairs(store, [p for p, _ in chosen]))
+    frame = evaluate_pairs((r for r, _ in first), (c for _, c in second), plugins=plugins,
+                           metrics=[m.name for m in metrics])  # fmt: skip
+    frame["model"] = [label for _, label in chosen]
+    return frame, sorted(set(labels))
 
 
 def report_store(
