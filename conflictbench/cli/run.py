@@ -118,6 +118,10 @@ def run_job(
         + (f"; every episode capped at {n} steps (run.max_steps)" if (n := options.max_steps) else ""),
         file=sys.stderr,
     )
+    from conflictbench.metrics.design import plan_line
+
+    if line := plan_line(plan, families):
+        print(f"conflictbench: {line}", file=sys.stderr)
     runner = Runner(
         plugins,
         spec,
