@@ -1,0 +1,137 @@
+"""The report's intervals cover the truth, and its paired tests call differences only where they are real.
+
+Simulated stores with a known truth (tests/crossed_effects.py: crossed random effects for base task, case and
+initial state measured on a real store, references shared as the runner shares them) at the sizes of
+``run=paper`` (every case of the shipped suite, 5 initial states: 8,670 pairs, 40 base tasks) and of the default
+slice (one case per family and level: 4 pairs a family). The default selection runs a short version; the full one
+(1,000 stores per configuration) is marked slow. Each prints the figures it measured.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from crossed_effects import MEASURES, Components, simulate, suite_layout, truth
+
+from conflictbench.metrics.measures import intervals
+from conflictbench.metrics.paired import differences
+
+BATCH = 50  # stores simulated at once (about 430,000 pairs at the paper's size)
+RATES = (0.05, 0.5, 0.95)
+
+
+@pytest.fixture(scope="module")
+def components() -> Components:
+    return Components.from_measurements()
+
+
+@pytest.fixture(scope="module")
+def paper():
+    return suite_layout(None, 5)
+
+
+@pytest.fixture(scope="module")
+def default():
+    return suite_layout(1, 1)
+
+
+def configurations(rate: float):
+    """(rates of PCSR, RGSR and TS, the measures whose truth is ``rate`` there): PCSR, RGSR, dSR and TS where
+    PCSR = RGSR = TS = rate; FR = rate where PCSR = 0.5 and RGSR = 1 - rate (conflicts independent of their
+    references in the generator, so FR = P(conflict fails))."""
+    return [((rate, rate, rate), ("PCSR", "RGSR", "dSR", "ts")), ((0.5, 1 - rate, 0.5), ("FR",))]
+
+
+def coverage(layout, stores, rates, names, comp, seed, pair_level=False) -> dict[str, float]:
+    """Share of simulated stores whose 95 % interval holds the truth, per measure and row (overall, family);
+    rows where the measure is undefined (FR without a successful reference) are not counted."""
+    measures = [m for m in MEASURES if m.name in names]
+    true = truth(*rates, comp)
+    rng = np.random.default_rng(seed)
+    held: dict[str, list[bool]] = {}
+    for start in range(0, stores, BATCH):
+        frame = simulate(layout, min(BATCH, stores - start), rng, comp, rates)
+        if pair_level:  # clustering ignored: every pair a base task of its own
+            frame = frame.assign(suite="s", task_id=np.arange(len(frame)))
+        for row, by in (("overall", ("store",)), ("family", ("store", "family"))):
+            table = intervals(frame, by, measures)
+            for m in measures:
+                value = getattr(true, m.name)
+                defined = table[f"{m.name}_lo"].notna()
+                inside = (table[f"{m.name}_lo"] <= value + 1e-12) & (value - 1e-12 <= table[f"{m.name}_hi"])
+                held.setdefault(f"{row} {m.name}", []).extend(inside[defined].tolist())
+    return {key: float(np.mean(values)) for key, values in held.items()}
+
+
+def show(title: str, figures: dict[str, float]) -> None:
+    print(f"\n{title}: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in figures.items()))
+
+
+def test_intervals_cover_the_truth_at_the_papers_size_and_pair_level_ones_do_not(components, paper):
+    clustered = coverage(paper, 200, (0.5, 0.5, 0.5), ("PCSR", "RGSR", "dSR", "ts"), components, seed=1)
+    pair_level = coverage(paper, 100, (0.5, 0.5, 0.5), ("PCSR", "dSR", "ts"), components, seed=2, pair_level=True)
+    show("clustered, 200 stores", clustered)
+    show("pair-level, 100 stores", pair_level)
+    assert all(0.91 <= v <= 0.99 for v in clustered.values()), clustered  # 95 % within the noise of 200 stores
+    assert all(v < 0.8 for v in pair_level.values()), pair_level
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rate", RATES)
+def test_intervals_cover_the_truth_in_93_to_97_percent_of_paper_sized_stores(components, paper, rate):
+    for rates, names in configurations(rate):
+        figures = coverage(paper, 1000, rates, names, components, seed=int(100 * rate) + len(names))
+        show(f"run=paper, rates {rates}, 1000 stores", figures)
+        assert all(0.93 <= v <= 0.97 for v in figures.values()), figures
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rate", RATES)
+def test_intervals_cover_the_truth_in_at_least_93_percent_of_default_sized_stores(components, default, rate):
+    for rates, names in configurations(rate):
+        figures = coverage(default, 1000, rates, names, components, seed=7 + int(100 * rate) + len(names))
+        show(f"default slice, rates {rates}, 1000 stores", figures)
+        assert all(v >= 0.93 for v in figures.values()), figures
+
+
+@pytest.mark.slow
+def test_pair_level_intervals_undercover_at_the_papers_size(components, paper):
+    figures = coverage(paper, 300, (0.5, 0.5, 0.5), ("PCSR", "RGSR", "dSR", "FR", "ts"), components, seed=3,
+                       pair_level=True)  # fmt: skip
+    show("pair-level (clustering ignored), run=paper, 300 stores", figures)
+    assert all(v < 0.8 for v in figures.values()), figures
+
+
+def called(layout, stores, rates_a, rates_b, comp, seed) -> pd.DataFrame:
+    """Per simulated store, the overall row of the paired comparison A - B (two models sharing half of every
+    random effect)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for start in range(0, stores, BATCH):
+        frame = simulate(layout, min(BATCH, stores - start), rng, comp, rates_a, models=2, second_rates=rates_b)
+        rows.append(differences(frame, ("store",), MEASURES))
+    return pd.concat(rows, ignore_index=True)
+
+
+def test_two_models_alike_are_seldom_told_apart_and_a_15_point_dsr_difference_is_found(components, paper):
+    alike = called(paper, 100, (0.6, 0.3, 0.5), (0.6, 0.3, 0.5), components, seed=4)
+    apart = called(paper, 100, (0.6, 0.3, 0.5), (0.6, 0.45, 0.5), components, seed=5)
+    false_positives = {m.name: float((alike[f"{m.name}_p"] < 0.05).mean()) for m in MEASURES}
+    power = float(((apart["dSR_p"] < 0.05) & (apart["dSR"] > 0)).mean())
+    show("alike, 100 stores: called", false_positives)
+    print(f"15-point dSR difference, 100 stores: found in {100 * power:.1f} %")
+    assert all(v <= 0.12 for v in false_positives.values()), false_positives
+    assert power >= 0.7
+
+
+@pytest.mark.slow
+def test_false_positives_at_most_6_5_percent_and_a_15_point_dsr_difference_found_in_80(components, paper):
+    alike = called(paper, 1000, (0.6, 0.3, 0.5), (0.6, 0.3, 0.5), components, seed=6)
+    apart = called(paper, 1000, (0.6, 0.3, 0.5), (0.6, 0.45, 0.5), components, seed=8)
+    false_positives = {m.name: float((alike[f"{m.name}_p"] < 0.05).mean()) for m in MEASURES}
+    power = float(((apart["dSR_p"] < 0.05) & (apart["dSR"] > 0)).mean())
+    show("two models alike, run=paper, 1000 stores: overall row called different", false_positives)
+    print(f"a 15-point dSR difference, run=paper, 1000 stores: found in {100 * power:.1f} %")
+    assert all(v <= 0.065 for v in false_positives.values()), false_positives
+    assert power >= 0.8
