@@ -106,12 +106,17 @@ def between_models(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
     both = a.merge(b, on=keys, suffixes=("_a", "_b"))
     refs = both.drop_duplicates(["suite", "task_id", "init_state"])
     out: dict[str, float] = {"pairs": int(len(both)), "references": int(len(refs))}
+    both = both.assign(
+        dSR_a=both["reference_success_a"].astype(float) - both["conflict_success_a"].astype(float),
+        dSR_b=both["reference_success_b"].astype(float) - both["conflict_success_b"].astype(float),
+    )
     for name, frame, column in (("reference_success", refs, "reference_success"),
-                                ("conflict_success", both, "conflict_success"), ("ts", both, "ts")):  # fmt: skip
+                                ("conflict_success", both, "conflict_success"), ("ts", both, "ts"),
+                                ("dSR", both, "dSR")):  # fmt: skip
         x, y = frame[f"{column}_a"].astype(float), frame[f"{column}_b"].astype(float)
         r = float(np.corrcoef(x, y)[0, 1])
         out[name] = r
-        if name != "ts":
+        if name.endswith("success"):
             out[f"{name}_latent"] = tetrachoric(float(x.mean()), r, float(y.mean()))
     return out
 

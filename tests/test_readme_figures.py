@@ -29,3 +29,12 @@ def test_the_time_names_the_machine_and_its_load_and_the_check_ignores_them(tmp_
     line = next(line for line in text.splitlines() if "played in" in line)
     assert "played in 11 min 38 s on a" in line and "load average 1.6 when it started" in line
     assert figures.TIME.sub("", text) == figures.TIME.sub("", figures.block(store, None))
+
+
+def test_readmes_correlations_bounds_and_power_are_what_the_measurements_give():
+    import subprocess
+    import sys
+
+    script = SCRIPT.parent / "readme_design.py"
+    done = subprocess.run([sys.executable, str(script), "--check"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr

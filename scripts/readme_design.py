@@ -1,0 +1,139 @@
+"""README's figures on what a slice can tell apart: the correlations measured on the learned subject, the widest
+interval on dSR per family of a few slices (the plan line's bound), and the initial states two models need.
+
+    .venv/bin/python scripts/readme_design.py            writes the block into README.md
+    .venv/bin/python scripts/readme_design.py --check    exit 1, showing the difference, where README's is not current
+
+Everything comes from conflictbench/metrics/correlations.json (scripts/measure_correlations.py, from a real store),
+the shipped suite and conflictbench/metrics/design.py; nothing is played. A test checks that the block is current.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+README = REPO / "README.md"
+BEGIN = "<!-- scripts/readme_design.py writes what follows, from correlations.json and the suite; do not edit it -->"
+END = "<!-- end of scripts/readme_design.py -->"
+SLICES = (
+    ("the default slice (`conflictbench`)", 1, 1),
+    ("`run.init_states=3 run.cases_per_cell=4`", 4, 3),
+    ("`run.cases_per_cell=10`", 10, 1),
+    ("`run=paper` (every case, 5 initial states)", None, 5),
+    ("every case, 10 initial states", None, 10),
+)
+DIFFERENCES = (0.10, 0.20)
+
+
+def plan(cases_per_cell: int | None, states: int):
+    from conflictbench.core import FAMILIES, LEVELS
+    from conflictbench.sim.plan import build_plan
+    from conflictbench.tasks.suite.file import load_suite
+
+    suite = load_suite(None)
+    tasks = {(c.suite, c.task_id): c.base_instruction for c in suite.cases}
+    return build_plan(suite.cases, base_instructions=tasks, families=FAMILIES, levels=LEVELS, prompts=("p0",),
+                      init_states=list(range(states)), cases_per_cell=cases_per_cell)  # fmt: skip
+
+
+def block() -> str:
+    from collections import Counter
+
+    from conflictbench.metrics.design import correlations, design, family_layouts, states_needed, worst_half_width
+
+    measured = correlations()
+    source = measured["provenance"]
+    lines = [
+        BEGIN,
+        "",
+        f"Measured on the learned subject ({source['pairs']} pairs of {source['base_tasks']} base tasks and "
+        f"{source['cases']} cases: `conflictbench model=subject run.init_states=3 run.cases_per_cell=4`, then "
+        "`scripts/measure_correlations.py`), the mean correlation between two pairs of one base task:",
+        "",
+        "| measure | same case, other initial state | same initial state (so the same reference), other case "
+        "| the task only |",
+        "| --- | ---: | ---: | ---: |",
+    ]
+    for name, label in (("conflict_success", "conflict success (y-)"), ("dSR", "dSR of the pair (y+ - y-)"),
+                        ("ts", "TS")):  # fmt: skip
+        r = measured[name]
+        lines.append(f"| {label} | {r['case']:.2f} | {r['state']:.2f} | {r['task']:.2f} |")
+    lines.append(f"| reference success (y+), across initial states | | | {measured['reference_success']['task']:.2f} |")
+    from conflictbench.core import FAMILIES
+    from conflictbench.metrics.design import plan_line
+
+    lines += ["", "The plan line of `run=paper`:", "", "```", f"conflictbench: {plan_line(plan(None, 5), FAMILIES)}",
+              "```"]  # fmt: skip
+    lines += [
+        "",
+        "The widest 95 % interval on dSR per family a slice can give (the plan line's bound; its intra-cluster "
+        "correlation is what the measured ones amount to for that slice):",
+        "",
+        "| slice | pairs a family (the widest) | base tasks | intra-cluster correlation | dSR per family within |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
+    for label, cases, states in SLICES:
+        layouts = family_layouts(plan(cases, states))
+        widest = max(layouts, key=lambda f: worst_half_width(design(layouts[f])))
+        d = design(layouts[widest])
+        half = worst_half_width(d)
+        icc = "-" if d.pairs <= d.clusters else f"{d.icc:.2f}"
+        lines.append(f"| {label} | {d.pairs:,} | {d.clusters} | {icc} | ±{100 * half:.0f} pp |")
+    between = measured.get("between_models", {})
+    r = max(0.0, float(between.get("dSR", 0.0)))
+    variance = 2 * measured["dSR"]["variance"] * (1 - r)
+    every = plan(None, 1)
+    overall = Counter((e.suite, e.task_id) for e in every if e.case is not None)
+    per_family = {f: {i: c for i, (c, _) in enumerate(lay)} for f, lay in family_layouts(every).items()}
+    lines += [
+        "",
+        "Initial states (of LIBERO's 50) that two models need, every case played, to tell a difference in dSR apart "
+        "with 80 % power (a pair's dSR difference of variance 2 x "
+        f"{measured['dSR']['variance']:.2f} x (1 - {r:.2f}): the subject's dSR variance, and the correlation of two "
+        "settings of it on the same pairs; a family row at 5 % / 4, Holm's first step):",
+        "",
+        "| dSR difference | overall | per family (the one that needs the most) |",
+        "| ---: | ---: | ---: |",
+    ]
+    for difference in DIFFERENCES:
+        whole = states_needed(overall, difference, variance)
+        families = [states_needed(c, difference, variance, alpha=0.05 / 4) for c in per_family.values()]
+        worst = None if any(n is None for n in families) else max(families)
+        lines.append(f"| {100 * difference:.0f} points | {_states(whole)} | {_states(worst)} |")
+    return "\n".join([*lines, "", END])
+
+
+def _states(n: int | None) -> str:
+    return "more than 50" if n is None else str(n)
+
+
+def current(text: str) -> str:
+    start, end = text.find(BEGIN), text.find(END)
+    if start < 0 or end < start:
+        sys.exit(f"[readme_design] README.md has no block between {BEGIN!r} and {END!r}")
+    return text[start : end + len(END)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="compare with README instead of writing it")
+    args = parser.parse_args(argv)
+    text = README.read_text()
+    old, new = current(text), block()
+    if args.check:
+        if old != new:
+            print("\n".join(difflib.unified_diff(old.splitlines(), new.splitlines(), "README.md", "now", lineterm="")))
+            print("[readme_design] README's block is not current: run scripts/readme_design.py", file=sys.stderr)
+            return 1
+        return 0
+    README.write_text(text.replace(old, new))
+    print(f"[readme_design] README.md: {'unchanged' if new == old else 'rewritten'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
