@@ -85,11 +85,25 @@ def test_pairs_sharing_a_base_task_count_as_fewer_than_independent_ones():
 
 
 def test_a_signed_sum_combines_its_ratios_intervals():
-    # dSR of 4 pairs in 4 tasks, every reference succeeded and no conflict did: PCSR [1 - w, 1], RGSR [0, w]
-    # (w as above), uncorrelated (neither varies): dSR = 1, low = 1 - sqrt(w^2 + w^2), high = 1
+    # 6 pairs in 6 tasks, every reference succeeded, 2 conflicts did too: PCSR's interval is Wilson's bound
+    # [1 - w, 1], RGSR's its score interval [l, h]; PCSR does not vary, so the two are uncorrelated and dSR = 2/3
+    # has low = 2/3 - sqrt(w^2 + (h - 1/3)^2), high = 2/3 + sqrt(0 + (1/3 - l)^2)
+    frame = pairs([1] * 6, [1, 0, 0, 0, 1, 0])
+    rgsr = one(frame, RGSR)
+    low, high = rgsr["RGSR_lo"], rgsr["RGSR_hi"]
+    q = stats.t.ppf(0.975, 5)
+    w = q**2 / (6 + q**2)
+    row = one(frame, DSR)
+    expected = (2 / 3 - math.sqrt(w**2 + (high - 1 / 3) ** 2), 2 / 3 + (1 / 3 - low))
+    assert (row["dSR"], row["dSR_lo"], row["dSR_hi"]) == pytest.approx((2 / 3, *expected))
+
+
+def test_a_sum_whose_pairs_all_agree_keeps_its_own_bound():
+    # 4 pairs in 4 tasks, every reference succeeded and no conflict did: dSR = 1 in every pair, so dSR keeps
+    # Wilson's bound for none of 4 base tasks differing on its range [-1, 1] (wider than its ratios' combination)
     row = one(pairs([1] * 4, [0] * 4), DSR)
     w = stats.t.ppf(0.975, 3) ** 2 / (4 + stats.t.ppf(0.975, 3) ** 2)
-    assert (row["dSR"], row["dSR_lo"], row["dSR_hi"]) == pytest.approx((1.0, 1 - math.sqrt(2) * w, 1.0))
+    assert (row["dSR"], row["dSR_lo"], row["dSR_hi"]) == pytest.approx((1.0, 1 - 2 * w, 1.0))
 
 
 def test_the_same_frame_in_another_order_gives_the_same_intervals():
@@ -157,3 +171,13 @@ def test_a_registered_range_is_checked_and_a_percent_metric_is_in_0_1(tmp_path):
     assert metrics["gap"].bounds == (0.0, 50.0) and metrics["ts"].bounds == (0.0, 1.0)
     with pytest.raises(PluginError, match="bounds must be finite with low < high"):
         Plugins(conflictbench.BUILTIN_PLUGINS, entry_points=False, extra=[Wrong()]).metrics()
+
+
+def test_concordant_pairs_keep_a_bound_on_their_dsr():
+    # every pair's reference and conflict agree (dSR 0 in each): PCSR and RGSR move together and their MOVER limits
+    # cancel; the sum keeps Wilson's bound for none of 6 base tasks differing, on dSR's range [-1, 1]
+    outcomes = [1, 0, 1, 1, 0, 0]
+    row = one(pairs(outcomes, outcomes), DSR)
+    q = stats.t.ppf(0.975, 5)
+    w = q**2 / (6 + q**2)
+    assert row["dSR"] == 0 and (row["dSR_lo"], row["dSR_hi"]) == pytest.approx((-w, w))

@@ -294,6 +294,11 @@ def _combined(p: Parts, level: float | np.ndarray) -> tuple[np.ndarray, np.ndarr
     bounds = p.total.bounds
     if bounds is None:  # a measure without a range: the t interval of the sum's own variance
         return ratio_interval(p.total, level)
+    # every pair's sum the same (dSR of concordant pairs): its ratios move together and their limits cancel, so
+    # the sum keeps at least its own bound for none of G base tasks differing
+    flat_low, flat_high = ratio_interval(p.total, level)
+    low = np.where(p.total.flat, np.minimum(low, flat_low), low)
+    high = np.where(p.total.flat, np.maximum(high, flat_high), high)
     few = p.total.clusters < 2
     low = np.where(few, bounds[0], np.clip(low, *bounds))
     high = np.where(few, bounds[1], np.clip(high, *bounds))
