@@ -66,7 +66,7 @@ def test_the_plan_line_of_the_default_slice_and_of_the_papers_protocol():
     paper = plan_line(plan(None, 5), FAMILIES)
     half = int(paper.split("+-")[1].split(" pp")[0])
     assert 5 < half < 30 and "in 40 base tasks; intra-cluster correlation 0." in paper
-    assert "README, \"Uncertainty\"" in paper
+    assert 'README, "Uncertainty"' in paper
     only = plan_line([e for e in plan(1, 1) if e.case is None or e.case.family == "spatial"], ["spatial"])
     assert "widest: spatial" in only
 
