@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from dataclasses import replace
 
 import pandas as pd
@@ -102,3 +103,45 @@ def test_the_command_line_names_its_mistakes_in_one_line(tmp_path):
                           capture_output=True, text=True)  # fmt: skip
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr.strip().count("\n") == 0 and "no model 'nobody'" in done.stderr
+
+
+def test_a_pair_stored_twice_counts_once_and_keys_match_across_dtypes():
+    from conflictbench.metrics.paired import EXPERIMENT_KEYS, match
+
+    def side(rows, steps):
+        return pd.DataFrame(
+            {"suite": "s", "task_id": [r[0] for r in rows], "case_id": [r[1] for r in rows], "conflict_suite": None,
+             "init_state": 0, "prompt": "p0", "seed": 7, "max_steps": steps, "family": "spatial", "level": "L1",
+             "reference_success": True, "conflict_success": [r[2] for r in rows],
+             "conflict_episode": [f"e{i}" for i in range(len(rows))]}
+        )  # fmt: skip
+
+    a = side([(0, "c0", True), (1, "c1", False), (1, "c1", True), (2, "c2", False)], 300)  # c1 stored twice
+    b = side([(0, "c0", False), (1, "c1", False), (3, "c3", True)], 300.0)  # max_steps read back as a float
+    found = match(a, b, EXPERIMENT_KEYS, [])
+    assert len(found.frame) == 2  # c0 and c1: 300 and 300.0 are one step budget
+    assert found.frame["conflict_success_a"].tolist() == [True, False]  # c1's first, by its conflict episode
+    assert found.unmatched_a == {"stored more than once (counted once)": 1, "case not played": 1}
+    assert found.unmatched_b == {"case not played": 1}
+
+
+def test_the_best_value_is_not_marked_where_the_pairs_both_played_say_it_is_worse(tmp_path, plugins):
+    from conflictbench.report import report_records
+
+    # alpha completes the original goal under the conflict in 10 of 40 tasks (RGSR 25 %, the lowest, so the
+    # "best"); beta plays only those 10 tasks and completes it in 5 (50 %): on the pairs both played alpha is worse
+    records = []
+    for task in range(40):
+        records += [replace(episode("alpha", None, 0.1, 0.2, True), task_id=task, episode_id=f"a-r-{task}"),
+                    replace(episode("alpha", "c1", 0.1, 0.2, task < 10, "spatial", "L1"), task_id=task,
+                            episode_id=f"a-c-{task}")]  # fmt: skip
+    for task in range(10):
+        records += [replace(episode("beta", None, 0.1, 0.2, True), task_id=task, episode_id=f"b-r-{task}"),
+                    replace(episode("beta", "c1", 0.1, 0.2, task < 5, "spatial", "L1"), task_id=task,
+                            episode_id=f"b-c-{task}")]  # fmt: skip
+    out = io.StringIO()
+    report_records(records, plugins, stream=out, figures=False)
+    table1 = out.getvalue().split("== Table 2")[0]
+    alpha = next(line for line in table1.splitlines() if line.startswith("alpha"))
+    assert "25.0 (10/40)" in alpha and "25.0 (10/40)*" not in alpha
+    assert "not marked: RGSR" in table1

@@ -37,9 +37,9 @@ def default():
 
 
 def configurations(rate: float):
-    """(rates of PCSR, RGSR and TS, the measures whose truth is ``rate`` there): PCSR, RGSR, dSR and TS where
-    PCSR = RGSR = TS = rate; FR = rate where PCSR = 0.5 and RGSR = 1 - rate (conflicts independent of their
-    references in the generator, so FR = P(conflict fails))."""
+    """(rates of PCSR, RGSR and TS, the measures checked there): PCSR, RGSR, dSR and TS where PCSR = RGSR = TS =
+    rate; FR where PCSR = 0.5 and RGSR = 1 - rate (FR near ``rate``: its truth, :func:`truth`, counts the
+    generator's reference-conflict correlation)."""
     return [((rate, rate, rate), ("PCSR", "RGSR", "dSR", "ts")), ((0.5, 1 - rate, 0.5), ("FR",))]
 
 

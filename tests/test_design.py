@@ -61,7 +61,7 @@ def plan(cases_per_cell, states):
 
 def test_the_plan_line_of_the_default_slice_and_of_the_papers_protocol():
     default = plan_line(plan(1, 1), FAMILIES)
-    assert default.startswith("dSR per family: 95 % intervals at most +-")
+    assert default.startswith("dSR per family: 95 % intervals of about +-")
     assert "4 pairs in 4 base tasks; one pair a base task, so no correlation within one enters" in default
     paper = plan_line(plan(None, 5), FAMILIES)
     half = int(paper.split("+-")[1].split(" pp")[0])

@@ -181,3 +181,40 @@ def test_concordant_pairs_keep_a_bound_on_their_dsr():
     q = stats.t.ppf(0.975, 5)
     w = q**2 / (6 + q**2)
     assert row["dSR"] == 0 and (row["dSR_lo"], row["dSR_hi"]) == pytest.approx((-w, w))
+
+
+def test_a_paired_difference_of_models_that_mostly_agree_is_about_as_wide_as_a_plain_clustered_t_interval():
+    # 40 base tasks x 5 pairs; B differs from A on 6 % of the pairs. The paired difference's interval is that of
+    # its own variance: no worst case of two sides disagreeing everywhere widens it (against a cluster-robust t
+    # interval of the per-pair differences, computed here from its textbook formula)
+    rng = np.random.default_rng(2)
+    n = 200
+    tasks = np.repeat(np.arange(40), 5)
+    a = rng.random(n) < 0.4
+    b = np.where(rng.random(n) < 0.06, ~a, a)
+    frame = pd.DataFrame({"suite": "s", "task_id": tasks, "reference_success_a": True, "reference_success_b": True,
+                          "conflict_success_a": a, "conflict_success_b": b})  # fmt: skip
+    row = differences(frame, (), [RGSR]).iloc[0]
+    d = a.astype(float) - b.astype(float)
+    sums = pd.Series(d - d.mean()).groupby(tasks).sum().to_numpy()
+    t_half = stats.t.ppf(0.975, 39) * math.sqrt(40 / 39 * (sums**2).sum()) / n
+    width = row["RGSR_hi"] - row["RGSR_lo"]
+    assert row["RGSR"] == pytest.approx(d.mean()) and 0.8 < width / (2 * t_half) < 1.5
+
+
+def test_a_metric_without_a_range_whose_sides_always_differ_alike_gets_no_test():
+    frame = pd.DataFrame({"suite": "s", "task_id": range(8), "metres_a": 1.01, "metres_b": 1.0,
+                          "reference_success_a": True, "reference_success_b": True,
+                          "conflict_success_a": False, "conflict_success_b": False})  # fmt: skip
+    row = differences(frame, (), [metric_measure("metres", None)]).iloc[0]
+    assert row["metres"] == pytest.approx(0.01)
+    assert np.isnan(row["metres_lo"]) and np.isnan(row["metres_p"])
+
+
+def test_a_value_outside_a_metrics_range_stops_the_report_in_one_line():
+    from conflictbench.metrics import aggregate
+
+    frame = pairs([1, 1, 0], [0, 1, 0], ts=[0.5, -0.3, 0.2])
+    frame["model"], frame["prompt"] = "m", "p0"
+    with pytest.raises(PluginError, match=r"metric 'ts' gave 1 value\(s\) outside its range \[0, 1\] \(e.g. -0.3\)"):
+        aggregate(frame, ("model",), ["ts"], {"ts": (0.0, 1.0)})

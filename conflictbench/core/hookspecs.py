@@ -117,6 +117,8 @@ def conflictbench_register_metrics(register):
     - ``bounds``: ``(low, high)``, the range every value lies in (a ``"%"`` metric's is [0, 1] unless given).
       Reports give every mean a 95 % interval; with a range it is a score interval that stays inside it and
       does not collapse where every pair gives the same value, without one a t interval (none in that case).
+      Give the range values can really take (a loose one widens the intervals); a value outside it stops the
+      report with one line naming the metric.
 
     A metric is averaged over the pairs where it is defined and appears in every report and CSV,
     shown only as its registration says. The built-in TAR, TS, Early20 TS and AMS register through

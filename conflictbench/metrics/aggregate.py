@@ -20,7 +20,7 @@ import pandas as pd
 from conflictbench.core import FAMILIES, LEVELS, LIBERO_SUITES, PROMPT_CONDITIONS
 
 from .intervals import Bounds
-from .measures import PCSR, RGSR, group_index, intervals, metric_measure, report_measures
+from .measures import PCSR, RGSR, check_ranges, group_index, intervals, metric_measure, report_measures
 from .paired import DIFFERENCE_SUFFIXES, EXPERIMENT_KEYS, SIDE_COLUMNS, SIDES, differences, match
 
 #: Grouping keys the report uses; ``model`` is the policy, told apart by settings when needed.
@@ -108,6 +108,7 @@ def aggregate(
     columns = aggregate_columns(by, metrics)
     if frame.empty:
         return pd.DataFrame({c: pd.Series([], dtype=object if c in by else np.float64) for c in columns})
+    check_ranges(frame, ranges or {})
     measures = report_measures(metrics, ranges)
     out = intervals(frame, by, measures)
     group, keys = group_index(frame, by)

@@ -14,8 +14,9 @@ at most
 
     +-2 q sqrt(n_eff / 4 + q^2 / 4) / (n_eff + q^2)    (q: Student's t, 97.5 %, G - 1 degrees of freedom),
 
-the whole range with fewer than two base tasks. This holds with the variance spread over the base tasks; where
-a few carry it, the report's degrees of freedom are fewer (down to 5) and its interval wider. The slice's
+the whole range with fewer than two base tasks. "About": it holds where the correlations are the measured ones and
+the variance spreads over the base tasks as evenly as the worst case's; where a few tasks carry it, or tasks
+differ more than measured, the report's degrees of freedom are fewer (down to 5) and its interval wider. The slice's
 intra-cluster correlation, printed beside it, is (deff - 1) / (m - 1), m the pairs' mean task size as the pairs
 see it (sum n_t^2 / n).
 """
@@ -108,7 +109,7 @@ def family_layouts(plan: Iterable) -> dict[str, list[tuple[int, int]]]:
 
 
 def plan_line(plan: Iterable, families: Iterable[str]) -> str | None:
-    """The plan's bound on dSR per family, e.g. ``dSR per family: 95 % intervals at most +-17 pp (widest:
+    """The plan's bound on dSR per family, e.g. ``dSR per family: 95 % intervals of about +-17 pp at most (widest:
     physical, 2,135 pairs in 40 base tasks; intra-cluster correlation 0.23 assumed, measured on the learned
     subject: README, "Uncertainty")``."""
     layouts = family_layouts(list(plan))
@@ -126,7 +127,7 @@ def plan_line(plan: Iterable, families: Iterable[str]) -> str | None:
         else f"intra-cluster correlation {d.icc:.2f} assumed, measured on the learned subject"
     )
     return (
-        f"dSR per family: 95 % intervals at most {half} (widest: {widest}, {counted(d.pairs, 'pair')} in "
+        f"dSR per family: 95 % intervals of about {half} at most (widest: {widest}, {counted(d.pairs, 'pair')} in "
         f'{d.clusters} base tasks; {correlation}: README, "Uncertainty")'
     )
 

@@ -9,13 +9,16 @@ Pairs are not independent: a reference episode is shared by every case of its (t
 prompt), and a case by every initial state it is played from. Within one base task every pair is linked
 to every other through these two, so the base task is the smallest cluster between which pairs are
 independent. A ratio's variance is the cluster-robust one of its linearisation (the pairs' influences summed
-per base task, their sum of squares), never below the variance the pairs would give if they were independent,
-with Satterthwaite's degrees of freedom for Student's t: G - 1 for G alike base tasks, fewer where a few carry
-the variance (as with a rare event), not below :data:`DF_FLOOR` (nor above G - 1).
+per base task, their sum of squares: CR0), never below the variance the pairs would give if they were
+independent. Student's t takes an effective number of degrees of freedom from how evenly the base tasks carry
+that variance, (sum E_g^2)^2 / sum E_g^4 (a Satterthwaite-type count with the observed sums: about G / 3 for G
+alike base tasks, fewer where a few carry it, as with a rare event), at least :data:`DF_FLOOR`, at most G - 1.
 
 A ratio's interval is a score (Wilson) interval on the measure's range with the effective number of pairs that
 variance implies (Korn & Graubard's design-effect Wilson interval: u (1 - u) / variance on the range scaled to
-[0, 1], at most one per pair), so it stays inside the range. Two cases have no variance to work with:
+[0, 1]), so it stays inside the range. For one side's ratio of a bounded measure, a variance below the most its
+pairs could vary if independent (u (1 - u) / n, Bhatia-Davis on the declared range) is raised towards it as by one
+degree of freedom: a few base tasks of a skewed measure understate its spread. Two cases have no variance to work with:
 - every pair gives the same value c (0/n, n/n): the chance that a pair of the population differs from c is at
   most w = q^2 / (G + q^2) (Wilson's bound for none of G base tasks differing), so the interval is
   [c - w (c - low), c + w (high - c)]: for a rate, Wilson's interval of 0 of G;
@@ -42,9 +45,9 @@ LEVEL = 0.95
 CLUSTER_KEYS = ("suite", "task_id")
 #: A deviation this small, relative to the measure's range, is no deviation (rounding in the ratios).
 _FLAT = 1e-9
-#: Satterthwaite's degrees of freedom are not taken below this (where fewer base tasks do not cap them first):
-#: with one or two base tasks carrying the variance the approximation gives 1 or 2, an interval several times too
-#: wide (README, "Uncertainty": the coverage it gave in the simulation).
+#: The degrees of freedom are not taken below this (where fewer base tasks do not cap them first): with one or
+#: two base tasks carrying the variance the count gives 1 or 2, an interval several times too wide (README,
+#: "Uncertainty": in the coverage simulation, 99 % at rates of 5 and 95 % without the floor).
 DF_FLOOR = 5
 #: Degrees of freedom the worst case's variance counts for where the estimate is below it (ratio_interval).
 WORST_CASE_WEIGHT = 1.0
@@ -168,7 +171,8 @@ def estimate(
     # pairs as if independent: n / (n - 1) * sum of squared influences
     pair_sum = np.bincount(group, influence**2, minlength=n_groups)
     pair_var = np.divide(units * pair_sum, units - 1, where=units > 1, out=np.zeros(n_groups))
-    # base tasks: the influences summed per (group, task), then CR1
+    # base tasks: the influences summed per (group, task), their sum of squares (CR0; the degrees of freedom
+    # carry the small-sample correction)
     cells = leveraged
     cell_active = np.bincount(grouping.cell_index, active, minlength=len(grouping.cell_group)) > 0
     clusters = grouping.per_group(cell_active).round().astype(np.int64)
@@ -192,18 +196,22 @@ def t_quantile(df: np.ndarray, level: float | np.ndarray = LEVEL) -> np.ndarray:
 
 
 def degrees_of_freedom(est: Estimates) -> np.ndarray:
-    """Satterthwaite's (sum_g E_g^2)^2 / sum_g E_g^4 over the base tasks' influences E_g: G - 1 where they
-    are alike, fewer where a few tasks carry the variance (a rare event); at least :data:`DF_FLOOR`, at most
-    G - 1."""
+    """(sum_g E_g^2)^2 / sum_g E_g^4 over the base tasks' influences E_g: about G / 3 where they are alike, fewer
+    where a few tasks carry the variance (a rare event); at least :data:`DF_FLOOR`, at most G - 1, and G - 1
+    where nothing varies (the flat rule: what is left of the sums is rounding)."""
     second = np.bincount(est.cell_group, est.cells**2, minlength=len(est.value))
     fourth = np.bincount(est.cell_group, est.cells**4, minlength=len(est.value))
     most = np.maximum(est.clusters - 1, 1).astype(np.float64)
-    satterthwaite = np.divide(second**2, fourth, where=fourth > 0, out=most.copy())
-    return np.clip(np.maximum(satterthwaite, DF_FLOOR), 1, most)
+    concentration = np.divide(second**2, fourth, where=fourth > 0, out=most.copy())
+    return np.where(est.flat, most, np.clip(np.maximum(concentration, DF_FLOOR), 1, most))
 
 
-def ratio_interval(est: Estimates, level: float | np.ndarray = LEVEL) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) of one ratio per group: the score interval on its range (module docstring)."""
+def ratio_interval(
+    est: Estimates, level: float | np.ndarray = LEVEL, worst_case: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of one ratio per group: the score interval on its range (module docstring); ``worst_case``:
+    raise a variance below the independent pairs' worst case towards it (one side's ratio, not a paired
+    difference, whose worst case, two sides disagreeing on every pair, is far from any real one)."""
     value = est.value
     df = degrees_of_freedom(est)
     q = t_quantile(df, level)
@@ -218,8 +226,9 @@ def ratio_interval(est: Estimates, level: float | np.ndarray = LEVEL) -> tuple[n
         v = est.variance / (b - a) ** 2
         # below the most independent pairs could vary, u (1 - u) / n, a variance is raised toward it as by one
         # degree of freedom of that worst case: few base tasks of a skewed measure understate its spread
-        worst = u * (1 - u) / est.units
-        v = np.maximum(v, (df * v + WORST_CASE_WEIGHT * worst) / (df + WORST_CASE_WEIGHT))
+        if worst_case:
+            worst = u * (1 - u) / est.units
+            v = np.maximum(v, (df * v + WORST_CASE_WEIGHT * worst) / (df + WORST_CASE_WEIGHT))
         n_eff = u * (1 - u) / v
         centre = (u + q**2 / (2 * n_eff)) / (1 + q**2 / n_eff)
         half = q / (1 + q**2 / n_eff) * np.sqrt(u * (1 - u) / n_eff + q**2 / (4 * n_eff**2))
@@ -243,6 +252,8 @@ class Parts:
     total: Estimates
     terms: list[tuple[int, Estimates]]
     correlation: np.ndarray | None  # (terms, terms, groups)
+    paired: bool = False
+    """A paired difference (its pieces are each ratio's difference between two sides)."""
 
 
 def pieces(measure: Measure) -> list[tuple[int, Measure]]:
@@ -251,6 +262,9 @@ def pieces(measure: Measure) -> list[tuple[int, Measure]]:
     sides = [term[2] if len(term) > 2 else 0 for term in measure.terms]
     if set(sides) == {0, 1}:
         half = len(measure.terms) // 2
+        layout = [(s, t) for s, t, _ in measure.terms[:half]] == [(-s, t) for s, t, _ in measure.terms[half:]]
+        if sides != [0] * half + [1] * half or not layout:
+            raise ValueError(f"{measure.name}: a paired difference's terms are A's then B's, as Measure.minus makes")
         return [(sign, Measure(measure.name, ((1, term, 0), (-1, term, 1)))) for sign, term, _ in measure.terms[:half]]
     return [(sign, Measure(measure.name, ((1, term, *side),))) for sign, term, *side in measure.terms]
 
@@ -258,8 +272,9 @@ def pieces(measure: Measure) -> list[tuple[int, Measure]]:
 def parts(frame: pd.DataFrame, measure: Measure, grouping: Grouping, suffixes: Sequence[str] = ("",)) -> Parts:
     total = estimate(frame, measure, grouping, suffixes=suffixes)
     signed = pieces(measure)
+    paired = {term[2] if len(term) > 2 else 0 for term in measure.terms} == {0, 1}
     if len(signed) == 1:
-        return Parts(total, [(1, total)], None)
+        return Parts(total, [(1, total)], None, paired)
     terms = [(sign, estimate(frame, piece, grouping, suffixes=suffixes)) for sign, piece in signed]
     k = len(terms)
     correlation = np.zeros((k, k, grouping.n_groups))
@@ -269,7 +284,7 @@ def parts(frame: pd.DataFrame, measure: Measure, grouping: Grouping, suffixes: S
             cov = grouping.per_group(ei.cells * ej.cells)
             scale = np.sqrt(ei.cluster_variance * ej.cluster_variance)
             correlation[i, j] = np.clip(np.divide(cov, scale, where=scale > 0, out=np.zeros_like(cov)), -1, 1)
-    return Parts(total, terms, correlation)
+    return Parts(total, terms, correlation, paired)
 
 
 def _combined(p: Parts, level: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -277,7 +292,7 @@ def _combined(p: Parts, level: float | np.ndarray) -> tuple[np.ndarray, np.ndarr
     value = p.total.value
     down, up = [], []
     for sign, est in p.terms:
-        low, high = ratio_interval(est, level)
+        low, high = ratio_interval(est, level, worst_case=not p.paired)
         below, above = est.value - low, high - est.value
         down.append(below if sign > 0 else above)
         up.append(above if sign > 0 else below)
@@ -311,7 +326,7 @@ def interval(p: Parts | Estimates, level: float | np.ndarray = LEVEL) -> tuple[n
     if isinstance(p, Estimates):
         return ratio_interval(p, level)
     if p.correlation is None:
-        return ratio_interval(p.total, level)
+        return ratio_interval(p.total, level, worst_case=not p.paired)
     low, high = _combined(p, level)
     undefined = np.isnan(p.total.value)
     return np.where(undefined, np.nan, low), np.where(undefined, np.nan, high)
@@ -319,8 +334,8 @@ def interval(p: Parts | Estimates, level: float | np.ndarray = LEVEL) -> tuple[n
 
 def p_value(p: Parts | Estimates, null: float = 0.0, steps: int = 40) -> np.ndarray:
     """Two-sided p-value of the value being ``null``: one minus the lowest level whose interval holds it (so
-    the null lies outside the 95 % interval exactly where p < 0.05). NaN where the value is undefined; 1 with
-    fewer than two base tasks."""
+    the null lies outside the 95 % interval exactly where p < 0.05). NaN where the value is undefined or no
+    interval can be given (a measure without a range whose pairs all agree); 1 with fewer than two base tasks."""
     est = p if isinstance(p, Estimates) else p.total
     low_level = np.zeros_like(est.value)
     high_level = np.full_like(est.value, 1 - 1e-12)
@@ -332,6 +347,8 @@ def p_value(p: Parts | Estimates, null: float = 0.0, steps: int = 40) -> np.ndar
         low_level = np.where(inside, low_level, middle)
     out = np.where(high_level < 1e-9, 1.0, 1 - high_level)  # held at every level: the value is the null
     out = np.where(est.clusters < 2, 1.0, out)
+    low, _ = interval(p, LEVEL)
+    out = np.where(np.isnan(low), np.nan, out)  # no interval (a measure without a range, all alike): no test
     return np.where(np.isnan(est.value), np.nan, out)
 
 

@@ -64,6 +64,28 @@ def metric_measure(name: str, bounds: Bounds, qualified_failures: bool = False) 
     return Measure(f"{name}_qf" if qualified_failures else name, ((1, term),))
 
 
+def check_ranges(frame: pd.DataFrame, ranges: Mapping[str, Bounds], suffixes: Sequence[str] = ("",)) -> None:
+    """A PluginError naming the metric where a value lies outside its declared range: its interval would be
+    computed on a range that does not hold (a registration's ``bounds=``, or a ``"%"`` unit, is a promise)."""
+    from conflictbench.core import PluginError
+
+    for name, bounds in ranges.items():
+        if bounds is None:
+            continue
+        low, high = bounds
+        slack = 1e-9 * (high - low)
+        for suffix in suffixes:
+            if f"{name}{suffix}" not in frame.columns:
+                continue
+            values = frame[f"{name}{suffix}"].to_numpy(dtype=np.float64)
+            outside = values[np.isfinite(values) & ((values < low - slack) | (values > high + slack))]
+            if len(outside):
+                raise PluginError(
+                    f"metric {name!r} gave {len(outside)} value(s) outside its range [{low:g}, {high:g}] "
+                    f"(e.g. {outside[0]:g}): its registration (bounds=, or unit '%' for [0, 1]) says they cannot be"
+                )
+
+
 def report_measures(metrics: Sequence[str], ranges: Mapping[str, Bounds] | None = None) -> list[Measure]:
     """PCSR, RGSR, dSR, FR, then each metric over all pairs and over D_QF (``ranges``: name -> bounds)."""
     ranges = ranges or {}

@@ -50,10 +50,20 @@ def present_keys(a: pd.DataFrame, b: pd.DataFrame, keys: Sequence[str]) -> list[
     return [k for k in keys if k in a.columns and k in b.columns]
 
 
+def _key_text(value) -> str:
+    """A key as comparable text: None and NaN alike, 300 and 300.0 (a store's integer read back as a float) alike."""
+    if value is None or (isinstance(value, float | np.floating) and np.isnan(value)):
+        return "\x00"
+    if isinstance(value, bool | np.bool_):
+        return str(bool(value))
+    if isinstance(value, int | np.integer) or (isinstance(value, float | np.floating) and float(value).is_integer()):
+        return str(int(value))
+    return str(value)
+
+
 def _key_frame(frame: pd.DataFrame, keys: Sequence[str]) -> pd.DataFrame:
-    """The keys as comparable text (None and NaN alike), so that merging never trips over dtypes."""
-    return pd.DataFrame({k: frame[k].map(lambda v: "\x00" if v is None or v != v else str(v)) for k in keys},
-                        index=frame.index)  # fmt: skip
+    """The keys as comparable text, so that merging never trips over dtypes."""
+    return pd.DataFrame({k: frame[k].astype(object).map(_key_text) for k in keys}, index=frame.index)
 
 
 def _reasons(rows: pd.DataFrame, other: pd.DataFrame, keys: Sequence[str]) -> Counter:
@@ -75,8 +85,6 @@ def _reasons(rows: pd.DataFrame, other: pd.DataFrame, keys: Sequence[str]) -> Co
         remaining = remaining[hit]
         if remaining.empty:
             break
-    if len(remaining):
-        reasons["played more than once"] += len(remaining)
     return reasons
 
 
@@ -88,7 +96,9 @@ def match(
     keys = present_keys(a, b, keys)
     ka, kb = _key_frame(a, keys), _key_frame(b, keys)
     ka["_row_a"], kb["_row_b"] = np.arange(len(a)), np.arange(len(b))
-    ka, kb = ka.drop_duplicates(keys), kb.drop_duplicates(keys)
+    # a pair stored twice counts once, the same one whatever the frame's order (by its conflict episode)
+    ka, kb = _first(ka, a, keys), _first(kb, b, keys)
+    twice_a, twice_b = len(a) - len(ka), len(b) - len(kb)
     both = ka.merge(kb, on=keys, how="inner")
     ia, ib = both["_row_a"].to_numpy(), both["_row_b"].to_numpy()
     wanted = (*carry, *CLUSTER_KEYS, "case_id", "init_state", "family", "level")
@@ -104,7 +114,17 @@ def match(
         out[f"{column}_a"], out[f"{column}_b"] = left, right
     lost_a = ka[~ka["_row_a"].isin(ia)]
     lost_b = kb[~kb["_row_b"].isin(ib)]
-    return Matched(out, _reasons(lost_a, kb, keys), _reasons(lost_b, ka, keys))
+    unmatched_a, unmatched_b = _reasons(lost_a, kb, keys), _reasons(lost_b, ka, keys)
+    for counter, twice in ((unmatched_a, twice_a), (unmatched_b, twice_b)):
+        if twice:
+            counter["stored more than once (counted once)"] += twice
+    return Matched(out, unmatched_a, unmatched_b)
+
+
+def _first(keyed: pd.DataFrame, frame: pd.DataFrame, keys: Sequence[str]) -> pd.DataFrame:
+    if "conflict_episode" in frame.columns:
+        keyed = keyed.iloc[np.argsort(frame["conflict_episode"].astype(str).to_numpy(), kind="stable")]
+    return keyed.drop_duplicates(keys)
 
 
 def differences(
@@ -139,8 +159,8 @@ def differences(
     return out
 
 
-def verdict(difference: float, p: float, direction: str | None = None, alpha: float = 0.05) -> str:
-    """ "A higher", "B higher" or "no detectable difference" (``direction`` "lower": the better is named)."""
+def verdict(difference: float, p: float, alpha: float = 0.05) -> str:
+    """ "A higher", "B higher" or "no detectable difference" (at ``alpha``; a NaN p, no test: no difference)."""
     if not (p == p) or not (difference == difference) or p >= alpha or difference == 0:
         return "no detectable difference"
     return "A higher" if difference > 0 else "B higher"

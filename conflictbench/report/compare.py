@@ -21,7 +21,7 @@ from tabulate import tabulate
 from conflictbench.core import FAMILIES, LEVELS, PROMPT_CONDITIONS, MetricSpec, UserError
 from conflictbench.core.words import counted
 from conflictbench.metrics.intervals import Measure
-from conflictbench.metrics.measures import DSR, FR, PCSR, RGSR, metric_measure
+from conflictbench.metrics.measures import DSR, FR, PCSR, RGSR, check_ranges, metric_measure
 from conflictbench.metrics.paired import EXPERIMENT_KEYS, differences, match, verdict
 
 from .differences import difference_cell
@@ -94,6 +94,8 @@ def compare(
     keys = tuple(k for k in EXPERIMENT_KEYS if not (prompts_compared and k == "prompt"))
     measures = compared_measures(metrics)
     names = [m.name for m in metrics]
+    for frame in (a_frame, b_frame):
+        check_ranges(frame, {m.name: m.bounds for m in metrics})
     matched = match(sides[0], sides[1], keys, names, carry=("prompt",) if not prompts_compared else ())
     pairs = matched.frame
     if prompts_compared:
@@ -111,7 +113,7 @@ def compare(
         name = measure.name
         adjusted = table[f"{name}_p_holm"].where(table["scope"] != "overall", table[f"{name}_p"])
         table[f"{name}_p_adjusted"] = adjusted
-        table[f"{name}_verdict"] = [verdict(d, p, alpha=ALPHA) for d, p in zip(table[name], adjusted)]
+        table[f"{name}_verdict"] = [verdict(d, p, ALPHA) for d, p in zip(table[name], adjusted)]
     return Comparison(a, b, keys, table, len(pairs), matched.unmatched_a, matched.unmatched_b, measures)
 
 
@@ -174,8 +176,10 @@ def render(result: Comparison) -> str:
     lines += [
         "",
         "[95 % interval] of the paired difference, clustered by base task (tasks: how many the pairs come from); "
-        "overall tested at 5 %, family rows and level rows each Holm-corrected among themselves; a metric counts "
-        "where both sides define it, FR compares each side's qualified failures among its own successful references",
+        "overall tested at 5 %, family rows and level rows each Holm-corrected among themselves (their p and "
+        "verdict; the intervals are each row's own, so a family row's may leave out 0 without a difference called), "
+        "each measure and prompt condition on its own; a metric counts where both sides define it, FR compares "
+        "each side's qualified failures among its own successful references",
     ]
     return "\n".join(lines)
 

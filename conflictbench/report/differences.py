@@ -53,7 +53,8 @@ def render_prompt_differences(summary: pd.DataFrame, metrics: Sequence[MetricSpe
     ]
     return "\n".join(
         [
-            "== Paired P0 - P1 differences (same case, initial state, seed and settings; percentage points) ==",
+            "== Paired P0 - P1 differences (same case, initial state, seed and settings; percentage points for rates "
+            "and % measures, other units as registered) ==",
             tabulate(rows, header, tablefmt="simple", disable_numparse=True),
             "[95 % interval] over base tasks (tasks: how many the pairs come from); * P0 and P1 differ (paired "
             "test, 5 %, each measure on its own); a metric counts where both prompts define it",

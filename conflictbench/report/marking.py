@@ -1,6 +1,7 @@
 """The "most favourable" mark, earned: a table's best value in a block is marked only where a paired
 comparison over the pairs both models played tells it apart from the runner-up's (two-sided, 5 %;
-:mod:`conflictbench.metrics.paired`). Models that share no pair cannot be told apart, so neither is marked.
+:mod:`conflictbench.metrics.paired`) in the favourable direction. Models that share no pair cannot be told apart,
+so neither is marked.
 """
 
 from __future__ import annotations
@@ -44,7 +45,9 @@ def paired_marks(
         if pairs.empty:
             return False
         result = differences(pairs, (), [measures[column.measure]]).iloc[0]
-        return bool(result[f"{column.measure}_p"] < ALPHA)
+        # on the pairs both played, the best must be better, not only different (their other pairs may differ)
+        better = result[column.measure] > 0 if column.direction == "higher" else result[column.measure] < 0
+        return bool(better and result[f"{column.measure}_p"] < ALPHA)
 
     flags, untold = marks(aggregates, spec, told_apart)
     return Marked(flags, tuple(untold))
