@@ -74,7 +74,8 @@ def point_only(frame, by, chosen, suffixes=("",), **_):
         for sign, term, *side in measure.terms:
             suffix = suffixes[side[0] if side else 0]
             total = np.bincount(group, term.weight(frame, suffix), minlength=len(keys))
-            value += sign * np.bincount(group, term.numerator(frame, suffix), minlength=len(keys)) / total
+            with np.errstate(invalid="ignore", divide="ignore"):
+                value += sign * np.bincount(group, term.numerator(frame, suffix), minlength=len(keys)) / total
         out[measure.name] = value
         for suffix in ("_lo", "_hi"):
             out[f"{measure.name}{suffix}"] = np.nan

@@ -118,6 +118,9 @@ def between_models(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
         out[name] = r
         if name.endswith("success"):
             out[f"{name}_latent"] = tetrachoric(float(x.mean()), r, float(y.mean()))
+    # the per-pair difference of dSR between the two: its variance and how it is correlated within a task
+    difference = both.assign(difference=both["dSR_a"] - both["dSR_b"])
+    out["dSR_difference"] = class_correlations(difference, "difference")
     return out
 
 
@@ -172,8 +175,8 @@ def main(argv: list[str] | None = None) -> int:
         result["between_models"]["models"] = [model, args.second]
     result["provenance"] = {
         "command": "conflictbench model=subject run.init_states=3 run.cases_per_cell=4 (and with "
-        "model.sample_gripper=false); scripts/measure_correlations.py STORE --model 'subject sample_gripper=True' "
-        "--second 'subject sample_gripper=False'",
+        "model.sample_gripper=false); scripts/measure_correlations.py STORE --model 'subject sample_gripper=true' "
+        "--second 'subject sample_gripper=false'",
         "model": model,
         "episodes": int(len(frame) + len(references)),
         "pairs": int(len(frame)),

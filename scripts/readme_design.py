@@ -26,7 +26,7 @@ SLICES = (
     ("`run=paper` (every case, 5 initial states)", None, 5),
     ("every case, 10 initial states", None, 10),
 )
-DIFFERENCES = (0.10, 0.20)
+DIFFERENCES = (0.10, 0.15, 0.20)
 
 
 def plan(cases_per_cell: int | None, states: int):
@@ -83,27 +83,35 @@ def block() -> str:
         half = worst_half_width(d)
         icc = "-" if d.pairs <= d.clusters else f"{d.icc:.2f}"
         lines.append(f"| {label} | {d.pairs:,} | {d.clusters} | {icc} | ±{100 * half:.0f} pp |")
-    between = measured.get("between_models", {})
-    r = max(0.0, float(between.get("dSR", 0.0)))
-    variance = 2 * measured["dSR"]["variance"] * (1 - r)
+    difference = measured["between_models"]["dSR_difference"]
+    variance = difference["variance"]
+    corr = tuple(max(0.0, difference[k]) for k in ("task", "case", "state"))
     every = plan(None, 1)
     overall = Counter((e.suite, e.task_id) for e in every if e.case is not None)
     per_family = {f: {i: c for i, (c, _) in enumerate(lay)} for f, lay in family_layouts(every).items()}
     lines += [
         "",
         "Initial states (of LIBERO's 50) that two models need, every case played, to tell a difference in dSR apart "
-        "with 80 % power (a pair's dSR difference of variance 2 x "
-        f"{measured['dSR']['variance']:.2f} x (1 - {r:.2f}): the subject's dSR variance, and the correlation of two "
-        "settings of it on the same pairs; a family row at 5 % / 4, Holm's first step):",
+        "with 80 % power, from the difference measured between two settings of the subject on the same pairs (`model."
+        f"sample_gripper` true and false): its variance a pair, {variance:.2f}, and its correlations within a task "
+        f"(same case {corr[1]:.2f}, same initial state {corr[2]:.2f}, the task only {corr[0]:.2f}); a family row at "
+        "5 % / 4, Holm's first step. Two unrelated models differ more from pair to pair, and need more:",
         "",
         "| dSR difference | overall | per family (the one that needs the most) |",
         "| ---: | ---: | ---: |",
     ]
     for difference in DIFFERENCES:
-        whole = states_needed(overall, difference, variance)
-        families = [states_needed(c, difference, variance, alpha=0.05 / 4) for c in per_family.values()]
+        whole = states_needed(overall, difference, variance, corr)
+        families = [states_needed(c, difference, variance, corr, alpha=0.05 / 4) for c in per_family.values()]
         worst = None if any(n is None for n in families) else max(families)
         lines.append(f"| {100 * difference:.0f} points | {_states(whole)} | {_states(worst)} |")
+    ceiling = len(overall) / corr[0] if corr[0] > 0 else float("inf")
+    lines += [
+        "",
+        f"More initial states cannot make up for the {len(overall)} base tasks: pairs correlated {corr[0]:.2f} within "
+        f"a task count as at most about {len(overall)} / {corr[0]:.2f} = {ceiling:.0f} independent ones, however "
+        "many are played.",
+    ]
     return "\n".join([*lines, "", END])
 
 

@@ -4,7 +4,9 @@ Rates are fractions in [0, 1] with their counts: PCSR = PCSR_k / pairs, RGSR = R
 dSR = PCSR - RGSR, FR = FR_k / FR_n with FR_n = |D_Q| and FR_k = |D_QF|. A reference reused by
 k pairs counts k times, because every row is a pair. Each process measure ``m`` gets its mean
 over the pairs where it is defined (``m``, ``m_n``) and over the qualified failures D_QF only
-(``m_qf``, ``m_qf_n``). Undefined values are NaN with a count of 0, never an exception.
+(``m_qf``, ``m_qf_n``). Undefined values are NaN with a count of 0, never an exception. Every
+measure ``X`` also has its 95 % interval ``X_lo``, ``X_hi`` and the base tasks it rests on,
+``X_clusters`` (:mod:`.intervals`); P0 - P1 differences are paired (:mod:`.paired`).
 """
 
 from __future__ import annotations

@@ -2,12 +2,14 @@
 
 From the episodes: pairs (episodes a simulator failure ended are left out, and said so; a policy
 error counts as a failed episode), every metric per
-pair through the fast path, aggregates per model/family/level/suite/case and prompt condition,
-the paper's three tables, paired P0 - P1 differences, and with ``out_dir`` the files:
+pair through the fast path, aggregates per model/family/level/suite/case and prompt condition
+with 95 % intervals clustered by base task, the paper's three tables (a value marked most favourable
+only where a paired comparison tells it apart, :mod:`.marking`), paired P0 - P1 differences, and with
+``out_dir`` the files:
 
 - ``table1_overall``, ``table2_by_family``, ``table3_qualified_failures`` as ``.md``, ``.tex``
-  and ``.csv`` (percentages with their counts), and ``report.md`` with all tables together;
-- ``pairs.csv`` (one row per pair), ``aggregates_<grouping>.csv`` (fractions and counts),
+  and ``.csv`` (percentages with their intervals and counts), and ``report.md`` with all tables together;
+- ``pairs.csv`` (one row per pair), ``aggregates_<grouping>.csv`` (fractions, intervals and counts),
   ``prompt_couples.csv`` and ``prompt_differences.csv`` when P0 and P1 episodes match;
 - ``fig_qf_distributions.png``, ``fig_prompt_differences.png``, ``fig_dsr_heatmap.png``, ``fig_outcomes.png``.
 """
