@@ -47,7 +47,7 @@ def test_a_declared_models_p0_row_is_followed_by_the_papers_row_and_a_note(plugi
     text, _ = _report(two_models(), plugins, paper=DECLARED)
     lines = _table(text, "Table 1")
     alpha = next(i for i, line in enumerate(lines) if line.startswith("alpha"))
-    assert lines[alpha + 1].lstrip().startswith("[")  # alpha's intervals, under its values
+    assert lines[alpha + 1].startswith("1 task ") and "[" in lines[alpha + 1]  # alpha's base tasks and intervals
     paper_row = lines[alpha + 2]
     assert paper_row.startswith("paper: pi0.5")
     pcsr = paper_value("table1_overall", "pi0.5", "PCSR")

@@ -28,6 +28,7 @@ import pandas as pd
 from tabulate import LATEX_ESCAPE_RULES, tabulate
 
 from conflictbench.core import MetricSpec
+from conflictbench.core.words import counted
 
 from .paper import PAPER_FILES, beside_note, with_paper_rows
 
@@ -38,6 +39,7 @@ PAPER_METRICS = ("tar", "early20_ts", "ts", "ams")
 FAMILY_TABLE_METRICS = ("tar", "ts", "ams")
 #: What the brackets and the tasks column of a table mean (README, "Uncertainty").
 INTERVAL_NOTE = "[95 % interval] clustered by base task (tasks: how many the row's pairs come from)"
+TEXT_INTERVAL_NOTE = "[95 % interval] clustered by base task (under the model: how many base tasks the pairs come from)"
 KEY_LABELS = {"model": "model", "prompt": "prompt", "family": "family"}
 BLOCK_WORDS = {"prompt": "prompt condition", "family": "family"}
 
@@ -298,18 +300,36 @@ def _notes(spec: TableSpec, declared: Mapping[str, str] | None, marked: Marked |
 
 def render_text(aggregates: pd.DataFrame, spec: TableSpec, declared: Mapping[str, str] | None = None,
                 marked: Marked | None = None) -> str:  # fmt: skip
-    """The terminal's table, each interval on a line under its value; ``declared`` (model label -> the paper's
-    model) adds the paper's rows beside;
+    """The terminal's table, each interval on a line under its value and the row's base tasks under its model;
+    ``declared`` (model label -> the paper's model) adds the paper's rows beside;
     ``marked``: the most favourable values (:mod:`.marking`; None: none marked)."""
     if aggregates.empty:
         return f"== {spec.title} ==\nn/a: no pairs (0 pairs with both a conflict episode and its reference)"
-    rows = [  # the interval under the value: a terminal's width holds the paper's columns
-        keys + [_joined(value, counts) + ("*" if best else "") + (f"\n{interval}" if interval else "")
-                for value, interval, counts, best in cells]
+    # the interval under the value, and the row's base tasks under its first key: a terminal's width holds the
+    # paper's columns
+    width = len(spec.keys)
+    rows = [
+        [keys[0] + ("" if keys[width] == "-" else f"\n{counted(int(keys[width]), 'task')}"), *keys[1:width]]
+        + [_joined(value, counts) + ("*" if best else "") + (f"\n{interval}" if interval else "")
+           for value, interval, counts, best in cells]
         for keys, cells in table_rows(aggregates, spec, declared, marked)
     ]  # fmt: skip
-    table = tabulate(rows, table_header(spec), tablefmt="simple", disable_numparse=True)
-    return "\n".join([f"== {spec.title} ==", table, legend(spec), *_notes(spec, declared, marked)])
+    header = [h for h in table_header(spec) if h != "tasks"]
+    table = narrow_table(rows, header)
+    text_legend = legend(spec).replace(INTERVAL_NOTE, TEXT_INTERVAL_NOTE)
+    return "\n".join([f"== {spec.title} ==", table, text_legend, *_notes(spec, declared, marked)])
+
+
+def narrow_table(rows: Sequence[Sequence[str]], header: Sequence[str]) -> str:
+    """tabulate's "simple" table without the two spaces it adds to every header's width: the paper's columns,
+    each with its interval, fit a terminal of about 110 characters."""
+    import tabulate as module
+
+    padding, module.MIN_PADDING = module.MIN_PADDING, 0
+    try:
+        return tabulate(rows, header, tablefmt="simple", disable_numparse=True)
+    finally:
+        module.MIN_PADDING = padding
 
 
 def render_markdown(aggregates: pd.DataFrame, spec: TableSpec, declared: Mapping[str, str] | None = None,
