@@ -22,7 +22,7 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     parser = Parser(
         prog="conflictbench compare",
         description="Paired differences between two sides: each measure's difference over the pairs both played, "
-        "with its 95 %% interval (clustered by base task) and a verdict, overall, per family and per level.",
+        "with its 95 % interval (clustered by base task) and a verdict, overall, per family and per level.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
