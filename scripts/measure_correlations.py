@@ -21,6 +21,7 @@ import argparse
 import datetime
 import json
 import platform
+import shlex
 import sys
 from pathlib import Path
 
@@ -129,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("store")
     parser.add_argument("--model", help="the model (as the report labels it) to measure, where the store has several")
     parser.add_argument("--second", help="a second model of the store: how alike the two models' outcomes are")
+    parser.add_argument("--prompt", default="p0", help="the prompt condition measured (pairs of one only: default p0)")
     parser.add_argument("--out", default=str(ROOT / "conflictbench" / "metrics" / "correlations.json"))
     args = parser.parse_args(argv)
 
@@ -140,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     plugins = conflictbench.plugins()
     store = EpisodeStore(args.store)
     everything, models = store_frame(store, plugins, select_metrics(plugins, ["ts"]))
+    everything = everything[everything["prompt"] == args.prompt]  # two prompts' pairs would share case and state
     model = args.model or (models[0] if len(models) == 1 else None)
     if model not in models or (args.second and args.second not in models):
         print(f"name --model (and --second) among the store's models: {', '.join(models)}", file=sys.stderr)
@@ -174,9 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         result["between_models"] = between_models(frame, everything[everything["model"] == args.second])
         result["between_models"]["models"] = [model, args.second]
     result["provenance"] = {
-        "command": "conflictbench model=subject run.init_states=3 run.cases_per_cell=4 (and with "
-        "model.sample_gripper=false); scripts/measure_correlations.py STORE --model 'subject sample_gripper=true' "
-        "--second 'subject sample_gripper=false'",
+        "command": "scripts/measure_correlations.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:])),
         "model": model,
         "episodes": int(len(frame) + len(references)),
         "pairs": int(len(frame)),

@@ -122,7 +122,7 @@ def found(apart: pd.DataFrame) -> tuple[float, float]:
     return ours, oracle
 
 
-def check_comparisons(stores: int, fpr_limit: float, seeds: tuple[int, int, int], components, paper) -> None:
+def check_comparisons(stores: int, fpr_limit: float, seeds: tuple[int, int, int], components, paper, slack=0.0):
     alike = called(paper, stores, (0.6, 0.3, 0.5), (0.6, 0.3, 0.5), components, seed=seeds[0])
     false_positives = {m.name: float((alike[f"{m.name}_p"] < 0.05).mean()) for m in MEASURES}
     show(f"two models alike, run=paper, {stores} stores: overall row called different", false_positives)
@@ -132,15 +132,15 @@ def check_comparisons(stores: int, fpr_limit: float, seeds: tuple[int, int, int]
         ours, oracle = found(called(paper, stores, (0.6, 0.3, 0.5), (0.6, 0.3 + difference, 0.5), components, seed))
         print(f"a {100 * difference:.0f}-point dSR difference, {stores} stores: found in {100 * ours:.1f} % "
               f"(a test knowing the true spread: {100 * oracle:.1f} %)")  # fmt: skip
-        # with the measured correlations no test reaches 80 % at 15 points (PCSR's task-level noise): ours keeps
-        # close to the most any can; at 20 points it is above 80 %
-        assert ours >= 0.85 * oracle - 2 / np.sqrt(stores)
+        # in this generator even a test knowing the true spread finds 15 points in about 80 % (PCSR's task-level
+        # noise): ours keeps close to the most any can; at 20 points it finds it in over 80 %
+        assert ours >= 0.85 * oracle - slack
         if difference == 0.20:
-            assert ours >= 0.8 - 2 / np.sqrt(stores)
+            assert ours >= 0.8 - slack
 
 
 def test_two_models_alike_are_seldom_told_apart_and_a_dsr_difference_is_found(components, paper):
-    check_comparisons(100, 0.12, (4, 5, 9), components, paper)
+    check_comparisons(100, 0.12, (4, 5, 9), components, paper, slack=0.1)  # 100 stores: within their noise
 
 
 @pytest.mark.slow

@@ -34,7 +34,7 @@ def test_the_design_effect_is_the_mean_pairwise_correlation_it_assumes():
     assert d.icc == pytest.approx((d.deff - 1) / ((sizes**2).sum() / n - 1))
 
 
-def test_the_worst_half_width_is_the_reports_own_interval_at_the_worst_case():
+def test_the_worst_half_width_is_the_reports_own_interval_at_the_worst_case_and_its_degrees_of_freedom():
     # 12 pairs in 12 base tasks: half with y+ = 1, y- = 0 and half the other way round: dSR 0 at the most
     # variance a pair's dSR can have; the report's interval is then exactly the bound
     n = 12
@@ -47,8 +47,11 @@ def test_the_worst_half_width_is_the_reports_own_interval_at_the_worst_case():
         }
     )
     row = intervals(frame, (), [DSR]).iloc[0]
-    bound = worst_half_width(design([(1, 1)] * n))
-    assert row["dSR"] == 0 and row["dSR_hi"] == pytest.approx(bound) and row["dSR_lo"] == pytest.approx(-bound)
+    # alike tasks of exactly equal influence: the report's degrees of freedom are G - 1 here, and its interval
+    # is the bound at G - 1; at the degrees of freedom alike tasks usually give (about G / 3), the bound is wider
+    exact = worst_half_width(design([(1, 1)] * n), df=n - 1)
+    assert row["dSR"] == 0 and row["dSR_hi"] == pytest.approx(exact) and row["dSR_lo"] == pytest.approx(-exact)
+    assert worst_half_width(design([(1, 1)] * n)) > exact
     assert worst_half_width(design([(3, 1)])) == 1.0  # one base task: the whole range
 
 

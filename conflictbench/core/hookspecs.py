@@ -116,7 +116,8 @@ def conflictbench_register_metrics(register):
       ``higher_is_better``: which way reports mark the most favourable value (``None``: unmarked);
     - ``bounds``: ``(low, high)``, the range every value lies in (a ``"%"`` metric's is [0, 1] unless given).
       Reports give every mean a 95 % interval; with a range it is a score interval that stays inside it and
-      does not collapse where every pair gives the same value, without one a t interval (none in that case).
+      does not collapse where every pair gives the same value (and is the whole range where the pairs come from
+      one base task), without one a t interval (none in those two cases).
       Give the range values can really take (a loose one widens the intervals); a value outside it stops the
       report with one line naming the metric.
 

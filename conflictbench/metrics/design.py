@@ -12,13 +12,14 @@ so the pairs count as n_eff = n / deff (at most n - 1). At worst a pair's dSR (y
 variance 1, the variance a score interval assumes at dSR = 0, and the 95 % interval of :mod:`.intervals` is then
 at most
 
-    +-2 q sqrt(n_eff / 4 + q^2 / 4) / (n_eff + q^2)    (q: Student's t, 97.5 %, G - 1 degrees of freedom),
+    +-2 q sqrt(n_eff / 4 + q^2 / 4) / (n_eff + q^2)    (q: Student's t, 97.5 %),
 
-the whole range with fewer than two base tasks. "About": it holds where the correlations are the measured ones and
-the variance spreads over the base tasks as evenly as the worst case's; where a few tasks carry it, or tasks
-differ more than measured, the report's degrees of freedom are fewer (down to 5) and its interval wider. The slice's
-intra-cluster correlation, printed beside it, is (deff - 1) / (m - 1), m the pairs' mean task size as the pairs
-see it (sum n_t^2 / n).
+a half-width at dSR = 0 (elsewhere the interval is asymmetric and narrower in all), with the degrees of freedom the
+report's count gives G alike base tasks (about G / 3, at least 5, at most G - 1); the whole range with fewer than
+two base tasks. "About": it holds where the correlations are the measured ones; where a few tasks carry the
+variance, or tasks differ more than measured, the report's degrees of freedom are fewer and its interval wider.
+The slice's intra-cluster correlation, printed beside it, is (deff - 1) / (m - 1), m the pairs' mean task size as
+the pairs see it (sum n_t^2 / n).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from importlib import resources
 from scipy import special
 
 from conflictbench.core.words import counted
+
+from .intervals import DF_FLOOR
 
 CORRELATIONS_FILE = "correlations.json"
 
@@ -84,11 +87,19 @@ def design(layout: Iterable[tuple[int, int]], corr: tuple[float, float, float] |
     return Design(int(n), tasks, deff, (deff - 1) / (m - 1) if m > 1 else 0.0)
 
 
-def worst_half_width(d: Design, level: float = 0.95) -> float:
-    """The widest 95 % half-width on dSR (a fraction; 1 = the whole range) this design can give."""
+def usual_df(clusters: int) -> float:
+    """The degrees of freedom the report's intervals take for G alike base tasks: its count
+    (:func:`~conflictbench.metrics.intervals.degrees_of_freedom`) comes to about G / 3 there, at least
+    :data:`~conflictbench.metrics.intervals.DF_FLOOR`, at most G - 1."""
+    return float(min(clusters - 1, max(DF_FLOOR, clusters / 3)))
+
+
+def worst_half_width(d: Design, level: float = 0.95, df: float | None = None) -> float:
+    """The widest half-width of a 95 % interval on dSR (a fraction; 1 = the whole range) this design gives at dSR
+    = 0, with ``df`` degrees of freedom (default: :func:`usual_df`)."""
     if d.clusters < 2 or d.pairs == 0:
         return 1.0
-    q = float(special.stdtrit(d.clusters - 1, 0.5 + level / 2))
+    q = float(special.stdtrit(usual_df(d.clusters) if df is None else df, 0.5 + level / 2))
     n_eff = d.effective
     return min(1.0, 2 * q * math.sqrt(n_eff / 4 + q**2 / 4) / (n_eff + q**2))
 
@@ -109,9 +120,8 @@ def family_layouts(plan: Iterable) -> dict[str, list[tuple[int, int]]]:
 
 
 def plan_line(plan: Iterable, families: Iterable[str]) -> str | None:
-    """The plan's bound on dSR per family, e.g. ``dSR per family: 95 % intervals of about +-17 pp at most (widest:
-    physical, 2,135 pairs in 40 base tasks; intra-cluster correlation 0.23 assumed, measured on the learned
-    subject: README, "Uncertainty")``."""
+    """The plan's bound on dSR per family, e.g. ``dSR per family: 95 % intervals of about +-18 pp at most (widest:
+    physical, 2,135 pairs in 40 base tasks; intra-cluster correlation 0.22 assumed, ...)``."""
     layouts = family_layouts(list(plan))
     shown = [f for f in families if f in layouts]
     if not shown:
@@ -132,12 +142,12 @@ def plan_line(plan: Iterable, families: Iterable[str]) -> str | None:
     )
 
 
-def power(d: Design, difference: float, variance: float, alpha: float = 0.05, level_power: float = 0.8) -> float:
+def power(d: Design, difference: float, variance: float, alpha: float = 0.05) -> float:
     """The chance that a paired test at ``alpha`` tells apart a true ``difference`` whose per-pair variance is
-    ``variance``, with this design (normal approximation around Student's t quantile)."""
+    ``variance``, with this design (normal approximation around Student's t at :func:`usual_df`)."""
     if d.clusters < 2 or d.pairs == 0:
         return 0.0
-    q = float(special.stdtrit(d.clusters - 1, 1 - alpha / 2))
+    q = float(special.stdtrit(usual_df(d.clusters), 1 - alpha / 2))
     se = math.sqrt(variance / d.effective)
     return float(special.ndtr(abs(difference) / se - q))
 

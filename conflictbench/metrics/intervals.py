@@ -23,8 +23,10 @@ degree of freedom: a few base tasks of a skewed measure understate its spread. T
   most w = q^2 / (G + q^2) (Wilson's bound for none of G base tasks differing), so the interval is
   [c - w (c - low), c + w (high - c)]: for a rate, Wilson's interval of 0 of G;
 - fewer than two base tasks: nothing measures how base tasks differ, so the interval is the whole range.
-A signed sum (dSR, a paired difference) combines its ratios' intervals with their correlation (MOVER, Zou and
-Donner), so a ratio at 0/n brings its own non-degenerate bound. A measure without a declared range (a plugin
+A signed sum of several ratios (dSR, and a paired difference of dSR, whose pieces are each ratio's difference
+between the sides) combines its pieces' intervals with their correlation (MOVER, Zou and Donner), so a ratio at
+0/n brings its own non-degenerate bound; a paired difference of one ratio gets the score interval of its own
+variance on its range. A measure without a declared range (a plugin
 metric whose unit is not "%") gets the t interval of the same variance, and no interval in those two cases.
 A p-value is one minus the lowest level whose interval holds the null, so it agrees with the interval.
 

@@ -5,7 +5,7 @@ Every metric column is shown as its registration says (:class:`~conflictbench.co
 built-ins and plugins alike: its label, its unit (``"%"``: a fraction shown as a percentage with
 one decimal; any other unit after the value) and its direction. The outcome measures (PCSR,
 RGSR, dSR, FR) are this report's own columns, rates in %. Each value carries its 95 % interval and its
-counts: "68.8 [41.3, 89.0] (11/16)" for a rate, "76.5 [70.2, 82.0] (n=310)" for a mean over the pairs
+counts: "68.8 [33.1, 90.7] (11/16)" for a rate, "76.5 [70.2, 82.0] (n=310)" for a mean over the pairs
 where the measure is defined; an empty subset reads "n/a (0/0)" or "n/a (n=0)". Each row says how many
 base tasks (the clusters its intervals rest on, :mod:`conflictbench.metrics.intervals`) its pairs come from.
 
