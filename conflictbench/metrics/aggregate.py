@@ -111,18 +111,18 @@ def aggregate(
     if frame.empty:
         return pd.DataFrame({c: pd.Series([], dtype=object if c in by else np.float64) for c in columns})
     check_ranges(frame, ranges or {})
-    measures = report_measures(metrics, ranges)
-    out = intervals(frame, by, measures)
     group, keys = group_index(frame, by)
+    out = intervals(frame, by, report_measures(metrics, ranges), groups=(group, keys))
     ref = frame["reference_success"].to_numpy(dtype=bool)
-    qf = ref & ~frame["conflict_success"].to_numpy(dtype=bool)
+    con = frame["conflict_success"].to_numpy(dtype=bool)
+    qf = ref & ~con
 
     def count(weights) -> np.ndarray:
         return np.bincount(group, weights, minlength=len(keys)).round().astype(np.int64)
 
     out["pairs"] = count(None)
     out["PCSR_k"] = count(ref)
-    out["RGSR_k"] = count(frame["conflict_success"].to_numpy(dtype=bool))
+    out["RGSR_k"] = count(con)
     out["FR_k"] = count(qf)
     out["FR_n"] = count(ref)
     for m in metrics:

@@ -64,6 +64,11 @@ def metric_measure(name: str, bounds: Bounds, qualified_failures: bool = False) 
     return Measure(f"{name}_qf" if qualified_failures else name, ((1, term),))
 
 
+def metric_ranges(metrics) -> dict[str, Bounds]:
+    """Each registered metric's range, by name (:attr:`conflictbench.core.MetricSpec.bounds`)."""
+    return {m.name: m.bounds for m in metrics}
+
+
 def check_ranges(frame: pd.DataFrame, ranges: Mapping[str, Bounds], suffixes: Sequence[str] = ("",)) -> None:
     """A PluginError naming the metric where a value lies outside its declared range: its interval would be
     computed on a range that does not hold (a registration's ``bounds=``, or a ``"%"`` unit, is a promise)."""
@@ -109,10 +114,12 @@ def intervals(
     by: Sequence[str],
     measures: Sequence[Measure],
     suffixes: Sequence[str] = ("",),
+    groups: tuple[np.ndarray, pd.DataFrame] | None = None,
 ) -> pd.DataFrame:
     """Per group of ``by``: ``clusters`` (base tasks among its pairs), then for each measure ``X`` its value,
-    ``X_lo``, ``X_hi`` (the 95 % interval) and ``X_clusters`` (the base tasks it rests on)."""
-    group, keys = group_index(frame, by)
+    ``X_lo``, ``X_hi`` (the 95 % interval) and ``X_clusters`` (the base tasks it rests on). ``groups``: what
+    :func:`group_index` gives for ``by``, where the caller has it already."""
+    group, keys = groups if groups is not None else group_index(frame, by)
     grouping = Grouping.of(group, len(keys), cluster_ids(frame))
     out = keys.copy()
     out["clusters"] = grouping.clusters()

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import pandas as pd
 from tabulate import tabulate
 
-from conflictbench.core import FAMILIES, LEVELS, PROMPT_CONDITIONS, MetricSpec, UserError
+from conflictbench.core import PROMPT_CONDITIONS, MetricSpec, UserError
 from conflictbench.core.words import counted
+from conflictbench.metrics.aggregate import sort_groups
 from conflictbench.metrics.intervals import Measure
-from conflictbench.metrics.measures import DSR, FR, PCSR, RGSR, check_ranges, metric_measure
+from conflictbench.metrics.measures import DSR, FR, PCSR, RGSR, check_ranges, metric_measure, metric_ranges
 from conflictbench.metrics.paired import EXPERIMENT_KEYS, differences, match, verdict
 
 from .differences import difference_cell
@@ -95,7 +96,7 @@ def compare(
     measures = compared_measures(metrics)
     names = [m.name for m in metrics]
     for frame in (a_frame, b_frame):
-        check_ranges(frame, {m.name: m.bounds for m in metrics})
+        check_ranges(frame, metric_ranges(metrics))
     matched = match(sides[0], sides[1], keys, names, carry=("prompt",) if not prompts_compared else ())
     pairs = matched.frame
     if prompts_compared:
@@ -105,8 +106,8 @@ def compare(
         overall = differences(block, (), [m for m, _, _ in measures]).assign(scope="overall", group="all")
         family = differences(block, ("family",), [m for m, _, _ in measures], holm_within=True)
         level = differences(block, ("level",), [m for m, _, _ in measures], holm_within=True)
-        family = _in_order(family, "family", FAMILIES).rename(columns={"family": "group"}).assign(scope="family")
-        level = _in_order(level, "level", LEVELS).rename(columns={"level": "group"}).assign(scope="level")
+        family = sort_groups(family, ["family"]).rename(columns={"family": "group"}).assign(scope="family")
+        level = sort_groups(level, ["level"]).rename(columns={"level": "group"}).assign(scope="level")
         parts.append(pd.concat([overall, family, level], ignore_index=True).assign(prompt=prompt))
     table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
     for measure, _, _ in measures if not table.empty else []:
@@ -115,13 +116,6 @@ def compare(
         table[f"{name}_p_adjusted"] = adjusted
         table[f"{name}_verdict"] = [verdict(d, p, ALPHA) for d, p in zip(table[name], adjusted)]
     return Comparison(a, b, keys, table, len(pairs), matched.unmatched_a, matched.unmatched_b, measures)
-
-
-def _in_order(table: pd.DataFrame, key: str, order: Sequence[str]) -> pd.DataFrame:
-    rank = {v: i for i, v in enumerate(order)}
-    return table.sort_values(key, key=lambda c: c.map(lambda v: (rank.get(v, len(order)), str(v)))).reset_index(
-        drop=True
-    )
 
 
 def _unmatched_line(side: Side, counts: Counter) -> str:

@@ -39,7 +39,7 @@ from conflictbench.metrics import (
     prompt_differences,
     with_model,
 )
-from conflictbench.metrics.measures import report_measures
+from conflictbench.metrics.measures import metric_ranges, report_measures
 
 from .differences import render_prompt_differences
 from .marking import paired_marks
@@ -66,11 +66,6 @@ TABLE_KEYS = {
 def select_metrics(plugins: Plugins, names: Sequence[str] | None) -> list[MetricSpec]:
     """The metrics a report shows: all (built-ins and registered), or those named (UserError if unknown)."""
     return metric_specs(plugins, names)
-
-
-def metric_ranges(metrics: Sequence[MetricSpec]) -> dict[str, tuple[float, float] | None]:
-    """Each metric's range (its interval stays inside it; :attr:`MetricSpec.bounds`)."""
-    return {m.name: m.bounds for m in metrics}
 
 
 @dataclass

@@ -187,6 +187,7 @@ def paper_section(frame, metrics: Sequence, paper: Mapping[tuple[str, str], str]
     from tabulate import tabulate
 
     from conflictbench.metrics.aggregate import GROUPINGS, aggregate, with_model
+    from conflictbench.metrics.measures import metric_ranges
     from conflictbench.report.paper import declared_labels
     from conflictbench.report.tables import INTERVAL_NOTE, paper_note, paper_tables, table_header, table_rows
 
@@ -195,8 +196,7 @@ def paper_section(frame, metrics: Sequence, paper: Mapping[tuple[str, str], str]
     if not declared:
         return ""
     spec = paper_tables(metrics)[0]
-    ranges = {m.name: m.bounds for m in metrics}
-    table = aggregate(frame, GROUPINGS[spec.grouping], [m.name for m in metrics], ranges)
+    table = aggregate(frame, GROUPINGS[spec.grouping], [m.name for m in metrics], metric_ranges(metrics))
     rows = [
         keys + [" ".join(p for p in (value, interval, counts) if p) for value, interval, counts, _ in cells]
         for keys, cells in table_rows(table, spec, declared)
