@@ -9,6 +9,7 @@ import random
 from collections import Counter
 
 import pytest
+from testing_support import rejected
 
 from conflictbench.core import LEVELS
 from conflictbench.tasks.scene.affordances import load_table
@@ -96,11 +97,6 @@ def _valid(case, ctx):
     return validate_case(case, ctx)
 
 
-def _rejected(case, ctx, needle):
-    reasons = _valid(case, ctx)
-    assert any(needle in r for r in reasons), reasons
-
-
 def _case(key, level, ctx, where):
     return next(c for c in _cases(key, level) if where(c) and not _valid(c, ctx))
 
@@ -152,7 +148,7 @@ def test_all_three_sources_appear_and_l2_replaces_object_and_destination():
 def test_a_near_synonym_of_the_basket_is_not_absent(near, ctx):
     case = _case(BASKET_TASK, "L1", ctx, lambda c: _role(c, "receptacle") if c.factors == ("receptacle",) else None)
     ref = _role(case, "receptacle")
-    _rejected(_swap(case, ref["text"], near, source="out_of_domain", concept=""), ctx, "not absent")
+    rejected(_valid(_swap(case, ref["text"], near, source="out_of_domain", concept=""), ctx), "not absent")
 
 
 @pytest.mark.sim
@@ -160,23 +156,23 @@ def test_a_near_synonym_of_the_basket_is_not_absent(near, ctx):
 def test_near_synonyms_of_cabinet_and_stove_are_not_absent(near, ctx):
     case = _case(BOWL_TASK, "L1", ctx, lambda c: c.factors == ("destination",))
     ref = _role(case, "destination")
-    _rejected(_swap(case, ref["text"], near, source="out_of_domain", concept=""), ctx, "not absent")
+    rejected(_valid(_swap(case, ref["text"], near, source="out_of_domain", concept=""), ctx), "not absent")
 
 
 @pytest.mark.sim
 def test_a_landmark_is_never_a_referent(ctx):
     case = _case(BOWL_TASK, "L1", ctx, lambda c: c.factors == ("destination",))
     ref = _role(case, "destination")
-    _rejected(_swap(case, ref["text"], ref["text"], role="landmark"), ctx, "a missing landmark alone")
+    rejected(_valid(_swap(case, ref["text"], ref["text"], role="landmark"), ctx), "a missing landmark alone")
 
 
 @pytest.mark.sim
 def test_the_witness_names_source_and_replaced_entity(ctx):
     case = _case(BOWL_TASK, "L1", ctx, lambda c: c.factors == ("destination",))
     text = _role(case, "destination")["text"]
-    _rejected(_swap(case, text, text, source="made_up"), ctx, "has source 'made_up'")
-    _rejected(_swap(case, text, text, replaces=None), ctx, "does not say which scene entity")
-    _rejected(_swap(case, text, text, replaces="akita_black_bowl_1"), ctx, "is not the destination of step 1")
+    rejected(_valid(_swap(case, text, text, source="made_up"), ctx), "has source 'made_up'")
+    rejected(_valid(_swap(case, text, text, replaces=None), ctx), "does not say which scene entity")
+    rejected(_valid(_swap(case, text, text, replaces="akita_black_bowl_1"), ctx), "is not the destination of step 1")
 
 
 @pytest.mark.sim
@@ -194,7 +190,7 @@ def test_a_wrong_attribute_must_be_clearly_wrong(phrase, reason, ctx):
         BOWL_TASK, "L1", ctx, lambda c: c.factors == ("object",) and _role(c, "object")["source"] == "attribute"
     )
     ref = _role(case, "object")
-    _rejected(_swap(case, ref["text"], phrase), ctx, reason)
+    rejected(_valid(_swap(case, ref["text"], phrase), ctx), reason)
 
 
 CABINET_TASK = ("libero_goal", 0)  # open the middle drawer of the (wooden) cabinet
@@ -209,15 +205,17 @@ def test_a_wood_tone_is_not_a_wrong_colour_for_a_wooden_cabinet(colour, ctx):
     ref = _role(case, "object")
     assert ref["concept"] == "wooden_cabinet" and ref["attribute"] in ("red", "blue", "green", "purple", "pink")
     wrong = ref["text"].replace(ref["attribute"], colour)
-    _rejected(_swap(case, ref["text"], wrong, attribute=colour), ctx, "may denote something in the scene")
+    rejected(_valid(_swap(case, ref["text"], wrong, attribute=colour), ctx), "may denote something in the scene")
 
 
 @pytest.mark.sim
 def test_a_libero_referent_must_be_absent_and_share_no_name(ctx):
     case = _case(BOWL_TASK, "L1", ctx, lambda c: c.factors == ("destination",))
     ref = _role(case, "destination")
-    _rejected(_swap(case, ref["text"], "the plate", source="libero", concept="plate"), ctx, "not the name of")
-    _rejected(_swap(case, ref["text"], "the white mug", source="libero", concept="porcelain_mug"), ctx, "not absent")
+    rejected(_valid(_swap(case, ref["text"], "the plate", source="libero", concept="plate"), ctx), "not the name of")
+    rejected(
+        _valid(_swap(case, ref["text"], "the white mug", source="libero", concept="porcelain_mug"), ctx), "not absent"
+    )
 
 
 @pytest.mark.sim
@@ -228,14 +226,16 @@ def test_l2_needs_two_different_roles(ctx):
         r["role"] = "object"
         r["replaces"] = "akita_black_bowl_1"
     planted = dataclasses.replace(case, witness={**case.witness, "referents": refs})
-    _rejected(planted, ctx, "two different roles of the step")
+    rejected(_valid(planted, ctx), "two different roles of the step")
 
 
 @pytest.mark.sim
 def test_the_referent_is_in_its_own_step(ctx):
     case = _case(BOWL_TASK, "L3", ctx, lambda c: c.witness["referents"][0]["step"] == 2)
     refs = [{**case.witness["referents"][0], "step": 1}]
-    _rejected(dataclasses.replace(case, witness={**case.witness, "referents": refs}), ctx, "not in the text of step 1")
+    rejected(
+        _valid(dataclasses.replace(case, witness={**case.witness, "referents": refs}), ctx), "not in the text of step 1"
+    )
 
 
 CADDY_TASK = ("libero_10", 5)  # pick up the book and place it in the back compartment of the caddy
@@ -246,7 +246,7 @@ CADDY_TASK = ("libero_10", 5)  # pick up the book and place it in the back compa
 def test_a_receptacle_word_for_the_caddy_is_not_absent(word, ctx):
     case = _case(CADDY_TASK, "L1", ctx, lambda c: c.factors == ("receptacle",))
     ref = _role(case, "receptacle")
-    _rejected(_swap(case, ref["text"], f"the {word}", source="out_of_domain", concept=""), ctx, "not absent")
+    rejected(_valid(_swap(case, ref["text"], f"the {word}", source="out_of_domain", concept=""), ctx), "not absent")
 
 
 @pytest.mark.sim

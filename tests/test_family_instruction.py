@@ -11,6 +11,7 @@ import random
 from collections import Counter
 
 import pytest
+from testing_support import rejected
 
 from conflictbench.tasks.operators.contradictions import explain, why_not
 from conflictbench.tasks.scene.facts import load_scene_facts
@@ -139,11 +140,6 @@ def _reasons(case, ctx):
     return validate_case(case, ctx)
 
 
-def _rejected(case, ctx, needle):
-    reasons = _reasons(case, ctx)
-    assert any(needle in r for r in reasons), reasons
-
-
 @pytest.mark.sim
 def test_the_unplanted_cases_are_accepted(ctx):
     case = _case(BOWL_ON_PLATE, "L1", ctx)
@@ -155,40 +151,44 @@ def test_the_unplanted_cases_are_accepted(ctx):
 def test_do_it_then_undo_it_is_rejected(ctx):
     case = _case(BOWL_ON_PLATE, "L1", ctx)
     planted = _planted(case, "making sure the bowl is not on the plate at the end", ["avoid", "on", BOWL, "plate_1"])
-    _rejected(planted, ctx, "satisfiable by doing")
+    rejected(_reasons(planted, ctx), "satisfiable by doing")
     stove = _case(STOVE, "L1", ctx)
     planted = _planted(stove, "and make sure the stove is off at the end", ["end", "turnoff", "flat_stove_1"])
-    _rejected(planted, ctx, "satisfiable by doing")
+    rejected(_reasons(planted, ctx), "satisfiable by doing")
 
 
 @pytest.mark.sim
 def test_a_pronoun_in_a_constraint_is_rejected(ctx):
     case = _case(BOWL_ON_PLATE, "L1", ctx)
-    _rejected(_planted(case, "without touching it", ["keep", "untouched", BOWL]), ctx, "uses a pronoun")
+    rejected(_reasons(_planted(case, "without touching it", ["keep", "untouched", BOWL]), ctx), "uses a pronoun")
 
 
 @pytest.mark.sim
 def test_a_constraint_on_another_entity_is_rejected(ctx):
     case = _case(BOWL_ON_PLATE, "L1", ctx)
-    _rejected(_planted(case, "without touching the plate", ["keep", "untouched", "plate_1"]), ctx, "need not touch")
+    rejected(
+        _reasons(_planted(case, "without touching the plate", ["keep", "untouched", "plate_1"]), ctx), "need not touch"
+    )
     drawer = _case(MIDDLE_DRAWER, "L1", ctx)
     planted = _planted(drawer, "without touching the cabinet", ["keep", "untouched", "wooden_cabinet_1"])
-    _rejected(planted, ctx, "need not touch")
+    rejected(_reasons(planted, ctx), "need not touch")
 
 
 @pytest.mark.sim
 def test_not_grasping_is_rejected(ctx):
     case = _case(BOWL_ON_PLATE, "L1", ctx)
-    _rejected(_planted(case, "without grasping the bowl", ["keep", "ungrasped", BOWL]), ctx, "scooped")
+    rejected(_reasons(_planted(case, "without grasping the bowl", ["keep", "ungrasped", BOWL]), ctx), "scooped")
 
 
 @pytest.mark.sim
 def test_the_mode_must_be_given_and_right(ctx):
     case = _case(BOWL_ON_PLATE, "L1", ctx)
     pair = case.witness["conflicts"][0]
-    _rejected(dataclasses.replace(case, witness={**case.witness, "conflicts": [pair[:2]]}), ctx, "must say its mode")
+    rejected(
+        _reasons(dataclasses.replace(case, witness={**case.witness, "conflicts": [pair[:2]]}), ctx), "must say its mode"
+    )
     wrong = dataclasses.replace(case, witness={**case.witness, "conflicts": [[*pair[:2], "final_states"]]})
-    _rejected(wrong, ctx, "is simultaneous, not final_states")
+    rejected(_reasons(wrong, ctx), "is simultaneous, not final_states")
 
 
 @pytest.mark.sim
@@ -196,7 +196,7 @@ def test_an_ambiguous_name_is_rejected(ctx):
     # two black bowls: "the black bowl" could be either
     case = _case(TWO_BOWLS, "L1", ctx)
     planted = _planted(case, "without touching the black bowl", ["keep", "untouched", BOWL])
-    _rejected(planted, ctx, "unambiguously")
+    rejected(_reasons(planted, ctx), "unambiguously")
 
 
 @pytest.mark.sim
@@ -212,7 +212,7 @@ def test_a_repeated_constraint_is_filler(ctx):
             "conflicts": [[goal["id"], first["id"], "simultaneous"], [goal["id"], "r9", "simultaneous"]],
         },
     )
-    _rejected(planted, ctx, "repeats the constraint")
+    rejected(_reasons(planted, ctx), "repeats the constraint")
 
 
 @pytest.mark.sim
@@ -220,7 +220,9 @@ def test_a_goal_the_step_does_not_ask_for_is_rejected(ctx):
     case = _case(BOWL_ON_PLATE, "L1", ctx)
     reqs = [dict(r) for r in case.witness["requirements"]]
     reqs[0]["literal"] = ["goal", "in", BOWL, "plate_1"]
-    _rejected(dataclasses.replace(case, witness={**case.witness, "requirements": reqs}), ctx, "is not what step 1")
+    rejected(
+        _reasons(dataclasses.replace(case, witness={**case.witness, "requirements": reqs}), ctx), "is not what step 1"
+    )
 
 
 @pytest.mark.sim
@@ -240,7 +242,7 @@ def test_l4_needs_factors_in_two_steps(ctx):
             "conflicts": [[goal["id"], constraint["id"], "simultaneous"], [goal["id"], "r9", "simultaneous"]],
         },
     )
-    _rejected(planted, ctx, "does not match the witness")
+    rejected(_reasons(planted, ctx), "does not match the witness")
 
 
 def _moved_constraint(case, step, literal=None):
@@ -268,7 +270,7 @@ def test_untouched_on_a_pushing_step_is_rejected(ctx):
     case = _to_case(base_task(*key), next(d for d in _drafts(key, "L3", ctx, limit=400) if pushed_still(d)))
     assert _reasons(case, ctx) == []  # keeping the pushed thing still contradicts pushing it
     literal = next(r["literal"] for r in case.witness["requirements"] if r["literal"][0] == "keep")
-    _rejected(_moved_constraint(case, 1, ["keep", "untouched", literal[2]]), ctx, "pushing step")
+    rejected(_reasons(_moved_constraint(case, 1, ["keep", "untouched", literal[2]]), ctx), "pushing step")
 
 
 # -- the operator ---------------------------------------------------------------------------------

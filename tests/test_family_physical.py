@@ -7,6 +7,7 @@ import dataclasses
 import random
 
 import pytest
+from testing_support import rejected
 
 from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.operators import physical
@@ -42,11 +43,6 @@ def one(key, level, where=lambda c: True):
     return next(c for c in cases(key, level) if where(c))
 
 
-def rejected(case, ctx, needle):
-    reasons = validate_case(case, ctx)
-    assert any(needle in r for r in reasons), reasons
-
-
 def with_violations(case, violations):
     return dataclasses.replace(case, witness={**case.witness, "violations": violations})
 
@@ -77,24 +73,33 @@ def test_the_old_replaced_object_is_rejected(ctx):
     planted = with_violations(
         planted, [{"step": 1, "kind": "fixed", "needs": "graspable", "entity": "main_table", "text": "the table"}]
     )
-    rejected(planted, ctx, "does not name akita_black_bowl_1")
+    rejected(validate_case(planted, ctx), "does not name akita_black_bowl_1")
 
 
 def test_a_violation_needs_a_known_kind_matching_its_affordance(ctx):
     good = one(("libero_goal", 8), "L1", lambda c: c.witness["violations"][0]["kind"] == "rigidity")
     v = good.witness["violations"][0]
-    rejected(with_violations(good, [{**v, "kind": "magic"}]), ctx, "unknown kind")
-    rejected(with_violations(good, [{**v, "kind": "switch"}]), ctx, "is about turnable")
+    rejected(validate_case(with_violations(good, [{**v, "kind": "magic"}]), ctx), "unknown kind")
+    rejected(validate_case(with_violations(good, [{**v, "kind": "switch"}]), ctx), "is about turnable")
 
 
 def test_undecided_or_held_affordances_are_not_violations(ctx):
     good = one(("libero_goal", 8), "L1", lambda c: c.witness["violations"][0]["kind"] == "rigidity")
     v = good.witness["violations"][0]
     # the bowl has pourable null (undecided) and is a container (true): neither is a violation
-    rejected(with_violations(good, [{**v, "kind": "pouring", "needs": "pourable"}]), ctx, "does not plainly lack")
-    rejected(with_violations(good, [{**v, "kind": "containment", "needs": "container"}]), ctx, "does not plainly lack")
-    rejected(with_violations(good, [{**v, "entity": "basket_1"}]), ctx, "is not in the scene")
-    rejected(with_violations(good, [{**v, "text": "fold the plate in half"}]), ctx, "is not in the instruction")
+    rejected(
+        validate_case(with_violations(good, [{**v, "kind": "pouring", "needs": "pourable"}]), ctx),
+        "does not plainly lack",
+    )
+    rejected(
+        validate_case(with_violations(good, [{**v, "kind": "containment", "needs": "container"}]), ctx),
+        "does not plainly lack",
+    )
+    rejected(validate_case(with_violations(good, [{**v, "entity": "basket_1"}]), ctx), "is not in the scene")
+    rejected(
+        validate_case(with_violations(good, [{**v, "text": "fold the plate in half"}]), ctx),
+        "is not in the instruction",
+    )
 
 
 def test_size_comes_from_the_table_sizes():
@@ -111,10 +116,10 @@ def test_size_comes_from_the_table_sizes():
 def test_level_shapes(ctx):
     l2 = one(("libero_goal", 8), "L2")
     first = l2.witness["violations"][0]
-    rejected(with_violations(l2, [first, dict(first)]), ctx, "is repeated")
+    rejected(validate_case(with_violations(l2, [first, dict(first)]), ctx), "is repeated")
     l4 = one(("libero_goal", 8), "L4")
     v1, v2 = l4.witness["violations"][:2]
-    rejected(with_violations(l4, [v1, {**v2, "step": v1["step"]}]), ctx, "at least two different steps")
+    rejected(validate_case(with_violations(l4, [v1, {**v2, "step": v1["step"]}]), ctx), "at least two different steps")
     l2_split = with_violations(l2, [first, {**l2.witness["violations"][1], "step": 2}])
     assert validate_case(l2_split, ctx)
 
@@ -172,7 +177,7 @@ def test_support_violations_are_rejected_as_disputable(ctx):
     good = one(("libero_goal", 8), "L1", lambda c: c.witness["violations"][0]["kind"] == "rigidity")
     v = good.witness["violations"][0]
     planted = {**v, "kind": "support", "needs": "support", "entity": "wine_bottle_1"}
-    rejected(with_violations(good, [planted]), ctx, "is disputable")
+    rejected(validate_case(with_violations(good, [planted]), ctx), "is disputable")
 
 
 def test_a_fixture_only_held_is_rejected(ctx):
@@ -182,7 +187,7 @@ def test_a_fixture_only_held_is_rejected(ctx):
     v = good.witness["violations"][0]
     held = v["text"].replace("lift", "hold").replace("pick up", "hold")
     planted = replaced_text(good, v["text"], held, [{**v, "text": held}])
-    rejected(planted, ctx, "only holds or touches")
+    rejected(validate_case(planted, ctx), "only holds or touches")
 
 
 @pytest.mark.parametrize(
@@ -199,7 +204,7 @@ def test_a_participant_joined_after_the_goal_is_rejected(ctx, joined):
     body = good.witness["steps"][0]
     planted = dataclasses.replace(good, instruction=f"{good.instruction} {joined}")
     v = {"step": 1, "kind": "fixed", "needs": "graspable", "entity": "wooden_cabinet_1", "text": joined}
-    rejected(with_violations(planted, [v]), ctx, "joined participant")
+    rejected(validate_case(with_violations(planted, [v]), ctx), "joined participant")
     assert body in planted.instruction
 
 
@@ -207,15 +212,17 @@ def test_an_added_participant_of_a_goal_step_is_rejected(ctx):
     """'open both the middle drawer and the plate': the drawer opens, the episode ends."""
     good = one(("libero_goal", 0), "L1")
     v = {**good.witness["violations"][0], "entity": "plate_1", "kind": "articulation", "needs": "openable"}
-    rejected(with_violations(good, [v]), ctx, "added participant")
+    rejected(validate_case(with_violations(good, [v]), ctx), "added participant")
 
 
 def test_pouring_and_boxes_as_holders_are_rejected(ctx):
     good = one(("libero_object", 6), "L1")
     v = good.witness["violations"][0]
-    rejected(with_violations(good, [{**v, "kind": "pouring", "needs": "pourable"}]), ctx, "is disputable")
+    rejected(
+        validate_case(with_violations(good, [{**v, "kind": "pouring", "needs": "pourable"}]), ctx), "is disputable"
+    )
     boxed = {**v, "kind": "containment", "needs": "container", "entity": "butter_1"}
-    rejected(with_violations(good, [boxed]), ctx, "invites opening")
+    rejected(validate_case(with_violations(good, [boxed]), ctx), "invites opening")
 
 
 def test_a_too_small_holder_inside_an_original_step_is_rejected(ctx):
@@ -233,7 +240,7 @@ def test_a_too_small_holder_inside_an_original_step_is_rejected(ctx):
         "holder": "glazed_rim_porcelain_ramekin_1",
         "text": squeezed.split(" and ")[0],
     }
-    rejected(replaced_text(good, body, squeezed, [size]), ctx, "a step of its own, not a manner")
+    rejected(validate_case(replaced_text(good, body, squeezed, [size]), ctx), "a step of its own, not a manner")
 
 
 def physical_kinds(case):
@@ -272,7 +279,7 @@ def test_a_repeated_grasp_is_rejected(ctx):
     body = good.witness["steps"][0]
     twice = body.replace(", switch on the black bowl", ", switch on the black bowl, lift the black bowl")
     assert twice != body
-    rejected(replaced_text(good, body, twice, good.witness["violations"]), ctx, "twice")
+    rejected(validate_case(replaced_text(good, body, twice, good.witness["violations"]), ctx), "twice")
 
 
 def test_a_twinned_bowl_is_named_in_full_in_its_violation(ctx):
@@ -284,4 +291,6 @@ def test_a_twinned_bowl_is_named_in_full_in_its_violation(ctx):
     v = good.witness["violations"][0]
     assert full in v["text"] and validate_case(good, ctx) == []
     short = v["text"].replace(full, "the black bowl")
-    rejected(replaced_text(good, v["text"], short, [{**v, "text": short}]), ctx, "its identical twin shares")
+    rejected(
+        validate_case(replaced_text(good, v["text"], short, [{**v, "text": short}]), ctx), "its identical twin shares"
+    )

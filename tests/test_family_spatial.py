@@ -9,6 +9,7 @@ import random
 
 import numpy as np
 import pytest
+from testing_support import rejected
 
 from conflictbench.core import LEVELS
 from conflictbench.tasks.libero.base_tasks import base_task
@@ -50,11 +51,6 @@ def reasons(case, m=None):
     m = m or model((case.suite, case.task_id))
     states = m.facts.states() if case.init_states is None else frozenset(case.init_states)
     return check_relation(case, m, states)
-
-
-def rejected(case, needle, m=None):
-    out = reasons(case, m)
-    assert any(needle in r for r in out), out
 
 
 def with_relation(case, index=0, **changes):
@@ -119,7 +115,7 @@ def test_a_landmark_an_earlier_step_moves_is_rejected():
             ],
         },
     )
-    rejected(planted, "which an earlier step moves or operates")
+    rejected(reasons(planted), "which an earlier step moves or operates")
 
 
 def test_a_landmark_the_same_step_moves_is_rejected():
@@ -134,7 +130,7 @@ def test_a_landmark_the_same_step_moves_is_rejected():
     planted = dataclasses.replace(
         planted, witness={**planted.witness, "steps": [planted.instruction], "step_entities": [["ketchup_1"]]}
     )
-    rejected(planted, "which that same step moves, as its landmark")
+    rejected(reasons(planted), "which that same step moves, as its landmark")
 
 
 def test_a_direction_false_by_less_than_the_camera_margin_is_rejected():
@@ -148,7 +144,9 @@ def test_a_direction_false_by_less_than_the_camera_margin_is_rejected():
     pos = {k: v.copy() for k, v in m.facts.positions.items()}
     pos[subject][:, 1] = pos[landmark][:, 1] - sign * 0.04
     m.facts = dataclasses.replace(m.facts, positions=pos)
-    rejected(case, "is false by only 0.040 m between centres; a camera needs", m)  # max(6 cm, the subject's radius)
+    rejected(
+        reasons(case, m), "is false by only 0.040 m between centres; a camera needs"
+    )  # max(6 cm, the subject's radius)
 
 
 def test_a_direction_false_by_less_than_the_footprints_is_rejected():
@@ -165,14 +163,14 @@ def test_a_direction_false_by_less_than_the_footprints_is_rejected():
     entities = dict(m.facts.entities)
     entities[landmark] = dataclasses.replace(entities[landmark], radius=0.09)
     m.facts = dataclasses.replace(m.facts, positions=pos, entities=entities)
-    rejected(case, "their footprints are", m)
+    rejected(reasons(case, m), "their footprints are")
 
 
 def test_a_misstated_or_missing_margin_is_rejected():
     case = find(("libero_object", 4), "L1", lambda c: "margin_m" in c.witness["relations"][0])
-    rejected(with_relation(case, margin_m=case.witness["relations"][0]["margin_m"] + 0.05), "does not match")
+    rejected(reasons(with_relation(case, margin_m=case.witness["relations"][0]["margin_m"] + 0.05)), "does not match")
     rel = {k: v for k, v in case.witness["relations"][0].items() if k != "margin_m"}
-    rejected(dataclasses.replace(case, witness={**case.witness, "relations": [rel]}), "needs its margin_m")
+    rejected(reasons(dataclasses.replace(case, witness={**case.witness, "relations": [rel]})), "needs its margin_m")
 
 
 def test_left_or_right_in_a_left_right_relation_reads_as_a_contradiction():
@@ -181,7 +179,7 @@ def test_left_or_right_in_a_left_right_relation_reads_as_a_contradiction():
 
     case = find(("libero_10", 4), "L3", lambda c: any(right_plate(r) for r in c.witness["relations"]))
     index = next(i for i, r in enumerate(case.witness["relations"]) if right_plate(r))
-    rejected(with_relation(case, index, relation="left_of"), "'right' reads as a contradiction")
+    rejected(reasons(with_relation(case, index, relation="left_of")), "'right' reads as a contradiction")
 
 
 def test_on_with_an_absurd_holder_is_rejected():
@@ -194,23 +192,25 @@ def test_on_with_an_absurd_holder_is_rejected():
         relation="on",
         landmarks=[{"phrase": "milk", "entities": ["milk_1"]}],
     )
-    rejected(planted, "milk_1 is an absurd holder for ketchup_1")
+    rejected(reasons(planted), "milk_1 is an absurd holder for ketchup_1")
 
 
 def test_a_claim_made_twice_is_rejected():
     case = find(("libero_object", 4), "L2", lambda c: True)
     rels = case.witness["relations"]
-    rejected(dataclasses.replace(case, witness={**case.witness, "relations": [rels[0], rels[0]]}), "is made twice")
+    rejected(
+        reasons(dataclasses.replace(case, witness={**case.witness, "relations": [rels[0], rels[0]]})), "is made twice"
+    )
 
 
 def test_a_relation_outside_its_step_is_rejected():
     case = find(("libero_object", 4), "L3", lambda c: c.witness["relations"][0]["step"] == 2)
-    rejected(with_relation(case, step=1), "is not in step 1")
+    rejected(reasons(with_relation(case, step=1)), "is not in step 1")
 
 
 def test_too_few_paired_states_are_rejected():
     case = find(("libero_object", 4), "L1", lambda c: True)
-    rejected(dataclasses.replace(case, init_states=tuple(range(10))), "a claim needs at least 25")
+    rejected(reasons(dataclasses.replace(case, init_states=tuple(range(10)))), "a claim needs at least 25")
 
 
 def test_the_geometry_behind_the_margin_rule():
@@ -249,10 +249,10 @@ def _planted_twin(key, relation="behind"):
 
 def test_a_relation_about_a_twinned_bowl_is_rejected():
     planted = _planted_twin(("libero_spatial", 1))
-    rejected(planted, "a relation about a twinned object")
+    rejected(reasons(planted), "a relation about a twinned object")
     # the unnamed twin too ("the black bowl" meant as the OTHER bowl)
     other = with_relation(planted, subject={"phrase": "black bowl", "entities": ["akita_black_bowl_2"]})
-    rejected(other, "a relation about a twinned object")
+    rejected(reasons(other), "a relation about a twinned object")
 
 
 def test_an_in_relation_about_a_drawers_contents_is_rejected():
@@ -262,7 +262,7 @@ def test_an_in_relation_about_a_drawers_contents_is_rejected():
         relation="in", landmarks=[{"phrase": "top drawer of the cabinet", "entities": ["wooden_cabinet_1_top_region"]}]
     )
     planted = dataclasses.replace(case, witness={**case.witness, "relations": [r]})
-    rejected(planted, "the camera cannot see inside a closed drawer")
+    rejected(reasons(planted), "the camera cannot see inside a closed drawer")
     for level in LEVELS:  # and the generator never writes one
         for c in cases(("libero_goal", 8), level, limit=40):
             for rel in c.witness["relations"]:
@@ -286,7 +286,7 @@ def test_a_relation_about_what_rests_on_a_thing_an_earlier_step_moves_is_rejecte
             "step_entities": [["cookies_1"], planted.witness["step_entities"][0]],
         },
     )
-    rejected(planted, "akita_black_bowl_1, which an earlier step moves or operates (akita_black_bowl_1)")
+    rejected(reasons(planted), "akita_black_bowl_1, which an earlier step moves or operates (akita_black_bowl_1)")
 
 
 def test_a_direction_false_by_five_centimetres_is_now_too_close_to_see():
@@ -304,7 +304,7 @@ def test_a_direction_false_by_five_centimetres_is_now_too_close_to_see():
     pos = {k: v.copy() for k, v in m.facts.positions.items()}
     pos[subject][:, axis] = pos[landmark][:, axis] - sign * 0.054  # the 5.0-5.4 cm readers called borderline
     m.facts = dataclasses.replace(m.facts, positions=pos)
-    rejected(case, "is false by only 0.054 m between centres; a camera needs 0.060 m", m)
+    rejected(reasons(case, m), "is false by only 0.054 m between centres; a camera needs 0.060 m")
 
 
 # -- round 1b review: a bare relation reads as a destination; a twin's bare noun is no landmark ----------
@@ -331,7 +331,7 @@ def test_a_bare_relation_after_a_moved_object_is_rejected():
         instruction=case.instruction.replace(r["text"], bare_text),
         witness={**case.witness, "steps": [s.replace(r["text"], bare_text) for s in case.witness["steps"]]},
     )
-    rejected(with_relation(planted, text=bare_text), "is not a relative clause or participle")
+    rejected(reasons(with_relation(planted, text=bare_text)), "is not a relative clause or participle")
     assert not any("relative clause" in x for x in reasons(case))
 
 
@@ -350,7 +350,7 @@ def test_no_landmark_is_a_twin_and_a_landmark_meaning_both_bowls_is_rejected():
     planted = with_relation(
         case, landmarks=[{"phrase": "black bowl", "entities": ["akita_black_bowl_1", "akita_black_bowl_2"]}]
     )
-    rejected(planted, "landmark 'black bowl' could mean any of akita_black_bowl_1, akita_black_bowl_2")
+    rejected(reasons(planted), "landmark 'black bowl' could mean any of akita_black_bowl_1, akita_black_bowl_2")
 
 
 def test_no_direction_against_a_fixture_that_faces_its_own_way():
@@ -365,7 +365,7 @@ def test_no_direction_against_a_fixture_that_faces_its_own_way():
     r = dict(case.witness["relations"][0])
     r.update(landmarks=[{"phrase": "wooden cabinet", "entities": ["wooden_cabinet_1"]}])
     planted = dataclasses.replace(case, witness={**case.witness, "relations": [r]})
-    rejected(planted, "a fixture that faces its own way")
+    rejected(reasons(planted), "a fixture that faces its own way")
 
 
 def test_no_next_to_between_two_things_of_one_kind():
@@ -383,4 +383,4 @@ def test_no_next_to_between_two_things_of_one_kind():
         subject={"phrase": "right plate", "entities": ["plate_2"]},
         landmarks=[{"phrase": "left plate", "entities": ["plate_1"]}],
     )
-    rejected(dataclasses.replace(case, witness={**case.witness, "relations": [r]}), "two things of one kind")
+    rejected(reasons(dataclasses.replace(case, witness={**case.witness, "relations": [r]})), "two things of one kind")

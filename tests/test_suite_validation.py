@@ -7,6 +7,7 @@ import dataclasses
 import time
 
 import pytest
+from testing_support import rejected
 
 from conflictbench.core import FAMILIES, LEVELS
 from conflictbench.tasks.libero.base_tasks import all_base_tasks
@@ -37,12 +38,6 @@ def pick(suite, family, level=None, key=None, where=lambda c: True):
         and (key is None or (c.suite, c.task_id) == key)
         and where(c)
     )
-
-
-def rejected(case, ctx, needle):
-    reasons = validate_case(case, ctx)
-    assert any(needle in r for r in reasons), reasons
-    return reasons
 
 
 def with_witness(case, **changes):
@@ -88,13 +83,17 @@ def test_p0_and_p1_come_from_the_one_case(suite, plugins):
 def test_instruction_equal_to_the_base_is_invalid(suite, ctx):
     case = pick(suite, "grounding")
     rejected(
-        dataclasses.replace(case, instruction=case.base_instruction.upper() + "."), ctx, "equals the base instruction"
+        validate_case(dataclasses.replace(case, instruction=case.base_instruction.upper() + "."), ctx),
+        "equals the base instruction",
     )
 
 
 def test_wrong_base_instruction_or_task(suite, ctx):
     case = pick(suite, "physical")
-    rejected(dataclasses.replace(case, base_instruction="do something"), ctx, "is not the task's reference instruction")
+    rejected(
+        validate_case(dataclasses.replace(case, base_instruction="do something"), ctx),
+        "is not the task's reference instruction",
+    )
     assert validate_case(dataclasses.replace(case, task_id=42), ctx)[0].endswith("not 42")
 
 
@@ -103,27 +102,31 @@ def test_changed_or_invalid_base_task_is_reported(suite):
     facts = dict(load_scene_facts())
     good = facts[case.suite, case.task_id]
     facts[case.suite, case.task_id] = dataclasses.replace(good, bddl_sha256="0" * 64)
-    rejected(case, Context(facts), "BDDL file changed")
+    rejected(validate_case(case, Context(facts)), "BDDL file changed")
     goal = ("on", "akita_black_bowl_1", "plate_1")
     facts[case.suite, case.task_id] = dataclasses.replace(good, predicates={**good.predicates, goal: good.states()})
-    rejected(case, Context(facts), "goal already holds")
+    rejected(validate_case(case, Context(facts)), "goal already holds")
 
 
 def test_witness_type_must_fit_the_family(suite, ctx):
     case = pick(suite, "spatial")
-    rejected(dataclasses.replace(case, family="grounding"), ctx, "does not fit family 'grounding'")
+    rejected(validate_case(dataclasses.replace(case, family="grounding"), ctx), "does not fit family 'grounding'")
 
 
 def test_steps_must_be_in_the_text_in_order(suite, ctx):
     case = pick(suite, "grounding", "L3")
     steps = case.witness["steps"]
-    rejected(with_witness(case, steps=list(reversed(steps))), ctx, "(in order)")
-    rejected(with_witness(case, steps=["fly to the moon"]), ctx, "is not in the instruction")
+    rejected(validate_case(with_witness(case, steps=list(reversed(steps))), ctx), "(in order)")
+    rejected(validate_case(with_witness(case, steps=["fly to the moon"]), ctx), "is not in the instruction")
 
 
 def test_level_must_match_the_witness(suite, ctx):
-    rejected(dataclasses.replace(pick(suite, "grounding", "L1"), level="L2"), ctx, "level L2 does not match")
-    rejected(dataclasses.replace(pick(suite, "physical", "L4"), level="L3"), ctx, "level L3 does not match")
+    rejected(
+        validate_case(dataclasses.replace(pick(suite, "grounding", "L1"), level="L2"), ctx), "level L2 does not match"
+    )
+    rejected(
+        validate_case(dataclasses.replace(pick(suite, "physical", "L4"), level="L3"), ctx), "level L3 does not match"
+    )
 
 
 def test_duplicate_instruction_within_a_libero_suite(suite, ctx):
@@ -142,7 +145,8 @@ def test_composition_rules_apply_to_a_whole_suite_not_to_a_part(suite, ctx):
 
 def test_init_states_outside_the_fixed_ones(suite, ctx):
     rejected(
-        dataclasses.replace(pick(suite, "spatial"), init_states=(50, 51)), ctx, "are not among the task's 50 states"
+        validate_case(dataclasses.replace(pick(suite, "spatial"), init_states=(50, 51)), ctx),
+        "are not among the task's 50 states",
     )
 
 
@@ -168,13 +172,15 @@ def test_grounding_referent_must_be_truly_absent(suite, ctx, replacement, reason
             "referents": [{**ref, "text": replacement, "concept": "", "source": "out_of_domain"}],
         },
     )
-    rejected(planted, ctx, reason)
+    rejected(validate_case(planted, ctx), reason)
 
 
 def test_grounding_referent_must_be_in_the_text(suite, ctx):
     case = pick(suite, "grounding", "L1")
     ref = case.witness["referents"][0]
-    rejected(with_witness(case, referents=[{**ref, "text": "the unicorn"}]), ctx, "is not in the instruction")
+    rejected(
+        validate_case(with_witness(case, referents=[{**ref, "text": "the unicorn"}]), ctx), "is not in the instruction"
+    )
 
 
 # -- spatial --------------------------------------------------------------------------------------------
@@ -200,7 +206,7 @@ def test_a_true_relation_is_rejected(suite, ctx):
             {"phrase": "ramekin", "entities": ["glazed_rim_porcelain_ramekin_1"]},
         ],
     }
-    rejected(_relation_case(suite, relation), ctx, "holds in initial state(s)")
+    rejected(validate_case(_relation_case(suite, relation), ctx), "holds in initial state(s)")
 
 
 def test_a_relation_must_cover_every_entity_its_words_could_mean(suite, ctx):
@@ -213,7 +219,7 @@ def test_a_relation_must_cover_every_entity_its_words_could_mean(suite, ctx):
             {"phrase": "ramekin", "entities": ["glazed_rim_porcelain_ramekin_1"]},
         ],
     }
-    rejected(_relation_case(suite, relation), ctx, "could also mean akita_black_bowl_1")
+    rejected(validate_case(_relation_case(suite, relation), ctx), "could also mean akita_black_bowl_1")
 
 
 def test_listed_states_must_all_make_the_relation_false(suite, ctx):
@@ -222,7 +228,8 @@ def test_listed_states_must_all_make_the_relation_false(suite, ctx):
     true_somewhere = sorted(facts.states() - frozenset(case.init_states))
     assert true_somewhere, "a case with listed states leaves some out"
     rejected(
-        dataclasses.replace(case, init_states=(*case.init_states, true_somewhere[0])), ctx, "holds in initial state"
+        validate_case(dataclasses.replace(case, init_states=(*case.init_states, true_somewhere[0])), ctx),
+        "holds in initial state",
     )
 
 
@@ -230,7 +237,7 @@ def test_a_relation_must_be_said(suite, ctx):
     case = pick(suite, "spatial", "L1", where=lambda c: c.witness["relations"][0]["relation"] in ("on", "next_to"))
     rel = case.witness["relations"][0]
     other = "behind" if " behind " not in case.instruction else "left_of"
-    rejected(with_witness(case, relations=[{**rel, "relation": other}]), ctx, "does not say")
+    rejected(validate_case(with_witness(case, relations=[{**rel, "relation": other}]), ctx), "does not say")
 
 
 # -- physical -------------------------------------------------------------------------------------------
@@ -253,7 +260,7 @@ def test_physical_violation_must_hold_for_a_present_named_entity(suite, ctx, vio
     )
     planted = with_witness(case, violations=[{"step": 1, **violation}])
     planted = dataclasses.replace(planted, instruction=planted.instruction + " near " + violation["text"])
-    rejected(planted, ctx, reason)
+    rejected(validate_case(planted, ctx), reason)
 
 
 def test_unclear_affordances_are_not_violations(suite, ctx):
@@ -261,7 +268,7 @@ def test_unclear_affordances_are_not_violations(suite, ctx):
     planted = with_witness(
         case, violations=[{"step": 1, "entity": "desk_caddy_1", "needs": "graspable", "text": "the caddy"}]
     )
-    rejected(planted, ctx, "does not plainly lack 'graspable'")
+    rejected(validate_case(planted, ctx), "does not plainly lack 'graspable'")
 
 
 # -- instruction ----------------------------------------------------------------------------------------
@@ -274,14 +281,14 @@ def test_compatible_requirements_are_not_a_contradiction(suite, ctx):
         instruction=case.instruction + ", and leave the cream cheese alone",
         witness={**case.witness, "requirements": [goal, harmless], "conflicts": [[goal["id"], "r9"]]},
     )
-    rejected(planted, ctx, "do not contradict")
+    rejected(validate_case(planted, ctx), "do not contradict")
 
 
 def test_requirement_text_must_be_in_the_instruction(suite, ctx):
     case = pick(suite, "instruction", "L1")
     reqs = [dict(r) for r in case.witness["requirements"]]
     reqs[-1]["text"] = "while singing"
-    rejected(with_witness(case, requirements=reqs), ctx, "is not in the instruction")
+    rejected(validate_case(with_witness(case, requirements=reqs), ctx), "is not in the instruction")
 
 
 def test_the_interim_witness_shapes_are_findings_not_crashes(suite, ctx):
@@ -289,8 +296,7 @@ def test_the_interim_witness_shapes_are_findings_not_crashes(suite, ctx):
     planted = with_witness(case, referents=["banana"])
     assert any(r.startswith("malformed witness") for r in validate_case(planted, ctx))
     rejected(
-        dataclasses.replace(case, witness={"type": "absent_referent", "referents": []}),
-        ctx,
+        validate_case(dataclasses.replace(case, witness={"type": "absent_referent", "referents": []}), ctx),
         "witness field 'steps' must list",
     )
 

@@ -35,6 +35,12 @@ def pip_install_into(target: Path, source: Path, upgrade: bool = False) -> Path:
     return target
 
 
+def rejected(reasons: list[str], needle: str) -> list[str]:
+    """``reasons`` (what a validation check says against a case), asserted to hold one that contains ``needle``."""
+    assert any(needle in r for r in reasons), reasons
+    return reasons
+
+
 def in_tasks(records, tasks: int) -> list:
     """``records`` played again in ``tasks`` base tasks (task ids 0..tasks-1, episode ids kept apart): the same
     outcomes in many clusters, so that intervals and paired comparisons have base tasks to rest on."""
