@@ -174,17 +174,15 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
     signal.signal(signal.SIGTERM, _stop_quietly)
     try:
         import torch
-    except ImportError as error:
-        return user_error(
-            f"cannot import the model stack ({error}): run this with the model environment's python "
-            f"(scripts/setup.sh --models {model.environment} builds it), not the simulator's"
-        )
-    if args.threads is not None:
+    except ImportError:  # a backend of numpy alone (new-plugin's stand-in); one that needs torch says so as it loads
+        torch = None
+    if args.threads is not None and torch is not None:
         torch.set_num_threads(args.threads)
+    cuda = torch is not None and torch.cuda.is_available()
     device = args.device
     if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    if device.startswith("cuda") and not torch.cuda.is_available():
+        device = "cuda" if cuda else "cpu"
+    if device.startswith("cuda") and not cuda:
         return user_error(f"--device {args.device}: this machine has no CUDA device torch can use (try --device cpu)")
     try:
         backend = _resolve(model.backend)(args.checkpoint, device=device)
