@@ -60,6 +60,9 @@ class ServedModel:
     """The port upstream's server listens on by default."""
     url_scheme: str = "ws"
     checkpoint_help: str = "a LeRobot pretrained-model folder"
+    needs_torch: bool = True
+    """Whether the backend runs on torch (imported before the model loads, so a Python without it is named at once);
+    False for a backend of numpy alone, as ``conflictbench new-plugin``'s stand-in."""
 
     @classmethod
     def of(cls, package: str, **fields: Any) -> ServedModel:
@@ -174,7 +177,12 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
     signal.signal(signal.SIGTERM, _stop_quietly)
     try:
         import torch
-    except ImportError:  # a backend of numpy alone (new-plugin's stand-in); one that needs torch says so as it loads
+    except ImportError as error:
+        if model.needs_torch:
+            return user_error(
+                f"cannot import the model stack ({error}): run this with the model environment's python "
+                f"(scripts/setup.sh --models {model.environment} builds it), not the simulator's"
+            )
         torch = None
     if args.threads is not None and torch is not None:
         torch.set_num_threads(args.threads)
