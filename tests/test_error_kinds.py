@@ -20,7 +20,7 @@ from conflictbench.core import (
 from conflictbench.sim.deciding import ask_policy, reply_for, reset_error
 from conflictbench.sim.messages import Abort, Actions, EpisodeJob
 from conflictbench.sim.plan import EpisodeSpec
-from conflictbench.sim.pool import Item
+from conflictbench.sim.slots import Item
 
 SPEC = EpisodeSpec("libero_goal", 3, 0, "p0", "open the drawer")
 JOB = EpisodeJob("e1", "libero_goal", 3, "x.bddl", 0, 7, "open the drawer", (), (), 10, 100, False)

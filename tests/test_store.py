@@ -228,8 +228,8 @@ def test_an_episode_another_job_landed_after_the_snapshot_is_not_played_twice(tm
     from conflictbench.core import PolicyTraits
     from conflictbench.policies import NoopPolicy
     from conflictbench.sim.plan import config_hash
-    from conflictbench.sim.pool import EpisodeQueue, Slot
     from conflictbench.sim.runner import Runner, RunResult
+    from conflictbench.sim.slots import EpisodeQueue, Slot
 
     store = EpisodeStore(tmp_path)
     runner = Runner(plugins, plugins.policy("noop"), None, store=store, progress=False)

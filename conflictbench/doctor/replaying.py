@@ -171,7 +171,7 @@ def play_half(jobs: list[DoctorJob], image_size: int, perturbations=()) -> tuple
 def play_both_ways(jobs: list[DoctorJob], image_size: int, perturbations=()) -> tuple[Group, Group]:
     """Every job without cameras and with them, in two processes (spawned: the GL backend is chosen per process),
     each taking every other job both ways. A simulator that cannot start raises :class:`SimulatorUnavailable`."""
-    from conflictbench.sim.pool import sigint_ignored
+    from conflictbench.sim.slots import sigint_ignored
 
     halves = [jobs[0::2], jobs[1::2]]
     executor = ProcessPoolExecutor(max_workers=2, mp_context=mp.get_context("spawn"))

@@ -34,7 +34,7 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.core.policy import batch_outputs
 
 from .messages import Abort, Actions
-from .pool import Item
+from .slots import Item
 
 
 def load_policy(spec: PolicySpec, config: Any) -> Any:

@@ -17,7 +17,7 @@ from conflictbench.tasks.libero.base_tasks import base_task
 
 from .messages import EpisodeJob, EpisodeOutcome
 from .plan import EpisodeSpec, episode_id, settings_json
-from .pool import Item
+from .slots import Item
 from .stack import extra_stack, simulator_columns
 
 #: Episodes read at most for a fresh run's time estimate (the policy's latest in the store).

@@ -22,7 +22,7 @@ from .code_identity import code_identity
 from .episode_rows import stack_pins
 from .identity_change import identity_changes, keep_manifests
 from .plan import config_hash, settings_json
-from .pool import Item
+from .slots import Item
 from .stack import simulator_columns
 
 CHANGED = "this policy's newest episodes in the store were played under another identity and are not reused"

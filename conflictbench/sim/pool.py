@@ -1,99 +1,23 @@
-"""The worker pool's parts: simulator processes and the queue of episodes waiting for them."""
+"""The local worker pool: simulator processes on this machine (what they play and wait in is :mod:`.slots`)."""
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing as mp
-import signal
-import threading
 import time
-from collections import OrderedDict, deque
-from collections.abc import Iterable
-from dataclasses import dataclass
-from typing import Any
 
 from conflictbench.core import SimulatorUnavailable
 
 from .libero_env import EnvSettings
-from .messages import EpisodeJob, Fatal, Ready, Stop
-from .plan import EpisodeSpec
+from .messages import Fatal, Ready, Stop
+from .slots import Slot, sigint_ignored
 from .worker import worker_main
 
 START_TIMEOUT_S = 300
 STOP_TIMEOUT_S = 10.0  # for all workers together to leave after Stop, before they are killed
-TaskKey = tuple[str, int]
 
 
 class VersionMismatch(SimulatorUnavailable):
     """A worker's simulator is not the run's (another node's installation): the run stops."""
-
-
-@dataclass
-class Item:
-    """A planned episode with everything its worker needs."""
-
-    spec: EpisodeSpec
-    job: EpisodeJob
-    losses: int = 0
-    """Times a worker was lost while playing it (it is played again once; see the runner)."""
-
-
-@dataclass
-class Slot:
-    """One worker process and what it is doing (``stream`` in observations is its index)."""
-
-    index: int
-    process: Any = None
-    conn: Any = None
-    item: Item | None = None
-    task_key: TaskKey | None = None
-    started: float = 0.0
-    retired: bool = False
-    """Its worker was lost and none could take its place (a Ray node gone): it plays no more."""
-
-
-class EpisodeQueue:
-    """Episodes grouped by base task, so a worker can stay on the task whose env it has built."""
-
-    def __init__(self, items: Iterable[Item] = ()):
-        self._groups: OrderedDict[TaskKey, deque[Item]] = OrderedDict()
-        for item in items:
-            self.push(item)
-
-    def push(self, item: Item) -> None:
-        self._groups.setdefault(item.spec.task_key, deque()).append(item)
-
-    def __bool__(self) -> bool:
-        return bool(self._groups)
-
-    def pop_for(self, current: TaskKey | None, busy: set[TaskKey]) -> Item | None:
-        """The next episode: of ``current`` if any, else of a task no worker is busy with, else any."""
-        if not self._groups:
-            return None
-        key = (
-            current
-            if current in self._groups
-            else next((k for k in self._groups if k not in busy), next(iter(self._groups)))
-        )
-        group = self._groups[key]
-        item = group.popleft()
-        if not group:
-            del self._groups[key]
-        return item
-
-
-@contextlib.contextmanager
-def sigint_ignored():
-    """SIGINT ignored while child processes start, so they inherit it ignored (a Ctrl-C in a terminal reaches
-    the whole process group: workers still importing would each print a KeyboardInterrupt traceback)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:  # a handler not installed from Python reads as None: the default then
-        signal.signal(signal.SIGINT, previous if previous is not None else signal.SIG_DFL)
 
 
 class WorkerPool:
@@ -178,12 +102,3 @@ class WorkerPool:
                 slot.process.join(timeout=max(0.0, deadline - time.monotonic()))
                 if slot.process.is_alive():
                     slot.process.kill()
-
-
-def make_pool(settings: EnvSettings, size: int, backend: str = "local", ray_address: str | None = None) -> WorkerPool:
-    """A run's workers: processes here, or Ray actors on a cluster (``run.backend``)."""
-    if backend == "ray":
-        from .ray_pool import RayWorkerPool
-
-        return RayWorkerPool(settings, size, address=ray_address)
-    return WorkerPool(settings, size)

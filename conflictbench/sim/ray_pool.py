@@ -26,7 +26,8 @@ from typing import Any
 from conflictbench.core import SimulatorUnavailable, UserError
 
 from .libero_env import EnvSettings
-from .pool import STOP_TIMEOUT_S, Slot, VersionMismatch, WorkerPool
+from .pool import STOP_TIMEOUT_S, VersionMismatch, WorkerPool
+from .slots import Slot
 from .stack import PROBE_TIMEOUT_S
 from .worker import worker_main
 

@@ -18,7 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .libero_env import EnvSettings
-from .pool import sigint_ignored
+from .slots import sigint_ignored
 
 CAMERA = "agentview"
 

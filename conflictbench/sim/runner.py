@@ -30,15 +30,16 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 
 from . import BACKENDS
+from .backends import make_pool, probe_stack
 from .deciding import PolicyCalls, load_policy, reply_for, reset_error, start_policy
 from .episode_rows import episode_record, make_items, seconds_each
 from .libero_env import EnvSettings
 from .messages import Abort, Done, EpisodeOutcome, Play, Query
 from .plan import EpisodeSpec
 from .planning import RunResult, left_to_play, run_identity
-from .pool import EpisodeQueue, Item, Slot, WorkerPool, make_pool
+from .pool import WorkerPool
 from .progress import plan_line, run_progress
-from .stack import probe_stack
+from .slots import EpisodeQueue, Item, Slot
 from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
 
 

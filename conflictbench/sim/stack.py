@@ -16,6 +16,7 @@ from importlib import metadata
 from conflictbench.core import SimulatorUnavailable
 
 from .libero_env import EnvSettings, simulator_versions
+from .slots import sigint_ignored
 
 #: The store's columns for the simulator's versions (``libero_env.simulator_versions``).
 SIMULATOR_COLUMNS = ("mujoco_version", "robosuite_version", "libero_version", "numpy_version")
@@ -66,16 +67,6 @@ def simulator_columns(stack: dict[str, str]) -> dict[str, str]:
     return {key: stack.get(key, "") for key in SIMULATOR_COLUMNS}
 
 
-def probe_stack(settings: EnvSettings, backend: str = "local", ray_address: str | None = None) -> dict[str, str]:
-    """The stack below the policy where a run's workers will run: a worker-like process here, or a Ray task on the
-    cluster (the driver's machine need not be one of its nodes)."""
-    if backend == "ray":
-        from .ray_pool import probe_on_cluster
-
-        return probe_on_cluster(settings, ray_address)
-    return probe_in_worker(settings)
-
-
 def _probe_main(conn, settings: EnvSettings) -> None:
     try:
         from . import libero_env
@@ -101,8 +92,6 @@ def probe_in_worker(settings: EnvSettings) -> dict[str, str]:
 
 
 def _probe_once(settings: EnvSettings) -> dict[str, str]:
-    from .pool import sigint_ignored
-
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe()
     process = ctx.Process(target=_probe_main, args=(child, settings), daemon=True, name="conflictbench-stack-probe")
