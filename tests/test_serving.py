@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from policy_server import PolicyServer, served_action
+from testing_support import wait_until
 
 from conflictbench import InfrastructureError, PolicyClient, ServerUnavailable
 from conflictbench.core import (
@@ -185,7 +186,8 @@ def test_a_reply_too_slow_fails_the_episode_and_is_not_resent(server):
             policy.act(observation())
     finally:
         policy.close()
-    time.sleep(0.5)
+    # the closed client can send nothing more: once the server has answered all it got, it has seen every try
+    assert wait_until(lambda: srv.stats()["in_flight"] == 0, 5)
     assert srv.stats()["requests"] == 1
 
 

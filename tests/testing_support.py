@@ -6,6 +6,7 @@ their own, and ``from testing_support import`` would then reach whichever pytest
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from conflictbench.core import ConflictCase
@@ -39,6 +40,17 @@ def rejected(reasons: list[str], needle: str) -> list[str]:
     """``reasons`` (what a validation check says against a case), asserted to hold one that contains ``needle``."""
     assert any(needle in r for r in reasons), reasons
     return reasons
+
+
+def wait_until(condition, seconds: float, every: float = 0.01) -> bool:
+    """Whether ``condition()`` came to hold within ``seconds``, asked every ``every`` seconds: a test waits on
+    the event it needs, not for a guessed time (too short on a slow machine, wasted on a fast one)."""
+    deadline = time.monotonic() + seconds
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(every)
+    return True
 
 
 def in_tasks(records, tasks: int) -> list:

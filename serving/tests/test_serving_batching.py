@@ -17,14 +17,25 @@ class Recorder:
         self.calls: list[list] = []
         self.fail_on = fail_on
         self.release = release
+        self.entered = threading.Event()  # a call has begun (and holds the model thread until released)
 
     def __call__(self, requests: list) -> list:
+        self.entered.set()
         if self.release is not None:
             self.release.wait(5)
         self.calls.append(list(requests))
         if self.fail_on in requests:
             raise RuntimeError(f"failed on {self.fail_on}")
         return [(row, len(self.calls)) for row in requests]
+
+
+async def _until(condition, seconds: float = 5.0) -> None:
+    """Yield to the event loop until ``condition()`` holds; fail after ``seconds`` (a wait on the event
+    itself, not on a guess of how long it takes)."""
+    deadline = asyncio.get_running_loop().time() + seconds
+    while not condition():
+        assert asyncio.get_running_loop().time() < deadline, f"the awaited event did not come within {seconds} s"
+        await asyncio.sleep(0.001)
 
 
 async def _with_batcher(batcher: Batcher, body):
@@ -44,10 +55,9 @@ def test_waiting_requests_share_a_call_padded_to_the_fixed_shape():
 
     async def body():
         first = asyncio.create_task(batcher.submit("a"))
-        await asyncio.sleep(0.05)  # "a" is in the model call (held), "b" and "c" wait together
+        await _until(model.entered.is_set)  # "a" is in the model call (held), "b" and "c" wait together
         rest = [asyncio.create_task(batcher.submit(r)) for r in "bc"]
-        await asyncio.sleep(0.05)
-        assert batcher.queued == 2
+        await _until(lambda: batcher.queued == 2)
         release.set()
         return await asyncio.gather(first, *rest)
 
@@ -89,14 +99,15 @@ def test_a_wrong_number_of_answers_is_an_error_not_a_misrouted_reply():
 
 def test_requests_still_waiting_when_it_stops_are_told_so():
     release = threading.Event()
-    batcher = Batcher(Recorder(release=release), max_batch=1, fixed_shape=False)
+    model = Recorder(release=release)
+    batcher = Batcher(model, max_batch=1, fixed_shape=False)
 
     async def body():
         runner = asyncio.create_task(batcher.run())
         running = asyncio.create_task(batcher.submit("a"))
-        await asyncio.sleep(0.05)
+        await _until(model.entered.is_set)  # "a" is in the model call, held there
         waiting = asyncio.create_task(batcher.submit("b"))
-        await asyncio.sleep(0.05)
+        await _until(lambda: batcher.queued == 1)
         runner.cancel()
         await asyncio.gather(runner, return_exceptions=True)
         release.set()
@@ -118,7 +129,7 @@ def test_a_request_arriving_after_the_stop_is_told_so_at_once():
 
     async def body():
         runner = asyncio.create_task(batcher.run())
-        await asyncio.sleep(0)
+        await asyncio.sleep(0)  # one turn of the loop: the runner starts (a cancelled task never run has no finally)
         runner.cancel()
         await asyncio.gather(runner, return_exceptions=True)
         batcher.shutdown()
