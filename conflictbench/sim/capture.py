@@ -70,85 +70,117 @@ def quat2axisangle(quat: np.ndarray) -> np.ndarray:
     return np.asarray(convert(np.array(quat, dtype=np.float64)), dtype=np.float64)
 
 
+def _owners(inner, model) -> list[str | None]:
+    """The root object or fixture of every body: walk up until a body registered in ``obj_body_id``."""
+    parent = np.asarray(model.body_parentid)
+    root_of_body = {int(body): name for name, body in inner.obj_body_id.items()}
+    owner = [None] * model.nbody
+    for b in range(model.nbody):
+        x = b
+        while x != 0 and x not in root_of_body:
+            x = int(parent[x])
+        owner[b] = root_of_body.get(x)
+    return owner
+
+
+def _scene_joints(model) -> tuple[list, dict[str, int], set[int]]:
+    """The hinge and slide joints of the scene (drawers, doors, knobs; not the robot's), their kinds and the
+    bodies they move."""
+    joints, kinds, moving = [], {}, set()
+    for j in range(model.njnt):
+        name = model.joint_id2name(j) or ""
+        if model.jnt_type[j] in (_SLIDE, _HINGE) and not name.startswith(("robot0_", "gripper0_")):
+            body = int(model.jnt_bodyid[j])
+            joints.append((name, j, body, int(model.jnt_qposadr[j]), np.array(model.jnt_range[j], dtype=float)))
+            kinds[name] = int(model.jnt_type[j])
+            moving.add(body)
+    return joints, kinds, moving
+
+
+def _moved_with(model, moving: set[int]) -> set[int]:
+    """``moving`` and every body below one of them: children of a moving body move with it."""
+    parent = np.asarray(model.body_parentid)
+    movers = set(moving)
+    for b in range(model.nbody):
+        x = b
+        while x != 0:
+            if x in moving:
+                movers.add(b)
+                break
+            x = int(parent[x])
+    return movers
+
+
+def _half_extent(model, g: int) -> np.ndarray | None:
+    """Half the size of geom ``g``'s bounding box in its own frame (None for a shape not handled)."""
+    size = np.asarray(model.geom_size[g], dtype=float)
+    kind = int(model.geom_type[g])
+    if kind in (_Geom.mjGEOM_BOX, _Geom.mjGEOM_ELLIPSOID):
+        return size[:3]
+    if kind == _Geom.mjGEOM_SPHERE:
+        return np.full(3, size[0])
+    if kind == _Geom.mjGEOM_CAPSULE:
+        return np.array([size[0], size[0], size[1] + size[0]])
+    if kind == _Geom.mjGEOM_CYLINDER:
+        return np.array([size[0], size[0], size[1]])
+    if kind == _Geom.mjGEOM_MESH:  # its vertices' extent in the geom frame
+        adr, num = model.mesh_vertadr[model.geom_dataid[g]], model.mesh_vertnum[model.geom_dataid[g]]
+        return np.abs(np.asarray(model.mesh_vert[adr : adr + num])).max(axis=0)
+    return None
+
+
+_UNIT_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+
+
+def _collision_boxes(model, owner: list[str | None]) -> tuple[list[tuple[int, int]], list[np.ndarray]]:
+    """The scene's collision geoms (with their bodies), each as the 8 corners of its bounding box in the geom
+    frame."""
+    geoms, corners = [], []
+    for g in range(model.ngeom):
+        b = int(model.geom_bodyid[g])
+        if owner[b] is None or not (model.geom_contype[g] or model.geom_conaffinity[g]):
+            continue
+        half = _half_extent(model, g)
+        if half is None:
+            continue
+        geoms.append((g, b))
+        corners.append(_UNIT_CORNERS * half)
+    return geoms, corners
+
+
+def _object_sites(inner, model) -> list[tuple]:
+    """The objects' sites present in the model: name, id, size, joints and parent."""
+    site_names = {model.site_id2name(i) for i in range(model.nsite)}
+    sites = []
+    for name, site in inner.object_sites_dict.items():
+        if name in site_names:
+            size = np.asarray(site.size if site.size is not None else np.zeros(3), dtype=float)
+            sites.append((name, model.site_name2id(name), size, tuple(site.joints or ()), site.parent_name))
+    return sites
+
+
 class _SceneStatic:
     """Facts about one MuJoCo model that never change during an episode (computed once per model)."""
 
     def __init__(self, env):
         inner, model = env.env, env.sim.model
         self.model = model  # held so that a new model (every reset rebuilds it) is never mistaken for this one
-        nbody = model.nbody
-        parent = np.asarray(model.body_parentid)
-        # Root object/fixture of every body: walk up until a body registered in obj_body_id.
-        root_of_body = {int(body): name for name, body in inner.obj_body_id.items()}
-        owner = [None] * nbody
-        for b in range(nbody):
-            x = b
-            while x != 0 and x not in root_of_body:
-                x = int(parent[x])
-            owner[b] = root_of_body.get(x)
-        self.body_names = [model.body_id2name(b) for b in range(nbody)]
-        # Bodies moved by a hinge or slide joint of the scene (drawers, doors, knobs).
-        self.joints, self.joint_kind = [], {}
-        moving = set()
-        for j in range(model.njnt):
-            name = model.joint_id2name(j) or ""
-            if model.jnt_type[j] in (_SLIDE, _HINGE) and not name.startswith(("robot0_", "gripper0_")):
-                body = int(model.jnt_bodyid[j])
-                self.joints.append(
-                    (name, j, body, int(model.jnt_qposadr[j]), np.array(model.jnt_range[j], dtype=float))
-                )
-                self.joint_kind[name] = int(model.jnt_type[j])
-                moving.add(body)
-        movers = set(moving)
-        for b in range(nbody):  # children of a moving body move with it
-            x = b
-            while x != 0:
-                if x in moving:
-                    movers.add(b)
-                    break
-                x = int(parent[x])
-        # Collision geoms of the scene, as the 8 corners of their bounding box in the geom frame.
-        geoms, corners = [], []
-        for g in range(model.ngeom):
-            b = int(model.geom_bodyid[g])
-            if owner[b] is None or not (model.geom_contype[g] or model.geom_conaffinity[g]):
-                continue
-            size = np.asarray(model.geom_size[g], dtype=float)
-            kind = int(model.geom_type[g])
-            if kind == _Geom.mjGEOM_BOX:
-                half = size[:3]
-            elif kind == _Geom.mjGEOM_SPHERE:
-                half = np.full(3, size[0])
-            elif kind == _Geom.mjGEOM_CAPSULE:
-                half = np.array([size[0], size[0], size[1] + size[0]])
-            elif kind == _Geom.mjGEOM_ELLIPSOID:
-                half = size[:3]
-            elif kind == _Geom.mjGEOM_CYLINDER:
-                half = np.array([size[0], size[0], size[1]])
-            elif kind == _Geom.mjGEOM_MESH:  # its vertices' extent in the geom frame
-                adr, num = model.mesh_vertadr[model.geom_dataid[g]], model.mesh_vertnum[model.geom_dataid[g]]
-                half = np.abs(np.asarray(model.mesh_vert[adr : adr + num])).max(axis=0)
-            else:
-                continue
-            geoms.append((g, b))
-            corners.append(np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half)
+        owner = _owners(inner, model)
+        self.body_names = [model.body_id2name(b) for b in range(model.nbody)]
+        self.joints, self.joint_kind, moving = _scene_joints(model)
+        geoms, corners = _collision_boxes(model, owner)
         self.geom_ids = np.array([g for g, _ in geoms], dtype=int)
         self.geom_body = np.array([b for _, b in geoms], dtype=int)
         self.corners = np.array(corners).reshape(-1, 8, 3)
         geom_owner = np.array([owner[b] for b in self.geom_body], dtype=object)
         self.owner_mask = {name: geom_owner == name for name in inner.obj_body_id}
-        self.mover_bodies = sorted(movers)
+        self.mover_bodies = sorted(_moved_with(model, moving))
         self.owner = owner
         self.obj_body_id = dict(inner.obj_body_id)
         self.movable = tuple(inner.objects_dict)
         self.fixtures = tuple(inner.fixtures_dict)
-        site_names = {model.site_id2name(i) for i in range(model.nsite)}
-        self.sites = []
-        for name, site in inner.object_sites_dict.items():
-            if name in site_names:
-                size = np.asarray(site.size if site.size is not None else np.zeros(3), dtype=float)
-                self.sites.append((name, model.site_name2id(name), size, tuple(site.joints or ()), site.parent_name))
-        finger_bodies = {b for b in range(nbody) if (self.body_names[b] or "").startswith("gripper0_")}
+        self.sites = _object_sites(inner, model)
+        finger_bodies = {b for b in range(model.nbody) if (self.body_names[b] or "").startswith("gripper0_")}
         self.finger_geom = np.array([int(model.geom_bodyid[g]) in finger_bodies for g in range(model.ngeom)])
         self.geom_root = [owner[int(model.geom_bodyid[g])] for g in range(model.ngeom)]
 
