@@ -214,33 +214,57 @@ def _avoid(model: TaskModel, frame: list[Slot], index: int, subject: str) -> tup
     return frozenset(avoid), holder_avoid
 
 
+def _earlier_claim(chosen: list[tuple], index: int, part: str) -> tuple[dict | None, str | None]:
+    """The claim already placed on this step's part, and its text (a part may carry two), or (None, None)."""
+    return next(((c, t) for i, p, c, t in chosen if (i, p) == (index, part)), (None, None))
+
+
+def _beside(claim: dict, first: dict) -> bool:
+    """Whether ``claim`` can join ``first`` on one part: another relation, to a landmark neither names
+    (not "in its drawer, left of the cabinet"), and neither of them a relation that locates it alone."""
+    return (
+        claim["relation"] != first["relation"]
+        and claim["landmark_text"] not in first["landmark_text"]
+        and first["landmark_text"] not in claim["landmark_text"]
+        and claim["relation"] not in ("between", "on", "in")
+        and first["relation"] != "between"
+    )
+
+
+def _claim_pool(model, frame, index, part, claims_for, states: frozenset, chosen, first: dict | None) -> list[dict]:
+    """The false claims about this part's subject that may be chosen: false in enough of the initial states
+    left, compatible with the claim the part already carries (``first``), and not one chosen already."""
+    subject = _subject_of(model, frame[index], part)
+    avoid, holder_avoid = _avoid(model, frame, index, subject)
+    pool = [c for c in claims_for(subject, avoid, holder_avoid) if len(c["false_states"] & states) >= MIN_STATES]
+    if first is not None:
+        pool = [c for c in pool if _beside(c, first)]
+    seen = {(c["relation"], c["subject"], c["landmark_text"]) for _, _, c, _ in chosen}
+    return [c for c in pool if (c["relation"], c["subject"], c["landmark_text"]) not in seen]
+
+
+def _relation(model: TaskModel, step: int, text: str, claim: dict, states: frozenset) -> dict:
+    """The witness's record of one false relation placed in the instruction."""
+    return {
+        "step": step,
+        "text": text,
+        "relation": claim["relation"],
+        "subject": {"phrase": bare(claim["subject"]), "entities": sorted(claim["candidates"])},
+        "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in claim["landmark_phrases"]],
+        **({"margin_m": _margin(model, claim, states)} if claim["relation"] in DIRECTIONS else {}),
+        "frame_independent": frame_independent(
+            model, claim["relation"], referent_combos([sorted(claim["candidates"]), *claim["landmark_groups"]]), states
+        ),
+    }
+
+
 def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft | None:
     mods: dict[int, Mods] = {}
     chosen = []
     states = model.facts.states()
     for index, part in combo:
-        slot = frame[index]
-        subject = _subject_of(model, slot, part)
-        avoid, holder_avoid = _avoid(model, frame, index, subject)
-        pool = [c for c in claims_for(subject, avoid, holder_avoid) if len(c["false_states"] & states) >= MIN_STATES]
-        if not pool:
-            return None
-        earlier = next((t for i, p, c, t in chosen if (i, p) == (index, part)), None)
-        if earlier:
-            first = next(c for i, p, c, t in chosen if (i, p) == (index, part))
-            pool = [
-                c
-                for c in pool
-                if c["relation"] != first["relation"]
-                and c["landmark_text"] not in first["landmark_text"]  # not "in its drawer, left of the cabinet"
-                and first["landmark_text"] not in c["landmark_text"]
-                and c["relation"] not in ("between", "on", "in")
-                and first["relation"] != "between"
-            ]
-            if not pool:
-                return None
-        seen = {(c["relation"], c["subject"], c["landmark_text"]) for _, _, c, _ in chosen}
-        pool = [c for c in pool if (c["relation"], c["subject"], c["landmark_text"]) not in seen]
+        first, earlier = _earlier_claim(chosen, index, part)
+        pool = _claim_pool(model, frame, index, part, claims_for, states, chosen, first if earlier else None)
         if not pool:
             return None
         full = [c for c in pool if c["false_states"] == model.facts.states()]
@@ -251,20 +275,7 @@ def _draft(model, level, frame, combo, claims_for, rng: random.Random) -> Draft 
     instruction, steps, _ = realise(model, frame, mods, rng)
     if any(text not in instruction for *_, text in chosen):
         return None
-    relations = [
-        {
-            "step": i + 1,
-            "text": text,
-            "relation": c["relation"],
-            "subject": {"phrase": bare(c["subject"]), "entities": sorted(c["candidates"])},
-            "landmarks": [{"phrase": bare(p), "entities": sorted(model.candidates(p))} for p in c["landmark_phrases"]],
-            **({"margin_m": _margin(model, c, states)} if c["relation"] in DIRECTIONS else {}),
-            "frame_independent": frame_independent(
-                model, c["relation"], referent_combos([sorted(c["candidates"]), *c["landmark_groups"]]), states
-            ),
-        }
-        for i, part, c, text in chosen
-    ]
+    relations = [_relation(model, i + 1, text, c, states) for i, _, c, text in chosen]
     draft = Draft(
         family="spatial",
         level=level,
