@@ -30,10 +30,15 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     stray = [arg for arg in args.overrides if "=" not in arg]
     if stray:
         raise UserError(f"conflictbench doctor: unexpected argument {stray[0]!r} (models are given as model=NAME)")
+    from conflictbench.cli.overrides import check_group_overrides
+    from conflictbench.cli.published import KEY as DECLARATION
     from conflictbench.doctor.models import model_checks, model_overrides
 
-    if args.overrides:
-        model_overrides(args.overrides, plugins)  # a mistake is said now, not after minutes of replays
+    # A run's declaration of its checkpoint is no setting: the same command line as the run's may be given here.
+    overrides = [arg for arg in args.overrides if arg.partition("=")[0].lstrip("+") != DECLARATION]
+    if args.overrides:  # a mistake is said now, not after minutes of replays
+        model_overrides(overrides, plugins)
+        check_group_overrides(overrides, plugins)  # a model of this project not installed: the command that adds it
     from conflictbench.doctor.checks import print_checks
     from conflictbench.doctor.replaying import parse_perturbations
     from conflictbench.doctor.simulator import simulator_checks
@@ -41,5 +46,5 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     perturbations = parse_perturbations(args.perturb)
     passed = print_checks(simulator_checks(args.goldens, perturbations, progress=sys.stderr), sys.stdout)
     if args.overrides:
-        passed = print_checks(model_checks(args.overrides, plugins), sys.stdout) and passed
+        passed = print_checks(model_checks(overrides, plugins), sys.stdout) and passed
     return 0 if passed else 1

@@ -10,6 +10,7 @@ is one line naming the command that fixes it. Nothing here plays an episode or w
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -30,29 +31,32 @@ INSTRUCTION = "put the black bowl on the plate"
 
 def model_overrides(argv: Sequence[str], plugins: Plugins) -> tuple[str, dict[str, Any]]:
     """The model's name and its settings from ``model=NAME model.FIELD=VALUE ...`` (values typed as Hydra types
-    them); any other word is a user mistake."""
-    from conflictbench.cli.overrides import check_group_overrides, check_model_fields
-    from conflictbench.cli.published import KEY as DECLARATION  # a run's declaration, not a setting: ignored here
-
-    kept = [arg for arg in argv if arg.partition("=")[0].lstrip("+") != DECLARATION]
-    for arg in kept:
+    them); any other word, and a setting the model lacks, is a user mistake. A model nobody registers is left to
+    :meth:`Plugins.policy` (the command line's own checks, ``conflictbench.cli.doctor``, say first which plugin
+    brings a model of this project)."""
+    for arg in argv:
         key = arg.partition("=")[0]
         if "=" not in arg or not (key == "model" or key.startswith("model.")) or key.count(".") > 1:
             raise UserError(
                 f"doctor checks a model given as model=NAME [model.checkpoint=DIR | model.server=URL], got {arg!r}"
             )
-    names = [arg.partition("=")[2] for arg in kept if arg.partition("=")[0] == "model"]
+    names = [arg.partition("=")[2] for arg in argv if arg.partition("=")[0] == "model"]
     if len(names) != 1 or "," in names[0]:
         raise UserError("doctor checks one model at a time: give model=NAME once (e.g. model=pi05)")
-    check_group_overrides(kept, plugins)
-    check_model_fields(kept, plugins)
-    dotlist = [arg for arg in kept if arg.startswith("model.")]
+    dotlist = [arg for arg in argv if arg.startswith("model.")]
     settings = OmegaConf.to_container(OmegaConf.from_dotlist(dotlist), resolve=True).get("model", {}) if dotlist else {}
+    spec = plugins.policies().get(names[0])
+    if spec is not None:
+        known = [f.name for f in dataclasses.fields(spec.config)] if dataclasses.is_dataclass(spec.config) else []
+        for field in settings:
+            if field not in known:
+                raise UserError(f"model.{field}: {names[0]} has no setting {field!r} (its settings: "
+                                f"{', '.join(known) or 'none'})")  # fmt: skip
     return names[0], dict(settings)
 
 
 def _observation(policy) -> Any:
-    from conflictbench.testing.observations import camera_observation
+    from .observations import camera_observation  # runtime code: never the tests' helpers, which need pytest
 
     observation = camera_observation(0, INSTRUCTION, suite="libero_spatial")
     if not getattr(policy, "needs_images", True):

@@ -13,6 +13,9 @@
   (:func:`check_pinned_actions`: what a refactor must not change);
 - the plugin's model environment (:class:`ModelEnvironment`): its processes, marks and tiny-checkpoint fixtures;
 - a stand-in of an upstream server started on a free port (:func:`start_script_server`).
+
+Tests only: no module of conflictbench imports these, and importing them needs no pytest (a helper that uses it
+imports it when called), so a command never needs pytest installed.
 """
 
 from .model_env import BASE_ENV, ModelEnvironment

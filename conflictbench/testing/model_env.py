@@ -17,10 +17,12 @@ import os
 import subprocess
 from collections.abc import Callable, Mapping
 from pathlib import Path
-
-import pytest
+from typing import TYPE_CHECKING
 
 from ..hosting import MODEL_PROCESS_ENV, model_environment
+
+if TYPE_CHECKING:
+    import pytest
 
 #: What every model-environment process in the tests gets (before a plugin's ``extra``).
 BASE_ENV: Mapping[str, str] = {
@@ -48,6 +50,8 @@ class ModelEnvironment:
 
     def needs(self, test):
         """Marks a test that runs model-environment processes, and skips it where the environment is missing."""
+        import pytest  # here, not at the top: importing these helpers (and what imports them) never needs pytest
+
         return pytest.mark.model_env(pytest.mark.skipif(self.missing, reason=self.reason)(test))
 
     def env(self, checkpoint: Path | None = None) -> dict[str, str]:
@@ -73,12 +77,15 @@ class ModelEnvironment:
         done = subprocess.run([str(self.python), *argv], env=dict(env or self.env(checkpoint)), capture_output=True,
                               text=True, timeout=timeout)  # fmt: skip
         if check and done.returncode != 0:
+            import pytest
+
             pytest.fail(f"{argv[0]} exited {done.returncode}:\n{done.stderr[-3000:]}", pytrace=False)
         return done
 
     def checkpoint_fixture(self, builder: str, name: str = "tiny_checkpoint"):
         """A session fixture ``name``: the tiny checkpoint ``python builder FOLDER`` (in the tests folder) builds,
         once per session; skips where the environment is missing."""
+        import pytest
 
         @pytest.fixture(scope="session", name=name)
         def fixture(tmp_path_factory) -> Path:

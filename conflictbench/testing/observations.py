@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import Observation
+from ..doctor.observations import camera_observation  # runtime code too: doctor model= sends it
 
 #: Set to 1 to (re)write the golden files :func:`check_pinned_actions` compares with.
 RECORD_PINNED_ACTIONS = "CONFLICTBENCH_RECORD_ACTIONS"
@@ -27,22 +28,6 @@ def processor() -> str:
     except OSError:
         lines = []
     return next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")), platform.machine())
-
-
-def camera_observation(
-    step: int = 0, instruction: str = "put the bowl on the plate", stream: int = 0, suite: str = "libero_goal"
-) -> Observation:
-    """An observation as a worker sends it to a policy that looks: two random 256-px renders (fixed by ``step``),
-    a plausible 8-D state whose gripper fingers differ, episode ``episode-{stream}`` of ``suite`` on stream
-    ``stream``."""
-    rng = np.random.default_rng(step)
-    state = np.array([0.1, 0.2, 1.0, 3.1, 0.1, -0.2, 0.04, -0.03])
-    return Observation(
-        step=step, instruction=instruction, eef_pos=state[:3], eef_quat=np.array([0, 0, 0, 1.0]),
-        gripper_qpos=state[6:], state=state, stream=stream, episode_id=f"episode-{stream}", suite=suite,
-        agentview_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
-        wrist_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
-    )  # fmt: skip
 
 
 def pinned_observations(steps: int = 6) -> list[Observation]:
