@@ -1,59 +1,109 @@
 """The code in an episode's identity is the files' content: an edit makes stored episodes stale, a version does not
-hide one, and only the code on a rollout's path counts."""
+hide one, and only the code a rollout of that policy runs counts."""
 
 from __future__ import annotations
 
-import pkgutil
-import subprocess
-import sys
+import importlib.metadata as metadata
+import os
 from pathlib import Path
 
 import pytest
 
 import conflictbench
-from conflictbench.sim.code_identity import NOT_ROLLOUT, ROLLOUT_PACKAGES, code_pins, distribution_files
+from conflictbench.sim.code_identity import code_identity, code_pins, distribution_files
 from conflictbench.sim.identity_change import code_changes, keep_manifests
+from conflictbench.sim.rollout_code import (
+    NOT_ROLLOUT,
+    ROLLOUT_ENTRIES,
+    conflictbench_modules,
+    imports_of,
+    policy_modules,
+    rollout_modules,
+)
+
+SUITE_BUILDING = ("conflictbench.tasks.operators", "conflictbench.tasks.validation", "conflictbench.tasks.scene")
 
 
-def _covered(module: str) -> bool:
-    return module.startswith(tuple(p + "." for p in ROLLOUT_PACKAGES)) or module in ROLLOUT_PACKAGES
+@pytest.fixture(scope="module")
+def builtins():
+    return conflictbench.plugins(entry_points=False)
 
 
-def test_every_module_of_conflictbench_is_said_to_be_on_a_rollouts_path_or_not():
-    modules = [m.name for m in pkgutil.walk_packages(conflictbench.__path__, "conflictbench.")]
-    assert "conflictbench.sim.worker" in modules and "conflictbench.report.tables" in modules
-    unlisted = [
-        m for m in modules if not _covered(m) and ".".join(m.split(".")[:2]) not in NOT_ROLLOUT and m not in NOT_ROLLOUT
-    ]
-    assert unlisted == [], f"say whether these can change an episode (sim/code_identity.py): {unlisted}"
-    assert not set(NOT_ROLLOUT) & set(ROLLOUT_PACKAGES)
+def under(modules, *packages: str) -> list[str]:
+    return sorted(m for m in modules if any(m == p or m.startswith(p + ".") for p in packages))
 
 
-@pytest.mark.sim
-def test_a_worker_imports_nothing_of_conflictbench_off_the_rollout_packages():
-    """What a simulator worker imports, as a run starts it (sim/worker.py, then the simulator)."""
-    probe = (
-        "import sys\n"
-        "from conflictbench.sim import worker\n"
-        "from conflictbench.sim.libero_env import EnvSettings, configure_process\n"
-        "configure_process(EnvSettings(needs_images=False))\n"
-        "import libero.libero.envs\n"
-        "from conflictbench.sim import capture, compiled_models\n"
-        "print(' '.join(m for m in sys.modules if m.startswith('conflictbench')))"
-    )
-    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
-    imported = done.stdout.split()
-    assert "conflictbench.sim.worker" in imported and "conflictbench.tasks.libero.base_tasks" in imported
-    assert [m for m in imported if not _covered(m)] == ["conflictbench"]  # the package itself, a parent
+def test_what_a_rollout_is_said_not_to_run_is_there_and_is_no_entry():
+    assert [name for name in NOT_ROLLOUT if not under(conflictbench_modules(), name)] == []
+    assert not under(ROLLOUT_ENTRIES, *NOT_ROLLOUT)
 
 
-def test_conflictbench_counts_its_rollout_packages_and_not_the_report_or_the_viewer():
-    names = {name for name, _ in distribution_files("conflictbench")}
+def test_a_built_in_policys_rollout_runs_the_loop_the_workers_and_that_policy_not_the_suites_building(builtins):
+    modules = rollout_modules(policy_modules(builtins.policy("scripted")))
+    assert {"conflictbench.sim.runner", "conflictbench.sim.worker", "conflictbench.sim.capture",
+            "conflictbench.sim.libero_env", "conflictbench.tasks.libero.base_tasks", "conflictbench.core.prompts",
+            "conflictbench.policies.scripted.grasp"} <= modules  # fmt: skip
+    assert under(modules, *SUITE_BUILDING, *NOT_ROLLOUT, "conflictbench.hosting.openvla_family") == []
+    names = {name for name, _ in distribution_files("conflictbench", policy_modules(builtins.policy("subject")))}
     assert {"conflictbench/sim/worker.py", "conflictbench/policies/subject/subject.npz"} <= names
     assert "conflictbench/hosting/client.py" in names and "conflictbench/core/prompts.py" in names
     assert not [n for n in names if n.split("/")[1] in ("report", "view", "store", "cli", "metrics")]
+    assert not [n for n in names if n.startswith(("conflictbench/tasks/data/", "conflictbench/tasks/operators"))]
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc")]
+
+
+def test_what_a_plugin_imports_of_conflictbench_counts_for_its_own_episodes_only(tmp_path, monkeypatch, builtins):
+    package = fake_distribution(tmp_path, "lab-policy", "1.0", [])
+    (package / "client.py").write_text(
+        "def steps():\n    from conflictbench.hosting.openvla_family import center_crop\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    lab = code_identity(["lab-policy==1.0", "conflictbench==0.2.0"])[1]
+    (own,) = [hashes for pin, hashes in lab.items() if pin.startswith("conflictbench==")]
+    assert "conflictbench/hosting/openvla_family.py" in own and "conflictbench/sim/runner.py" in own
+    assert not [name for name in own if name.startswith("conflictbench/policies/")]  # the built-in policies
+    scripted = code_identity(["conflictbench==0.2.0"], builtins.policy("scripted"))[1]
+    (own,) = scripted.values()
+    assert "conflictbench/hosting/openvla_family.py" not in own and "conflictbench/policies/scripted/grasp.py" in own
+
+
+@pytest.mark.sim
+def test_a_real_run_imports_nothing_of_conflictbench_that_the_closure_misses(tmp_path, builtins):
+    """Every module of conflictbench a run imports, in any of its processes, is one its rollout may run, or one
+    that only what cannot change an episode (:data:`NOT_ROLLOUT`) imports; the suite's building is not imported."""
+    from conflictbench.testing.runs import episode_counts, run_cli
+
+    seen = tmp_path / "imported"
+    seen.mkdir()
+    (tmp_path / "site").mkdir()
+    (tmp_path / "site" / "sitecustomize.py").write_text(RECORD_IMPORTS.replace("SEEN", repr(str(seen))))
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(seen.parent / "site"), os.environ.get("PYTHONPATH")])),
+    }
+    # The built-ins alone: what a plugin imports of conflictbench counts for its own episodes (the test above).
+    env["CONFLICTBENCH_DISABLE_PLUGINS"] = ",".join(e.name for e in metadata.entry_points(group="conflictbench"))
+    done = run_cli(tmp_path, "model=noop", "run.cases_per_cell=0", "run.tasks=[libero_spatial/0]", env=env, max_steps=1)
+    assert done.returncode == 0 and episode_counts(done.stderr) == (1, 0, 0), done.stderr[-2000:]
+    imported = {name for f in seen.iterdir() for name in f.read_text().split()} & conflictbench_modules()
+    assert {"conflictbench.sim.worker", "conflictbench.sim.capture", "conflictbench.policies.simple"} <= imported
+    rollout = rollout_modules(policy_modules(builtins.policy("noop")))
+    # What a module the rollout does not run imports is no rollout's either (the command's own helpers).
+    off_rollout = {target for module in imported - rollout for target in imports_of(module)}
+    assert sorted(imported - rollout - off_rollout - set(under(imported, *NOT_ROLLOUT))) == []
+    assert under(imported, *SUITE_BUILDING) == []
+
+
+#: A sitecustomize that writes down each module of conflictbench as a process imports it, one file per process.
+RECORD_IMPORTS = """
+import os, sys
+class _Seen:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] == "conflictbench":
+            with open(os.path.join(SEEN, str(os.getpid())), "a") as f:
+                f.write(name + "\\n")
+sys.meta_path.insert(0, _Seen())
+"""
 
 
 def fake_distribution(site: Path, name: str, version: str, requires: list[str]) -> Path:
@@ -104,6 +154,9 @@ def test_what_changed_is_said_in_words_naming_the_files_a_store_kept(tmp_path):
     assert code_changes(tmp_path, ("lab-policy==1.0",), (new,)) == [
         "lab-policy: its code is now identified by content (this store's episodes by version)"
     ]
+    moved = "lab-policy==1.0 files=000000000004"  # a file deleted, or no longer on the rollout's path
+    keep_manifests(tmp_path, {moved: {"lab_policy/processing.py": "a2", "lab_policy/__init__.py": "b1"}})
+    assert code_changes(tmp_path, (new,), (moved,)) == ["code changed: lab-policy (1 file no longer counted)"]
     assert code_changes(tmp_path, (old, "(in-process)==x"), (new.replace("2", "9"),)) == [
         "(in-process) removed",
         "code changed: lab-policy",  # no manifest kept for that digest: the files are not named

@@ -4,9 +4,11 @@ A version says little while a package is installed editable (`scripts/setup.sh`)
 every plugin 0.1.0 while their rollout code changed. So each distribution that can change an episode (see
 ``Plugins.provenance``; with the conflictbench distributions it requires, such as conflictbench-serving for a
 plugin's server) is identified by ``name==version`` and a digest of its files as they are on disk: an editable
-tree's sources or an installed wheel's files alike. For conflictbench itself only the packages on a rollout's
-path count (:data:`ROLLOUT_PACKAGES`): editing the report or the viewer does not make stored episodes stale.
-Hashing them takes a few milliseconds a run.
+tree's sources or an installed wheel's files alike. For conflictbench itself only the modules a rollout of this
+policy runs count (:mod:`.rollout_code`: the run's loop and workers, the policy's own modules and what the plugins
+import of conflictbench, with what they import): editing the suite's operators, the report or the viewer does not
+make stored episodes stale, nor does editing one model family's image steps those of another. Hashing them takes a
+few milliseconds a run.
 """
 
 from __future__ import annotations
@@ -17,10 +19,11 @@ import importlib.util
 import re
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
+
+from .rollout_code import imported_conflictbench, policy_modules, rollout_files
 
 __all__ = [
-    "NOT_ROLLOUT",
-    "ROLLOUT_PACKAGES",
     "code_identity",
     "code_pins",
     "distribution_files",
@@ -28,24 +31,6 @@ __all__ = [
     "files_digest",
 ]
 
-#: conflictbench's packages whose code runs while an episode is played, or decides what it is: the contract and
-#: its records (core), the served-policy clients (hosting), the built-in policies with the subject's weights,
-#: the workers, env set-up, observations and planning (sim), LIBERO's tasks and the suite (tasks).
-ROLLOUT_PACKAGES = ("conflictbench.core", "conflictbench.hosting", "conflictbench.policies", "conflictbench.sim",
-                    "conflictbench.tasks")  # fmt: skip
-#: The rest of conflictbench, and why it cannot change an episode (tests/test_code_identity.py checks that a run
-#: imports nothing outside these two lists).
-NOT_ROLLOUT = {
-    "conflictbench": "the package's entry: re-exports and plugin discovery (core's)",
-    "conflictbench.cli": "the command: composes the run (its settings are in the identity) and prints",
-    "conflictbench.doctor": "replays shipped golden episodes to check this machine's simulator; plays no run's episode",
-    "conflictbench.conf": "the config tree: its values are settings, which are in the identity",
-    "conflictbench.metrics": "computed from stored episodes, after the rollout",
-    "conflictbench.report": "tables and figures from stored episodes",
-    "conflictbench.store": "writes and reads episodes; never decides an action",
-    "conflictbench.testing": "helpers for tests",
-    "conflictbench.view": "the viewer's site, from stored episodes",
-}
 _PIN = re.compile(r"^(?P<name>[A-Za-z0-9._-]+)==(?P<version>\S+)$")
 _SKIPPED_PARTS = {"__pycache__", ".pytest_cache"}
 #: Files no import reads: an editor's swap and backup files, a patch's leftovers (they must not replay a store).
@@ -102,12 +87,13 @@ def _top_level(dist: metadata.Distribution) -> list[str]:
     return sorted(top for top, dists in metadata.packages_distributions().items() if name in dists)
 
 
-def distribution_files(name: str) -> list[tuple[str, Path]]:
+def distribution_files(name: str, roots: Iterable[str] = ()) -> list[tuple[str, Path]]:
     """The files of distribution ``name`` that can change a rollout: all of its packages' files, but for
-    conflictbench only :data:`ROLLOUT_PACKAGES`."""
-    if metadata.distribution(name).metadata["Name"] == "conflictbench":
-        return [f for package in ROLLOUT_PACKAGES for f in _package_files(package)]
+    conflictbench those a rollout runs from ``roots`` (the modules defining the policy, what plugins import of it)
+    on (:func:`.rollout_code.rollout_files`)."""
     dist = metadata.distribution(name)
+    if dist.metadata["Name"] == "conflictbench":
+        return rollout_files(roots)
     return [f for top in _top_level(dist) for f in _package_files(top, dist)]
 
 
@@ -130,11 +116,12 @@ def _conflictbench_requirements(name: str) -> set[str]:
     return found
 
 
-def code_identity(pins: Iterable[str]) -> tuple[tuple[str, ...], dict[str, dict[str, str]]]:
+def code_identity(pins: Iterable[str], policy: Any = None) -> tuple[tuple[str, ...], dict[str, dict[str, str]]]:
     """``name==version`` pins (``Plugins.provenance``), each installed distribution's followed by the digest of its
     rollout files (``name==version files=0123456789ab``), with the conflictbench distributions they require; and
     each digested pin's manifest (its files' digests, to say later which files changed). Pins that name no
-    installed distribution (a plugin object registered in-process) stay as they are."""
+    installed distribution (a plugin object registered in-process) stay as they are. conflictbench's files are
+    those a rollout of ``policy`` (its ``PolicySpec``) runs, with what the other distributions import of it."""
     names: dict[str, str] = {}
     kept: set[str] = set()
     for pin in pins:
@@ -149,13 +136,17 @@ def code_identity(pins: Iterable[str]) -> tuple[tuple[str, ...], dict[str, dict[
         names[dist.metadata["Name"]] = dist.version
         for required in _conflictbench_requirements(dist.metadata["Name"]):
             names.setdefault(required, metadata.distribution(required).version)
+    files = {name: distribution_files(name) for name in names if name != "conflictbench"}
+    roots = imported_conflictbench(path for found in files.values() for _, path in found)
+    if "conflictbench" in names:
+        files["conflictbench"] = rollout_files(roots | (policy_modules(policy) if policy is not None else set()))
     manifests = {}
     for name, version in names.items():
-        hashes = file_hashes(distribution_files(name))
+        hashes = file_hashes(files[name])
         manifests[f"{name}=={version} files={files_digest(hashes)}"] = hashes
     return tuple(sorted(kept | set(manifests))), manifests
 
 
-def code_pins(pins: Iterable[str]) -> tuple[str, ...]:
+def code_pins(pins: Iterable[str], policy: Any = None) -> tuple[str, ...]:
     """The pins of :func:`code_identity`, without the manifests."""
-    return code_identity(pins)[0]
+    return code_identity(pins, policy)[0]

@@ -41,6 +41,15 @@ def _by_name(pins) -> dict[str, str]:
     return {pin.split(" ")[0].split("==")[0]: pin for pin in pins}
 
 
+def _files_changed(before: Mapping[str, str], now: Mapping[str, str]) -> str:
+    """The files edited or added, named; those no longer counted (deleted, or off the rollout's path), counted."""
+    files = sorted(f for f in now if before.get(f) != now[f])
+    more = f" and {len(files) - NAMED_FILES} more" if len(files) > NAMED_FILES else ""
+    gone = len(before.keys() - now.keys())
+    left = f"{gone} file{'s' if gone > 1 else ''} no longer counted" if gone else ""
+    return "; ".join(part for part in (", ".join(files[:NAMED_FILES]) + more, left) if part)
+
+
 def code_changes(root: Path, before: tuple[str, ...], now: tuple[str, ...]) -> list[str]:
     """In words, how the code pins ``now`` differ from ``before`` (files named where both manifests are kept)."""
     old, new = _by_name(before), _by_name(now)
@@ -65,9 +74,7 @@ def code_changes(root: Path, before: tuple[str, ...], now: tuple[str, ...]) -> l
         except (OSError, ValueError):
             changes.append(f"code changed: {name}")
             continue
-        files = sorted(f for f in a.keys() | b.keys() if a.get(f) != b.get(f))
-        more = f" and {len(files) - NAMED_FILES} more" if len(files) > NAMED_FILES else ""
-        changes.append(f"code changed: {name} ({', '.join(files[:NAMED_FILES])}{more})")
+        changes.append(f"code changed: {name} ({_files_changed(a, b)})")
     return changes
 
 

@@ -93,7 +93,7 @@ def config_hash(
 ) -> str:
     """Identifies everything besides the episode itself that can change a rollout: the policy, its
     settings and declared traits, the code behind it (``code``: ``distribution==version files=DIGEST`` of
-    conflictbench's rollout packages, the policy's plugin, every plugin implementing a global per-episode
+    the conflictbench modules its rollout runs, the policy's plugin, every plugin implementing a global per-episode
     hook and the conflictbench distributions they require, see ``code_identity.code_pins``) and the
     simulator stack (``simulator``: what a worker's ``stack.stack_probe`` said, the renderer included for a policy
     that sees images; default: the simulator's versions here; a store never mixes MuJoCo versions)."""

@@ -72,7 +72,7 @@ def run_identity(
 ) -> RunIdentity:
     """``stack``: what a worker's probe said (``stack.probe_in_worker``), the renderer included where images count."""
     versions = plugins.provenance(policy)
-    code_versions, manifests = code_identity(versions)  # the code by content
+    code_versions, manifests = code_identity(versions, plugins.policy(policy))  # the code by content: what it runs
     return RunIdentity(
         config_hash=config_hash(policy, config, traits, code_versions, stack),
         sampling_hash=config_hash(policy, config, traits, versions, simulator_columns(stack)),
