@@ -7,7 +7,8 @@ text frame in reply is the server's error (openpi sends the traceback, then clos
 and the next request reconnects. What a request and a reply hold is the model's (its plugin's ``protocol``).
 
 The shared client (:class:`~.client.PolicyClient`) makes one per simulator worker and owns retries and
-reconnection. Needs ``websockets`` and ``conflictbench-serving`` (a plugin speaking it depends on both).
+reconnection. Needs the ``openpi`` extra, ``conflictbench[openpi]``: ``websockets`` and ``conflictbench-serving``
+(a plugin speaking the protocol requires it; without it, importing this module says so in one line).
 """
 
 from __future__ import annotations
@@ -16,13 +17,16 @@ import inspect
 import urllib.parse
 from typing import Any
 
-from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
-from websockets.sync.client import ClientConnection, connect
-
-from conflictbench_serving.msgpack_numpy import packb, unpackb
-
 from ..core.errors import InfrastructureError, UserError
-from .transport import Transport, one_line
+from .transport import Transport, extra_missing, one_line
+
+try:
+    from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+    from websockets.sync.client import ClientConnection, connect
+
+    from conflictbench_serving.msgpack_numpy import packb, unpackb
+except ModuleNotFoundError as missing:
+    raise extra_missing(__name__, "openpi", missing, install="./serving") from None
 
 # websockets 17 wants ``legacy=True`` for a connection kept open outside a ``with`` block (the default
 # then, with a deprecation warning); older releases have no such flag.

@@ -26,6 +26,9 @@ The JPEG encoder is Pillow's libjpeg-turbo (the same entropy-coded data as TF's)
 libjpeg-turbo with ``fastdct=True`` (Pillow and OpenCV only decode with the slower exact IDCT, which differs by
 up to 19 levels). The resize and crop are float32 numpy restatements of TF's CPU kernels; the Lanczos kernel
 calls the C library's ``sinf``, as TF's does (numpy's float32 ``sin`` differs in the last bits of some weights).
+
+Needs the ``openvla-family`` extra, ``conflictbench[openvla-family]``: Pillow and simplejpeg (the plugins of the
+family require it; without it, importing this module says so in one line).
 """
 
 from __future__ import annotations
@@ -37,8 +40,14 @@ import io
 from collections.abc import Collection
 
 import numpy as np
-import simplejpeg
-from PIL import Image
+
+from .transport import extra_missing
+
+try:
+    import simplejpeg
+    from PIL import Image
+except ModuleNotFoundError as missing:
+    raise extra_missing(__name__, "openvla-family", missing) from None
 
 IMAGE_SIZE = 224
 JPEG_QUALITY = 95

@@ -7,7 +7,7 @@ with HTTP 200 (its traceback stays in the server's log); a body FastAPI cannot r
 (``conflictbench_serving.rest``) add ``GET /metadata`` and ``GET /healthz``. What a request and a reply hold is
 the model's (its plugin's ``protocol``).
 
-Needs ``json-numpy`` (a plugin speaking it depends on it).
+Needs the ``rest`` extra, ``conflictbench[rest]``: ``json-numpy`` (a plugin speaking the protocol requires it).
 """
 
 from __future__ import annotations
@@ -17,10 +17,13 @@ import json
 import urllib.parse
 from typing import Any
 
-import json_numpy
-
 from ..core.errors import InfrastructureError
-from .transport import HttpJsonTransport
+from .transport import HttpJsonTransport, extra_missing
+
+try:
+    import json_numpy
+except ModuleNotFoundError as missing:
+    raise extra_missing(__name__, "rest", missing) from None
 
 ROUTE = "/act"
 METADATA_ROUTE = "/metadata"

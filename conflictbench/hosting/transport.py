@@ -127,3 +127,11 @@ def _json_default(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(f"{type(value).__name__} cannot be sent as JSON")
+
+
+def extra_missing(module: str, extra: str, error: ModuleNotFoundError, install: str = "") -> ModuleNotFoundError:
+    """What a protocol module raises when a library of its extra is not installed: one line naming the extra
+    (``conflictbench[extra]``, which the plugins that speak the protocol require) and how to install it;
+    ``install`` adds what the extra needs from a checkout (``./serving``: conflictbench-serving is not on PyPI)."""
+    where = f"pip install '.[{extra}]'{f' {install}' if install else ''} in a checkout"
+    return ModuleNotFoundError(f"{module} needs conflictbench[{extra}] ({error}): {where}", name=error.name)

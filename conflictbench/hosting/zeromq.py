@@ -3,13 +3,13 @@
 
 The shared client (:class:`~.client.PolicyClient`) makes one per simulator worker and owns retries and
 reconnection; this class only speaks the protocol; what a ``get_action`` request holds is the model's (its
-plugin's ``protocol``). Needs ``pyzmq`` and ``conflictbench-serving``. ZeroMQ connects lazily and a REQ
-socket is lockstep, so ``connect`` proves the server is there with a ``ping`` and then asks for our metadata
-endpoint (NVIDIA's server answers it with an error: then ``metadata`` stays empty), and a request that times
-out closes the socket (the next request reconnects). ZeroMQ hides a dropped TCP connection, so a socket
-monitor watches for it: a server that dies while a request waits is a lost connection (the client reconnects
-and sends it again, or stops the run), not a slow model. ``{"error": ...}`` replies are the server's errors:
-:class:`InfrastructureError`.
+plugin's ``protocol``). Needs the ``zeromq`` extra, ``conflictbench[zeromq]``: ``pyzmq`` and
+``conflictbench-serving``. ZeroMQ connects lazily and a REQ socket is lockstep, so ``connect`` proves the server
+is there with a ``ping`` and then asks for our metadata endpoint (NVIDIA's server answers it with an error: then
+``metadata`` stays empty), and a request that times out closes the socket (the next request reconnects). ZeroMQ
+hides a dropped TCP connection, so a socket monitor watches for it: a server that dies while a request waits is a
+lost connection (the client reconnects and sends it again, or stops the run), not a slow model. ``{"error":
+...}`` replies are the server's errors: :class:`InfrastructureError`.
 """
 
 from __future__ import annotations
@@ -19,13 +19,16 @@ import time
 import urllib.parse
 from typing import Any
 
-import zmq
-from zmq.utils.monitor import recv_monitor_message
-
-from conflictbench_serving.zeromq import ERROR, METADATA, PING, endpoint_request, packb, unpackb
-
 from ..core.errors import InfrastructureError, UserError
-from .transport import Transport, one_line
+from .transport import Transport, extra_missing, one_line
+
+try:
+    import zmq
+    from zmq.utils.monitor import recv_monitor_message
+
+    from conflictbench_serving.zeromq import ERROR, METADATA, PING, endpoint_request, packb, unpackb
+except ModuleNotFoundError as missing:
+    raise extra_missing(__name__, "zeromq", missing, install="./serving") from None
 
 
 class ZmqTransport(Transport):

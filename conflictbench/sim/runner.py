@@ -43,6 +43,16 @@ from .slots import EpisodeQueue, Item, Slot
 from .watchdog import PolicyStalled, StallWatch, call_bound, stall_bound
 
 
+@dataclasses.dataclass
+class _Backlog:
+    """The episodes left to a run's loop: queued, deferred (another job holds their claims), and the stored
+    ones as last read."""
+
+    queue: EpisodeQueue
+    stored: set[str]
+    deferred: list[Item] = dataclasses.field(default_factory=list)
+
+
 class Runner:
     """Plays episodes for one policy and writes each finished one to the store."""
 
@@ -226,19 +236,8 @@ class Runner:
             waiting.append((slot, observation))
 
     def _loop(self, queue: EpisodeQueue, result: RunResult, traits: PolicyTraits) -> None:
-        deferred: list[Item] = []
-        stored = self.store.stored_ids()
-
-        def fill() -> None:
-            for slot in self._pool.slots:
-                while slot.item is None and not slot.retired:
-                    busy = {s.task_key for s in self._pool.slots if s.item is not None}
-                    item = self._next_item(slot, queue, deferred, stored, busy, result)
-                    if item is None:
-                        break
-                    self._assign(slot, item, result, traits)
-
-        fill()
+        backlog = _Backlog(queue, self.store.stored_ids())
+        self._fill(backlog, result, traits)
         while True:
             slots = [s for s in self._pool.slots if not s.retired]
             if not slots:
@@ -246,65 +245,86 @@ class Runner:
                     "every simulator worker was lost; the episodes not yet played are played by the next run"
                 )
             busy = [s for s in slots if s.item is not None]
-            if not busy:
-                if not deferred:
-                    return
-                # Episodes another job is playing: wait for them to land, or take them over.
-                self._bar.set_postfix(waiting_for_other_jobs=len(deferred))
-                time.sleep(1.0)
-                stored = self.store.stored_ids()
-                for item in list(deferred):
-                    if item.job.episode_id in stored:
-                        deferred.remove(item)
-                        result.played_elsewhere += 1
-                        self._bar.update(1)
-                    elif not self.store.held_by_others([item.job.episode_id]):
-                        deferred.remove(item)
-                        queue.push(item)
-                fill()
+            if busy:
+                self._play_round(busy, queue, result, traits)
+            elif backlog.deferred:
+                self._await_other_jobs(backlog, result)
+            else:
+                return
+            self._fill(backlog, result, traits)
+
+    def _fill(self, backlog: _Backlog, result: RunResult, traits: PolicyTraits) -> None:
+        """Give every idle worker an episode, while there are episodes it can claim."""
+        for slot in self._pool.slots:
+            while slot.item is None and not slot.retired:
+                busy = {s.task_key for s in self._pool.slots if s.item is not None}
+                item = self._next_item(slot, backlog.queue, backlog.deferred, backlog.stored, busy, result)
+                if item is None:
+                    break
+                self._assign(slot, item, result, traits)
+
+    def _await_other_jobs(self, backlog: _Backlog, result: RunResult) -> None:
+        """Episodes another job is playing: wait for them to land, or take them over."""
+        self._bar.set_postfix(waiting_for_other_jobs=len(backlog.deferred))
+        time.sleep(1.0)
+        backlog.stored = stored = self.store.stored_ids()
+        for item in list(backlog.deferred):
+            if item.job.episode_id in stored:
+                backlog.deferred.remove(item)
+                result.played_elsewhere += 1
+                self._bar.update(1)
+            elif not self.store.held_by_others([item.job.episode_id]):
+                backlog.deferred.remove(item)
+                backlog.queue.push(item)
+
+    def _play_round(self, busy: list[Slot], queue: EpisodeQueue, result: RunResult, traits: PolicyTraits) -> None:
+        """One round of the busy workers: read what they sent, ask the policy, send back what it decided."""
+        waiting: list[tuple[Slot, Any]] = []
+        answers = self._receive(busy, waiting, queue, result, traits)
+        self._serve_next(waiting)
+        if waiting:
+            self._calls.submit(waiting)
+        for slot, item, obs, raw in answers:
+            if slot.item is not item:  # its worker died meanwhile; the slot plays another episode now
                 continue
-            waiting: list[tuple[Slot, Any]] = []
-            answers = []
-            wakeup = self._calls.wakeup
-            owners = {s.conn: s for s in busy} | {s.process.sentinel: s for s in busy}
-            lost_now: set[int] = set()  # their waitables this round were the lost worker's, not its successor's
-            patience = self._watch.timeout(busy, self._waiting_slots(), self._calls.oldest_call_s())
-            for ready in wait([*owners, *wakeup], timeout=patience):
-                if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
-                    answers += self._calls.collect()
-                    continue
-                slot = owners.get(ready)
-                if slot is None or slot.index in lost_now or slot.item is None or any(w[0] is slot for w in waiting):
-                    continue
-                try:
-                    if ready == slot.process.sentinel and not slot.conn.poll():
-                        raise EOFError
-                    msg = slot.conn.recv()
-                except (EOFError, OSError):  # closed, reset, or stalled mid-message past the socket's timeout
-                    lost_now.add(slot.index)
-                    self._worker_lost(slot, queue, result)
-                    continue
-                self._watch.heard(slot)
-                match msg:
-                    case Query(observation=observation):
-                        self._queried(slot, observation, waiting, traits)
-                    case Done(outcome=outcome):
-                        self._finish(slot, outcome, result)
-                    case _:
-                        raise TypeError(f"a worker sent {type(msg).__name__} during an episode")
-            self._serve_next(waiting)
-            if waiting:
-                self._calls.submit(waiting)
-            for slot, item, obs, raw in answers:
-                if slot.item is not item:  # its worker died meanwhile; the slot plays another episode now
-                    continue
-                try:
-                    slot.conn.send(reply_for(self.plugins, self.spec.name, item, obs, raw))
-                except OSError:  # BrokenPipe, reset, a send timeout: the worker is gone; the next wait() finds it
-                    pass
-                self._watch.heard(slot)
-            self._check_stalls(result)
-            fill()
+            try:
+                slot.conn.send(reply_for(self.plugins, self.spec.name, item, obs, raw))
+            except OSError:  # BrokenPipe, reset, a send timeout: the worker is gone; the next wait() finds it
+                pass
+            self._watch.heard(slot)
+        self._check_stalls(result)
+
+    def _receive(self, busy: list, waiting: list, queue: EpisodeQueue, result: RunResult, traits: PolicyTraits):
+        """Wait for the busy workers' messages (or the policy's finished calls, returned) and act on each."""
+        answers = []
+        wakeup = self._calls.wakeup
+        owners = {s.conn: s for s in busy} | {s.process.sentinel: s for s in busy}
+        lost_now: set[int] = set()  # their waitables this round were the lost worker's, not its successor's
+        patience = self._watch.timeout(busy, self._waiting_slots(), self._calls.oldest_call_s())
+        for ready in wait([*owners, *wakeup], timeout=patience):
+            if ready in wakeup:  # concurrent policy calls have finished (sentinels are ints too)
+                answers += self._calls.collect()
+                continue
+            slot = owners.get(ready)
+            if slot is None or slot.index in lost_now or slot.item is None or any(w[0] is slot for w in waiting):
+                continue
+            try:
+                if ready == slot.process.sentinel and not slot.conn.poll():
+                    raise EOFError
+                msg = slot.conn.recv()
+            except (EOFError, OSError):  # closed, reset, or stalled mid-message past the socket's timeout
+                lost_now.add(slot.index)
+                self._worker_lost(slot, queue, result)
+                continue
+            self._watch.heard(slot)
+            match msg:
+                case Query(observation=observation):
+                    self._queried(slot, observation, waiting, traits)
+                case Done(outcome=outcome):
+                    self._finish(slot, outcome, result)
+                case _:
+                    raise TypeError(f"a worker sent {type(msg).__name__} during an episode")
+        return answers
 
     def _waiting_slots(self) -> set[int]:
         """The slots whose episodes wait for the policy (their workers are silent by right)."""
