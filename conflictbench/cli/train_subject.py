@@ -114,7 +114,7 @@ def _in_training_environment(python: Path, *args: str) -> None:
 
 def command(argv: list[str], plugins) -> int:
     from conflictbench.policies.subject.prepare import write_prepared
-    from conflictbench.policies.subject.record import record_demonstrations
+    from conflictbench.sim.demonstrations import record_demonstrations
     from conflictbench.tasks.libero.base_tasks import all_base_tasks
 
     args = parser().parse_args(argv)
