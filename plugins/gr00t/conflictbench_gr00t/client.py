@@ -11,13 +11,15 @@ episodes are not bit-identical from run to run.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, sampling_seed
+from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, read_published, sampling_seed
 from conflictbench.core import LIBERO_SUITES
 from conflictbench.hosting.zeromq import ZmqTransport, answers_ping
 from conflictbench_serving.checkpoints import NOISE_SEED_LIMIT
@@ -25,7 +27,7 @@ from conflictbench_serving.checkpoints import NOISE_SEED_LIMIT
 from .checkpoints import POLICY_TYPE, fingerprint
 from .processing import ACTION_STEPS, MAX_EPISODE_STEPS, WARMUP_STEPS, env_actions, gr00t_observation
 from .protocol import get_action_request
-from .serve import SERVED
+from .server import SERVED
 
 
 @dataclass
@@ -89,3 +91,15 @@ def load(name: str, cfg: Gr00tConfig) -> Gr00tPolicy:
     """The policy for ``model=gr00t``: connected to ``cfg.server``, or ready to start a server for
     ``cfg.checkpoint``."""
     return Gr00tPolicy.load(name, cfg)
+
+
+@hookimpl
+def conflictbench_register_policies(register):
+    register("gr00t", load=functools.partial(load, "gr00t"), config=Gr00tConfig)
+
+
+@hookimpl
+def conflictbench_register_published_results(register):
+    """What the model's authors published on LIBERO, with its citations (published.toml)."""
+    for entry in read_published(resources.files(__package__) / "published.toml"):
+        register(**entry)

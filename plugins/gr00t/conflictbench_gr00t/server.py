@@ -7,7 +7,9 @@ NVIDIA's REQ clients talk to unchanged; ``ping``, ``reset``, ``get_modality_conf
 ``max_batch`` rows; the backend runs each distinct row as its own forward pass, see :mod:`.backend`), every row
 of one request with the request's seed, and ``[action, info]`` replies with ``action.<name>`` float32 (B, T, D).
 
-This module imports neither conflictbench nor torch: it runs in the model environment.
+``SERVED`` is what ``conflictbench-serve gr00t`` hosts (found through the server half's ``conflictbench_serving``
+entry point) and what the client's ``served`` names. This module imports neither conflictbench nor torch (the
+backend is imported by name, after the checks), so the client imports ``SERVED`` from it cheaply.
 """
 
 from __future__ import annotations
@@ -20,10 +22,22 @@ from typing import Any, Protocol
 import numpy as np
 
 from conflictbench_serving.batching import Batcher
+from conflictbench_serving.command import ServedModel
 from conflictbench_serving.loop import serve_until_stopped
 from conflictbench_serving.zeromq import ZmqPolicyServer
 
+from .checkpoints import check_checkpoint
 from .protocol import LANGUAGE_KEY, request_seed, validate_observation
+
+#: A LeRobot GR00T N1.7 checkpoint on NVIDIA's port.
+SERVED = ServedModel.of(
+    __package__,
+    policies=("gr00t",),
+    protocol="NVIDIA's ZeroMQ protocol",
+    check=lambda folder, policy, naming: check_checkpoint(folder),
+    port=5555,
+    url_scheme="tcp",
+)
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from groot_model_env import GR00T, needs_model_env
 
-from conflictbench.testing import check_pinned_actions
+from conflictbench.testing.plugin_tests import play_pinned_actions
 from conflictbench_gr00t.checkpoints import fingerprint
 from conflictbench_gr00t.client import Gr00tConfig, load
 
@@ -18,8 +18,4 @@ GOLDEN = Path(__file__).parent / "golden"
 def test_the_tiny_checkpoint_plays_its_pinned_actions(tiny_groot_checkpoint, monkeypatch):
     GR00T.use(monkeypatch, tiny_groot_checkpoint)
     policy = load("gr00t", Gr00tConfig(checkpoint=str(tiny_groot_checkpoint), device="cpu", max_batch=1))
-    try:
-        policy.start()
-        check_pinned_actions(policy, GOLDEN / "actions-gr00t.npz", fingerprint(tiny_groot_checkpoint))
-    finally:
-        policy.close()
+    play_pinned_actions(policy, GOLDEN / "actions-gr00t.npz", fingerprint(tiny_groot_checkpoint))

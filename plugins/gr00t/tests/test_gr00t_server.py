@@ -4,11 +4,9 @@ unchanged, its error answers, batching across clients, and our client reading wh
 from __future__ import annotations
 
 import asyncio
-import json
-import subprocess
-import sys
 import threading
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,10 +14,13 @@ import zmq
 from nvidia_standin_server import from_bytes, to_bytes
 
 from conflictbench.testing import camera_observation
+from conflictbench.testing.plugin_tests import lerobot_folder, serve_command
 from conflictbench_gr00t.client import Gr00tConfig, load
 from conflictbench_gr00t.processing import env_actions, gr00t_observation
 from conflictbench_gr00t.protocol import ACTION_KEYS, LANGUAGE_KEY
 from conflictbench_gr00t.server import Gr00tPolicyServer, Row
+
+PLUGIN_ROOT = Path(__file__).resolve().parents[1]
 
 HORIZON = 16
 
@@ -187,31 +188,20 @@ def test_a_text_list_that_does_not_match_the_rows_is_refused(language):
         assert "must be a list of 1 strings" in call(request)["error"]
 
 
-def _checkpoint(folder, kind: str | None = "groot", files=("model.safetensors", "policy_preprocessor.json",
-                "policy_postprocessor.json")):  # fmt: skip
-    folder.mkdir()
-    if kind:
-        (folder / "config.json").write_text(json.dumps({"type": kind}))
-    for name in files:
-        (folder / name).write_text("")
-    return folder
-
-
 @pytest.mark.parametrize(
     "make, fragment",
     [
         (lambda tmp: tmp / "nowhere", "no checkpoint folder at"),
-        (lambda tmp: _checkpoint(tmp / "c", None), "not a LeRobot checkpoint (no config.json) (an Isaac-GR00T"),
-        (lambda tmp: _checkpoint(tmp / "c", "vla_jepa"), "holds a vla_jepa policy, not a groot one"),
-        (lambda tmp: _checkpoint(tmp / "c", files=("model.safetensors",)), "has no policy_preprocessor.json"),
-        (lambda tmp: _checkpoint(tmp / "c"), "run this with the model environment's python"),  # no torch here
+        (lambda tmp: lerobot_folder(tmp / "c", None), "not a LeRobot checkpoint (no config.json) (an Isaac-GR00T"),
+        (lambda tmp: lerobot_folder(tmp / "c", "vla_jepa"), "holds a vla_jepa policy, not a groot one"),
+        (lambda tmp: lerobot_folder(tmp / "c", "groot", ("model.safetensors",)), "has no policy_preprocessor.json"),
+        (lambda tmp: lerobot_folder(tmp / "c", "groot"), "run this with the model environment's python"),  # no torch
     ],
 )
 def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragment):
-    argv = [sys.executable, "-m", "conflictbench_gr00t", "serve", "--policy", "gr00t", "--checkpoint"]
-    done = subprocess.run([*argv, str(make(tmp_path))], capture_output=True, text=True, timeout=120)
+    done = serve_command(PLUGIN_ROOT, tmp_path, "gr00t", "--checkpoint", str(make(tmp_path)))
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
-    assert done.stderr.startswith("conflictbench-gr00t: ") and fragment in done.stderr
+    assert done.stderr.startswith("conflictbench-serve: ") and fragment in done.stderr
 
 
 def test_a_reply_that_cannot_be_built_is_still_answered_as_an_error():
