@@ -11,6 +11,7 @@
     conflictbench suite ...           suite.py    validate, inspect, sample, export or rebuild the conflict suite
     conflictbench train-subject       train_subject.py   the learned default policy, trained from scratch
     conflictbench doctor              doctor.py   is this machine's simulator the reference one (golden replays)
+    conflictbench new-plugin NAME     new_plugin.py  a served model plugin, both halves, from a template
 
 Each verb's module has ``command(argv, plugins) -> int``; a new verb is a new module named in ``VERBS``.
 No module of the package imports this one, and none is named after a builtin: importing
@@ -42,6 +43,7 @@ VERBS = {
     "prune": "prune",
     "train-subject": "train_subject",
     "doctor": "doctor",
+    "new-plugin": "new_plugin",
 }  # verb -> module; anything else is a run
 USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noop suite=physical prompt=p1
        conflictbench -m [OVERRIDE ...]     sweep, e.g. -m model=noop,random prompt=p0,p1
@@ -56,6 +58,7 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
        conflictbench train-subject [--out DIR]   train the learned default policy from scratch (--help)
        conflictbench doctor [model=NAME ...]     is this machine's simulator the reference one? (--help)
+       conflictbench new-plugin NAME --protocol openpi|zeromq|rest   a served model plugin to fill in (--help)
        conflictbench --disable-plugins A,B ...   leave these installed plugins out (not imported); also
                                            CONFLICTBENCH_DISABLE_PLUGINS=A,B
        conflictbench --config-help         the configuration, its groups and their options
