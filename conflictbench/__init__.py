@@ -23,6 +23,7 @@ from .core import (
     rng_for,
     sampling_seed,
 )
+from .core.plugins import DISABLE_PLUGINS_VARIABLE  # the command line's --disable-plugins sets it
 from .core.registry import read_published
 from .hosting import (
     HostedConfig,
@@ -44,11 +45,6 @@ except _metadata.PackageNotFoundError:  # running from a source tree that was ne
 
 #: Modules whose hook implementations ship with conflictbench (registered like any plugin).
 BUILTIN_PLUGINS = ("conflictbench.policies", "conflictbench.metrics", "conflictbench.tasks")
-
-
-#: Installed plugins to leave unimported, comma-separated entry-point or distribution names (the command
-#: line's ``--disable-plugins`` sets it, so that the processes a run starts leave them out too).
-DISABLE_PLUGINS_VARIABLE = "CONFLICTBENCH_DISABLE_PLUGINS"
 
 
 def plugins(**kwargs):

@@ -43,6 +43,9 @@ from .registry import (
 )
 
 ENTRY_POINT_GROUP = hookspecs.PROJECT_NAME
+#: Installed plugins to leave unimported, comma-separated entry-point or distribution names (the command
+#: line's ``--disable-plugins`` sets it, so that the processes a run starts leave them out too).
+DISABLE_PLUGINS_VARIABLE = "CONFLICTBENCH_DISABLE_PLUGINS"
 #: The hooks called once per episode or action for every policy (the deliberate cross-cutting ones).
 GLOBAL_EPISODE_HOOKS = ("conflictbench_format_prompt", "conflictbench_postprocess_action")
 _CORE_PROMPTS = "conflictbench.core.prompts"

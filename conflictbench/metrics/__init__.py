@@ -7,21 +7,14 @@ frame, and the outcome rates over :class:`~conflictbench.core.Pair` lists.
 
 from __future__ import annotations
 
-from conflictbench.core import hookimpl
-
 from .aggregate import GROUPINGS, aggregate, prompt_couples, prompt_differences, qualified_failure_mask, with_model
-from .builtins import DESCRIPTIONS, register_builtins
+from .builtins import DESCRIPTIONS
+from .builtins import conflictbench_register_metrics as conflictbench_register_metrics  # the built-in plugin's hook
 from .outcome import Rate, delta_sr, failure_rate, pcsr, qualified, qualified_failures, rgsr
 from .pairs import make_pairs, reference_key
 from .plain import EARLY_STEPS, EPS, SIGMA
-from .process import BUILTIN_METRICS, dtw, evaluate_pairs, metric_specs, pair_metrics
-
-
-@hookimpl
-def conflictbench_register_metrics(register):
-    """TAR, TS, Early20 TS and AMS, through the same hook and arguments third-party metrics use."""
-    register_builtins(register)
-
+from .process import BUILTIN_METRICS, dtw
+from .registered import evaluate_pairs, metric_specs, pair_metrics
 
 __all__ = [
     "BUILTIN_METRICS",

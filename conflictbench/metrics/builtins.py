@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from conflictbench.core import hookimpl
+
 from .plain import EARLY_STEPS, SIGMA
 from .process import BUILTIN_METRICS, builtin_compute_many
 
@@ -54,3 +56,9 @@ def register_builtins(register: Callable[..., None]) -> None:
             higher_is_better=higher_is_better,
             compute_many=builtin_compute_many(name),
         )
+
+
+@hookimpl
+def conflictbench_register_metrics(register):
+    """TAR, TS, Early20 TS and AMS, through the same hook and arguments third-party metrics use."""
+    register_builtins(register)
