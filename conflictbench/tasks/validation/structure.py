@@ -43,25 +43,15 @@ GRASPING = ("pick up", "grab", "lift", "take", "hold", "fold", "crumple", "squas
 
 
 def _steps_and_level(case: ConflictCase, wtype: str) -> list[str]:
-    w, out = case.witness, []
+    w = case.witness
     steps = w.get("steps")
     if not isinstance(steps, list) or not steps or not all(isinstance(s, str) and s for s in steps):
         return ["witness field 'steps' must list the instruction's steps"]
-    pos = 0
-    for s in steps:
-        i = case.instruction.find(s, pos)
-        if i < 0:
-            out.append(f"step {s!r} is not in the instruction (in order)")
-            break
-        pos = i + len(s)
+    out = _steps_in_order(case.instruction, steps)
     factors = w.get(FAMILY_FACTORS.get(wtype, "factors"), [])
     if not isinstance(factors, list) or not factors:
         return out + [f"witness field {FAMILY_FACTORS.get(wtype, 'factors')!r} is empty"]
-    if wtype == "contradiction":
-        step_of = {r.get("id"): r.get("step") for r in w.get("requirements", []) if isinstance(r, dict)}
-        factor_steps = [max(step_of.get(p, 0) or 0 for p in pair) if isinstance(pair, list) else 0 for pair in factors]
-    else:
-        factor_steps = [f.get("step") if isinstance(f, dict) else None for f in factors]
+    factor_steps = _factor_steps(w, wtype, factors)
     if not all(isinstance(s, int) and 1 <= s <= len(steps) for s in factor_steps):
         out.append(f"factor steps {factor_steps} do not point at the {len(steps)} step(s)")
     n, k, spread = len(steps), len(factors), len(set(factor_steps))
@@ -74,6 +64,25 @@ def _steps_and_level(case: ConflictCase, wtype: str) -> list[str]:
     if not expected.get(case.level, False):
         out.append(f"level {case.level} does not match the witness ({n} step(s), {k} factor(s) in {spread} step(s))")
     return out
+
+
+def _steps_in_order(instruction: str, steps: list[str]) -> list[str]:
+    """Every step's text is in the instruction, each after the one before (the first missing one reported)."""
+    pos = 0
+    for s in steps:
+        i = instruction.find(s, pos)
+        if i < 0:
+            return [f"step {s!r} is not in the instruction (in order)"]
+        pos = i + len(s)
+    return []
+
+
+def _factor_steps(w: dict, wtype: str, factors: list) -> list:
+    """The step of each factor: a contradiction's is the later of its two requirements' steps."""
+    if wtype == "contradiction":
+        step_of = {r.get("id"): r.get("step") for r in w.get("requirements", []) if isinstance(r, dict)}
+        return [max(step_of.get(p, 0) or 0 for p in pair) if isinstance(pair, list) else 0 for pair in factors]
+    return [f.get("step") if isinstance(f, dict) else None for f in factors]
 
 
 def check_structure(case: ConflictCase, wtype: str, model: TaskModel) -> list[str]:
@@ -134,20 +143,14 @@ def _replaced(case: ConflictCase, wtype: str) -> dict[int, set[str]]:
 
 
 def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> list[str]:
-    w, out = case.witness, []
+    w = case.witness
     steps = w["steps"]
     roles, goals = w.get("step_roles"), w.get("step_goals")
     if not (isinstance(roles, list) and len(roles) == len(steps) and all(r in ROLES for r in roles)):
         return [f"witness field 'step_roles' must give each of the {len(steps)} step(s) a role ({' or '.join(ROLES)})"]
     if not (isinstance(goals, list) and len(goals) == len(steps) and all(isinstance(g, list) for g in goals)):
         return [f"witness field 'step_goals' must list each of the {len(steps)} step(s)' goal literals"]
-    first_original = roles.index("original") if "original" in roles else len(roles)
-    late = [i + 1 for i, r in enumerate(roles) if r == "added" and i > first_original]
-    if late:
-        out.append(
-            f"added step(s) {late} come after the original task's first step: the episode can end "
-            "(original goal met) before the conflict is reached"
-        )
+    out = _late_added_steps(roles)
     base = {_atom(a) for s in model.steps for a in s.goal}
     asked: set[tuple[str, ...]] = set()
     replaced = _replaced(case, wtype)
@@ -161,18 +164,38 @@ def _observable_and_whole(case: ConflictCase, wtype: str, model: TaskModel) -> l
                 out.append(f"step {i + 1}: {list(atom)} is not a subgoal of the base task")
                 continue
             asked.add(atom)
-            text, stand_ins = steps[i], replaced.get(i + 1, set())
-            if i > 0 and PRONOUN.search(text):
-                text = steps[i - 1] + " " + text  # "pick up the bowl, then put it on the plate"
-                stand_ins = stand_ins | replaced.get(i, set())  # "pick up the banana, then put it ..."
-            for entity in atom[1:]:
-                if entity in stand_ins:
-                    continue
-                if not names_in(text, model.entity_names(entity) | model.entity_names(model.parent(entity))):
-                    out.append(f"step {i + 1} does not name {entity}, which its goal {list(atom)} needs")
+            out += _goal_named(i, atom, steps, replaced, model)
     missing = sorted(base - asked)
     if missing:
         out.append(f"the instruction drops the base task's subgoal(s) {[list(m) for m in missing]}")
+    return out
+
+
+def _late_added_steps(roles: list[str]) -> list[str]:
+    """Added steps must come before the original task's first: once its goal is met the episode can end."""
+    first_original = roles.index("original") if "original" in roles else len(roles)
+    late = [i + 1 for i, r in enumerate(roles) if r == "added" and i > first_original]
+    if late:
+        return [
+            f"added step(s) {late} come after the original task's first step: the episode can end "
+            "(original goal met) before the conflict is reached"
+        ]
+    return []
+
+
+def _goal_named(i: int, atom: tuple[str, ...], steps: list[str], replaced: dict[int, set[str]], model) -> list[str]:
+    """Step ``i + 1`` names every entity of its goal ``atom`` (or the step before does, for "put it ...";
+    or a grounding referent stands in for it)."""
+    out = []
+    text, stand_ins = steps[i], replaced.get(i + 1, set())
+    if i > 0 and PRONOUN.search(text):
+        text = steps[i - 1] + " " + text  # "pick up the bowl, then put it on the plate"
+        stand_ins = stand_ins | replaced.get(i, set())  # "pick up the banana, then put it ..."
+    for entity in atom[1:]:
+        if entity in stand_ins:
+            continue
+        if not names_in(text, model.entity_names(entity) | model.entity_names(model.parent(entity))):
+            out.append(f"step {i + 1} does not name {entity}, which its goal {list(atom)} needs")
     return out
 
 
@@ -208,23 +231,28 @@ def _pronouns(case: ConflictCase) -> list[str]:
         out.append("a pronoun in a constraint: it could mean several things (name the entity)")
     for i, body in enumerate(bodies):
         for match in PRONOUN.finditer(body):
-            before = body[: match.start()].split()
-            word = match.group(1)
-            if word in ("its", "they", "itself") or (before and before[-1] not in PLACING):
-                out.append(f"pronoun {word!r} at {' '.join(before[-4:])!r}: only 'place it' after a pick-up")
-                continue
-            if len(before) > 1:  # within the step: "pick up X and put it", nothing in between
-                grasp = max((m.end() for g in GRASPING for m in re.finditer(rf"\b{g}\b", " ".join(before))), default=-1)
-                between = " ".join(before)[grasp:] if grasp >= 0 else ""
-                if grasp < 0:
-                    out.append(f"pronoun {word!r} has no object picked up just before it")
-                elif set(between.split()) & INTERVENING:
-                    out.append(f"pronoun {word!r} follows {between.strip()!r}: two things could be meant")
-                continue
-            earlier = bodies[i - 1] if i > 0 else ""
-            if not any(re.search(rf"\b{g}\b", earlier) for g in GRASPING):
-                out.append(f"pronoun {word!r} has no object picked up just before it")
-            elif i != 1 or PRONOUN.search(earlier) or set(earlier.split()) & (set(PLACING) | INTERVENING):
-                # "lift the stove, then fold the bottle, then place it": the stove or the bottle?
-                out.append(f"pronoun {word!r} opens a step after others that handled something: name it")
+            problem = _pronoun_problem(match.group(1), body[: match.start()].split(), bodies[i - 1] if i > 0 else "", i)
+            if problem:
+                out.append(problem)
     return out
+
+
+def _pronoun_problem(word: str, before: list[str], earlier: str, i: int) -> str | None:
+    """What is wrong with pronoun ``word`` after the words ``before`` it in step ``i + 1`` (``earlier``: the
+    step before's text), if anything."""
+    if word in ("its", "they", "itself") or (before and before[-1] not in PLACING):
+        return f"pronoun {word!r} at {' '.join(before[-4:])!r}: only 'place it' after a pick-up"
+    if len(before) > 1:  # within the step: "pick up X and put it", nothing in between
+        grasp = max((m.end() for g in GRASPING for m in re.finditer(rf"\b{g}\b", " ".join(before))), default=-1)
+        between = " ".join(before)[grasp:] if grasp >= 0 else ""
+        if grasp < 0:
+            return f"pronoun {word!r} has no object picked up just before it"
+        if set(between.split()) & INTERVENING:
+            return f"pronoun {word!r} follows {between.strip()!r}: two things could be meant"
+        return None
+    if not any(re.search(rf"\b{g}\b", earlier) for g in GRASPING):
+        return f"pronoun {word!r} has no object picked up just before it"
+    if i != 1 or PRONOUN.search(earlier) or set(earlier.split()) & (set(PLACING) | INTERVENING):
+        # "lift the stove, then fold the bottle, then place it": the stove or the bottle?
+        return f"pronoun {word!r} opens a step after others that handled something: name it"
+    return None
