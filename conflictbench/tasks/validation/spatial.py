@@ -105,7 +105,6 @@ def frame_independent(model: TaskModel, rel: str, combos: list[list[str]], state
 
 
 def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: list[set[str]]) -> list[str]:
-    facts = model.facts
     rel, text, step = r.get("relation"), str(r.get("text", "")), r.get("step")
     if rel not in RELATIONS:
         return [f"unknown relation {rel!r}"]
@@ -117,29 +116,53 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
     args = [r.get("subject", {})] + list(r.get("landmarks", []))
     if len(args) != (3 if rel == "between" else 2):
         return out + [f"{rel} takes {3 if rel == 'between' else 2} arguments, got {len(args)}"]
-    groups = []
+    found, groups = _argument_groups(model, rel, text, args)
+    out += found
+    if groups is None:
+        return out
+    out += _wording(rel, text, args)
+    out += _unseen_or_unattached(model, r, rel)
+    out += _as_clause(r, text)
+    out += _landmarks_single(model, r)
+    out += _holder(model, rel, groups)
+    out += _when_reached(r, groups, acted, model)
+    return out + _false_everywhere(model, r, rel, groups, states)
+
+
+def _argument_groups(model: TaskModel, rel: str, text: str, args: list[dict]) -> tuple[list[str], list | None]:
+    """Each argument's entities (sorted), all in the scene and all that its phrase could mean, the phrase named by
+    the relation's text; with the problems found (groups None: an argument lists nothing, or what is not there)."""
+    out, groups = [], []
     for arg in args:
         listed = set(arg.get("entities", []))
-        unknown = listed - set(facts.entities)
+        unknown = listed - set(model.facts.entities)
         if not listed or unknown:
-            return out + [f"relation {rel}: entities {sorted(unknown) or '(none)'} are not in the scene"]
+            return out + [f"relation {rel}: entities {sorted(unknown) or '(none)'} are not in the scene"], None
         missing = model.candidates(str(arg.get("phrase", ""))) - listed
         if missing:
             out.append(f"relation {rel}: {arg.get('phrase')!r} could also mean {', '.join(sorted(missing))}")
         if not names_in(text, {str(arg.get("phrase", ""))}):
             out.append(f"relation text {text!r} does not name {arg.get('phrase')!r}")
         groups.append(sorted(listed))
+    return out, groups
+
+
+def _wording(rel: str, text: str, args: list[dict]) -> list[str]:
+    """The text says the relation, and no phrase carries a word of the same axis ("the left bowl to the right")."""
+    out = []
     if not any(names_in(text, {w}) for w in RELATION_WORDS[rel]):
         out.append(f"relation text {text!r} does not say {rel.replace('_', ' ')}")
     phrases = [str(a.get("phrase", "")) for a in args]
     clash = [w for p in phrases for w in SAME_AXIS_WORDS.get(rel, ()) if names_in(p, {w})]
     if clash:
         out.append(f"{rel.replace('_', ' ')} about {' / '.join(phrases)!r}: {clash[0]!r} reads as a contradiction")
-    out += _unseen_or_unattached(model, r, rel)
-    out += _as_clause(r, text)
-    out += _landmarks_single(model, r)
-    out += _holder(model, rel, groups)
-    out += _when_reached(r, groups, acted, model)
+    return out
+
+
+def _false_everywhere(model: TaskModel, r: dict, rel: str, groups: list, states: frozenset) -> list[str]:
+    """For every combination of what the words could mean, the relation is false in every paired state (a
+    direction by a camera-visible margin), and the witness's frame_independent is what the robot's side says."""
+    out = []
     combos = referent_combos(groups)
     if rel in DIRECTIONS:
         out += _margin(r, rel, combos, model, states)
@@ -150,7 +173,7 @@ def _one_relation(case, model: TaskModel, states, r: dict, steps: list, acted: l
             f"{'also' if independent else 'not'} false read from the robot's side ({independent})"
         )
     for combo in combos:
-        true_in = facts.holds(rel, *combo) & states
+        true_in = model.facts.holds(rel, *combo) & states
         if true_in:
             out.append(f"{rel}{tuple(combo)} holds in initial state(s) {sorted(true_in)[:5]}")
     return out
