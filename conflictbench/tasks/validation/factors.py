@@ -40,36 +40,61 @@ def _constraint(requirements: list[dict]) -> list[dict]:
 
 
 def factors_of(witness: dict, wtype: str) -> list[Factor]:
-    out: list[Factor] = []
-    if wtype == "contradiction":
-        by_id = {r.get("id"): r for r in witness.get("requirements", []) if isinstance(r, dict)}
-        for pair in witness.get("conflicts", []):
-            reqs = [by_id[i] for i in pair[:2] if i in by_id]
-            if len(reqs) < 2:
-                continue
-            constraint = _constraint(reqs)
-            literals = tuple(tuple(map(str, r.get("literal", []))) for r in constraint)
-            entities = sorted({str(e) for r in reqs for e in (r.get("literal") or [])[2:]})
-            kind = "contradiction: " + " / ".join(" ".join(lit[:2]) for lit in literals)
-            out.append(Factor(max(int(r.get("step", 0)) for r in reqs), kind, tuple(entities), literals))
-    elif wtype == "absent_referent":
-        for r in witness.get("referents", []):
-            what = (r.get("role"), r.get("replaces"), r.get("concept"), r.get("attribute"))
-            entities = (str(r["replaces"]),) if r.get("replaces") else ()
-            out.append(Factor(int(r.get("step", 0)), f"absent {r.get('role')}", entities, what))
-    elif wtype == "false_relation":
-        for r in witness.get("relations", []):
-            subject = tuple(sorted(r.get("subject", {}).get("entities", [])))
-            marks = tuple(tuple(sorted(lm.get("entities", []))) for lm in r.get("landmarks", []))
-            entities = tuple(sorted({*subject, *(e for m in marks for e in m)}))
-            what = (r.get("relation"), subject, marks)
-            out.append(Factor(int(r.get("step", 0)), f"false {r.get('relation')}", entities, what))
-    elif wtype == "affordance_violation":
-        for v in witness.get("violations", []):
-            what = (v.get("kind"), v.get("needs"), v.get("entity"))
-            kind = f"{v.get('kind')}: needs {v.get('needs')}"
-            out.append(Factor(int(v.get("step", 0)), kind, (str(v.get("entity")),), what))
+    read = _FACTORS.get(wtype)
+    return read(witness) if read else []
+
+
+def _contradiction_factors(witness: dict) -> list[Factor]:
+    out = []
+    by_id = {r.get("id"): r for r in witness.get("requirements", []) if isinstance(r, dict)}
+    for pair in witness.get("conflicts", []):
+        reqs = [by_id[i] for i in pair[:2] if i in by_id]
+        if len(reqs) < 2:
+            continue
+        constraint = _constraint(reqs)
+        literals = tuple(tuple(map(str, r.get("literal", []))) for r in constraint)
+        entities = sorted({str(e) for r in reqs for e in (r.get("literal") or [])[2:]})
+        kind = "contradiction: " + " / ".join(" ".join(lit[:2]) for lit in literals)
+        out.append(Factor(max(int(r.get("step", 0)) for r in reqs), kind, tuple(entities), literals))
     return out
+
+
+def _referent_factors(witness: dict) -> list[Factor]:
+    out = []
+    for r in witness.get("referents", []):
+        what = (r.get("role"), r.get("replaces"), r.get("concept"), r.get("attribute"))
+        entities = (str(r["replaces"]),) if r.get("replaces") else ()
+        out.append(Factor(int(r.get("step", 0)), f"absent {r.get('role')}", entities, what))
+    return out
+
+
+def _relation_factors(witness: dict) -> list[Factor]:
+    out = []
+    for r in witness.get("relations", []):
+        subject = tuple(sorted(r.get("subject", {}).get("entities", [])))
+        marks = tuple(tuple(sorted(lm.get("entities", []))) for lm in r.get("landmarks", []))
+        entities = tuple(sorted({*subject, *(e for m in marks for e in m)}))
+        what = (r.get("relation"), subject, marks)
+        out.append(Factor(int(r.get("step", 0)), f"false {r.get('relation')}", entities, what))
+    return out
+
+
+def _violation_factors(witness: dict) -> list[Factor]:
+    out = []
+    for v in witness.get("violations", []):
+        what = (v.get("kind"), v.get("needs"), v.get("entity"))
+        kind = f"{v.get('kind')}: needs {v.get('needs')}"
+        out.append(Factor(int(v.get("step", 0)), kind, (str(v.get("entity")),), what))
+    return out
+
+
+_FACTORS = {
+    "contradiction": _contradiction_factors,
+    "absent_referent": _referent_factors,
+    "false_relation": _relation_factors,
+    "affordance_violation": _violation_factors,
+}
+"""How each built-in witness type lists its factors (a plugin's own type has none here)."""
 
 
 def signature(f: Factor) -> tuple:
