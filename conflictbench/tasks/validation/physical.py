@@ -162,27 +162,36 @@ def _observable(case: ConflictCase, model: TaskModel, violations: list) -> list[
         out.append(f"joined participant {JOINED.search(text).group(0)!r}: the goal can be met before it is reached")
     if re.search(r"\bboth\b", text) and not re.search(r"\bboth\b", normalise(model.task.language)):
         out.append("'both X and Y' adds a participant: the goal can be met before it is reached")
-    roles = case.witness.get("step_roles") or []
-    goals = case.witness.get("step_goals") or []
-    acted = case.witness.get("step_entities") or []
     bodies = [normalise(str(b)) for b in case.witness.get("steps") or []]
     for v in violations:
         i = int(v.get("step", 0)) - 1
-        if 0 <= i < len(roles) and roles[i] == "original" and i < len(goals) and goals[i]:
-            if i < len(acted) and v.get("entity") not in acted[i]:
-                out.append(
-                    f"step {i + 1} reaches its goal: {v.get('entity')} is an added participant, maybe never reached"
-                )
+        out += _reached(case.witness, i, v)
         if 0 <= i + 1 < len(bodies) and PRONOUN_OPENER.match(bodies[i + 1]):
             out.append(f"step {i + 2} opens with a pronoun after a step with a violation: name the object")
-        if v.get("kind") == "containment" and v.get("entity") in model.names:
-            info = category(model.category_of(v["entity"]))
-            names = " ".join((*info.names, model.name(v["entity"])))
-            if not info.lacks("openable") or any(w in names for w in NOT_HOLDERS):
-                out.append(
-                    f"containment in {v['entity']}: a box, carton, bag or package, or what may open, invites opening"
-                )
+        out += _sealed_holder(model, v)
     return out
+
+
+def _reached(witness: dict, i: int, v: dict) -> list[str]:
+    """A violation in an original step that reaches its goal is about what the step acts on: an added
+    participant may never be reached before the goal ends the episode."""
+    roles = witness.get("step_roles") or []
+    goals = witness.get("step_goals") or []
+    acted = witness.get("step_entities") or []
+    if 0 <= i < len(roles) and roles[i] == "original" and i < len(goals) and goals[i]:
+        if i < len(acted) and v.get("entity") not in acted[i]:
+            return [f"step {i + 1} reaches its goal: {v.get('entity')} is an added participant, maybe never reached"]
+    return []
+
+
+def _sealed_holder(model: TaskModel, v: dict) -> list[str]:
+    """Containment only in a holder that plainly cannot open (not a box, carton, bag or package)."""
+    if v.get("kind") == "containment" and v.get("entity") in model.names:
+        info = category(model.category_of(v["entity"]))
+        names = " ".join((*info.names, model.name(v["entity"])))
+        if not info.lacks("openable") or any(w in names for w in NOT_HOLDERS):
+            return [f"containment in {v['entity']}: a box, carton, bag or package, or what may open, invites opening"]
+    return []
 
 
 def _grasped(body: str, model: TaskModel) -> list[set[str]]:
