@@ -99,6 +99,12 @@ def contradiction(a: list, b: list, facts: TaskFacts, states: frozenset) -> str 
 
 
 def _one_way(x: list, y: list, facts: TaskFacts, states: frozenset) -> tuple[str, str] | None:
+    return _end_conflict(x, y) or _change_conflict(x, y, facts, states)
+
+
+def _end_conflict(x: list, y: list) -> tuple[str, str] | None:
+    """``x`` and ``y`` say opposite things about the end (or ``x`` holds throughout what ``y`` forbids at the
+    end): contradictory whatever the scene."""
     if x[0] == "end" and y[0] == "avoid" and x[1:] == y[1:]:
         return "final_states", f"{_show(x)} must hold at the end and must not"
     if x[0] == y[0] == "end" and x[1] in EXCLUSIVE and y[1] == EXCLUSIVE[x[1]] and x[2:] == y[2:]:
@@ -106,6 +112,11 @@ def _one_way(x: list, y: list, facts: TaskFacts, states: frozenset) -> tuple[str
     if x[0] == "keep" and x[1] in STATE_PREDICATES:
         if (y[0] == "avoid" and y[1:] == x[1:]) or (y[0] == "end" and y[1] == EXCLUSIVE[x[1]] and y[2:] == x[2:]):
             return "simultaneous", f"{_show(x)} must hold throughout, so also at the end, where it must not"
+    return None
+
+
+def _change_conflict(x: list, y: list, facts: TaskFacts, states: frozenset) -> tuple[str, str] | None:
+    """``x`` changes the scene in every state, in a way that ``y``'s keeping forbids while it happens."""
     if not _changes(facts, x, states) or y[0] != "keep":
         return None
     if y[1] in STATE_PREDICATES and x[0] == "goal" and EXCLUSIVE.get(x[1]) == y[1] and x[2:] == y[2:]:
