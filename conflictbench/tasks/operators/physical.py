@@ -289,26 +289,39 @@ def _apart(options: tuple[Option, ...]) -> bool:
 
 
 def _combos(model: TaskModel, level: str) -> list[tuple[list[Slot], tuple[Option, ...]]]:
-    out: list[tuple[list[Slot], tuple[Option, ...]]] = []
     if level in ("L1", "L2"):
-        for frame in frames_for_level(model, level):
-            if level == "L1":
-                out += [(frame, (o,)) for o in slot_options(model, 0, frame[0])]
-                continue
-            seconds = slot_options(model, 0, frame[0], second=True)
-            pairs = itertools.product(slot_options(model, 0, frame[0]), seconds)
-            out += [(frame, c) for c in pairs if _compatible(c)]
-        return out
+        return _single_step_combos(model, level)
     frames = frames_for_level(model, level)
     plain = [f for f in frames if not any(s.aux for s in f)]
     if len(model.steps) == 1:
         plain.append([slot_of(model.steps[0])])
+    out: list[tuple[list[Slot], tuple[Option, ...]]] = []
     for frame in frames:
         options = [o for i, s in enumerate(frame) for o in slot_options(model, i, s)]
         if level == "L3":
             out += [(frame, (o,)) for o in options]
         else:
             out += [(frame, c) for c in itertools.combinations(options, 2) if _apart(c)]
+    return out + _added_step_combos(model, level, plain)
+
+
+def _single_step_combos(model: TaskModel, level: str) -> list[tuple[list[Slot], tuple[Option, ...]]]:
+    """L1: each violation of the one step; L2: two compatible ones of it."""
+    out: list[tuple[list[Slot], tuple[Option, ...]]] = []
+    for frame in frames_for_level(model, level):
+        if level == "L1":
+            out += [(frame, (o,)) for o in slot_options(model, 0, frame[0])]
+            continue
+        seconds = slot_options(model, 0, frame[0], second=True)
+        pairs = itertools.product(slot_options(model, 0, frame[0]), seconds)
+        out += [(frame, c) for c in pairs if _compatible(c)]
+    return out
+
+
+def _added_step_combos(model: TaskModel, level: str, plain: list[list[Slot]]) -> list:
+    """A violating step added before each frame without one: alone (L3), or with a violation of a later
+    step about another entity (L4)."""
+    out = []
     for aux in aux_options(model):
         for frame in plain:
             full = [_aux_slot(aux), *frame]
