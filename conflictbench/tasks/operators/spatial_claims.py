@@ -48,30 +48,36 @@ def _landmarks(model: TaskModel, relation: str, subject: str, exclude: set[str])
     "on" needs a real support and "in" a container at least as large as the subject: "the bowl on
     the ketchup" would be absurd rather than false.
     """
-    out = []
-    size = category(model.category_of(subject)).size if model.category_of(subject) != "region" else 4
     if relation in ("on", "in"):
-        for ent, (prep, np_) in model.dest_phrases.items():
-            holder_name = model.parent(ent)
-            if ent in exclude or holder_name in exclude or _is_twin(model, ent) or not np_.startswith("the "):
-                continue
-            if ent not in model.facts.entities:
-                continue
-            if relation == "in" and "drawer" in np_:
-                continue  # a closed drawer hides its contents: "the plate inside the drawer" cannot be seen false
-            holder = category(model.category_of(holder_name))
-            if holder.size < size:
-                continue
-            if (
-                relation == "on" and prep == "on" and holder.has("support") is True and ent not in model.fixtures()
-            ) or (relation == "in" and prep == "in" and holder.has("container")):
-                out.append((ent, model.name(ent) if ent in model.names else np_))
-        return out
+        return _holders(model, relation, subject, exclude)
+    out = []
     for ent in model.names:
         if ent not in exclude and not _is_twin(model, ent) and ent in model.facts.entities:
             if relation in DIRECTIONS and has_own_front(model, ent):
                 continue  # "in front of the cabinet": its drawers' side or the camera's? Readers split.
             out.append((ent, model.name(ent)))
+    return out
+
+
+def _holders(model: TaskModel, relation: str, subject: str, exclude: set[str]) -> list[tuple[str, str]]:
+    """The landmarks of "on" (a real support) and "in" (a container), at least as large as ``subject``."""
+    out = []
+    size = category(model.category_of(subject)).size if model.category_of(subject) != "region" else 4
+    for ent, (prep, np_) in model.dest_phrases.items():
+        holder_name = model.parent(ent)
+        if ent in exclude or holder_name in exclude or _is_twin(model, ent) or not np_.startswith("the "):
+            continue
+        if ent not in model.facts.entities:
+            continue
+        if relation == "in" and "drawer" in np_:
+            continue  # a closed drawer hides its contents: "the plate inside the drawer" cannot be seen false
+        holder = category(model.category_of(holder_name))
+        if holder.size < size:
+            continue
+        if (relation == "on" and prep == "on" and holder.has("support") is True and ent not in model.fixtures()) or (
+            relation == "in" and prep == "in" and holder.has("container")
+        ):
+            out.append((ent, model.name(ent) if ent in model.names else np_))
     return out
 
 
@@ -95,21 +101,10 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
         marks = [np_ for ent, np_ in _landmarks(model, kind, subject, exclude) if model.parent(ent) not in exclude]
         options = [list(p) for p in itertools.combinations(marks, 2)] if relation == "between" else [[m] for m in marks]
         for phrases in options:
-            axis_words = SAME_AXIS_WORDS.get(relation, ())
-            if any(w in f" {p} ".split() for p in (noun, *phrases) for w in axis_words):
-                continue  # "the left plate to the right of ..." reads as a contradiction in words
-            groups = [sorted(model.candidates(p)) for p in phrases]
-            if not all(groups) or any(set(g) & set(candidates) for g in groups):
+            groups = _landmark_groups(model, relation, subject, noun, candidates, phrases, exclude)
+            if groups is None:
                 continue
-            if any(e in exclude or model.parent(e) in exclude for g in groups for e in g):
-                continue
-            if relation == "next_to" and same_kind_pair(model, subject, groups[0]):
-                continue  # "the right plate beside the left plate": a pair reads as side by side at any gap
-            false = model.facts.states()
-            for cand in candidates:
-                for combo in itertools.product(*groups):
-                    if len(set(combo)) == len(combo):
-                        false = false & model.facts.false_states(relation, cand, *combo)
+            false = _false_for_all(model, relation, candidates, groups)
             if len(false) >= MIN_STATES:
                 out.append(
                     {
@@ -123,6 +118,33 @@ def claims(model: TaskModel, subject: str, avoid: frozenset = frozenset(), holde
                     }
                 )
     return out
+
+
+def _landmark_groups(model, relation: str, subject: str, noun: str, candidates: list[str], phrases, exclude):
+    """What each landmark phrase could denote, or None when the claim cannot be said with these phrases: a word
+    of the relation's own axis in a name, a phrase denoting nothing or the subject, an excluded landmark, or a
+    pair of like things side by side."""
+    axis_words = SAME_AXIS_WORDS.get(relation, ())
+    if any(w in f" {p} ".split() for p in (noun, *phrases) for w in axis_words):
+        return None  # "the left plate to the right of ..." reads as a contradiction in words
+    groups = [sorted(model.candidates(p)) for p in phrases]
+    if not all(groups) or any(set(g) & set(candidates) for g in groups):
+        return None
+    if any(e in exclude or model.parent(e) in exclude for g in groups for e in g):
+        return None
+    if relation == "next_to" and same_kind_pair(model, subject, groups[0]):
+        return None  # "the right plate beside the left plate": a pair reads as side by side at any gap
+    return groups
+
+
+def _false_for_all(model: TaskModel, relation: str, candidates: list[str], groups: list[list[str]]) -> frozenset:
+    """The initial states where the relation is false for every subject candidate and distinct landmarks."""
+    false = model.facts.states()
+    for cand in candidates:
+        for combo in itertools.product(*groups):
+            if len(set(combo)) == len(combo):
+                false = false & model.facts.false_states(relation, cand, *combo)
+    return false
 
 
 def _names(model: TaskModel, entity: str) -> set[str]:
