@@ -15,11 +15,16 @@ conflictbench nor torch. A plugin keeps only what is its own: processing, backen
   :mod:`.openpi` (openpi's websocket with msgpack-numpy: π0, π0-FAST, π0.5, and VLA-JEPA's starVLA envelope;
   ``websockets``, ``conflictbench-serving``), :mod:`.zeromq` (NVIDIA's ZeroMQ: GR00T; ``pyzmq``,
   ``conflictbench-serving``), :mod:`.rest` (``deploy.py``'s REST with json-numpy: OpenVLA, OFT, UniVLA;
-  ``json-numpy``).
+  ``json-numpy``); :mod:`.openvla_family`, the OpenVLA family's image and action steps (Pillow, simplejpeg). Each
+  needs conflictbench's extra of its name (``conflictbench[openpi]``, ``[zeromq]``, ``[rest]``,
+  ``[openvla-family]``), which the plugin requires; without it, importing the module says so in one line;
+- :mod:`.former`: the names kept at their places of 0.2 (``conflictbench.core.HostedPolicy``,
+  ``conflictbench.core.serving``), each use warning; they go in 0.4.0.
 
 Imports nothing of conflictbench but :mod:`conflictbench.core`; no simulator, no torch.
 """
 
+from . import former
 from .client import MAX_CONCURRENT_REQUESTS, PolicyClient, ServedPolicy, ServingConfig
 from .hosted import MODEL_PROCESS_ENV, HostedConfig, HostedPolicy
 from .launch import ServerProcess, free_port, model_environment
@@ -41,24 +46,5 @@ __all__ = [
     "one_line",
 ]
 
-#: Modules that lived in ``conflictbench.core`` until 0.2 and the names they held: both stay importable there
-#: (``from conflictbench.core import HostedPolicy``, ``from conflictbench.core.transport import one_line``), so a
-#: plugin written against 0.2 runs unchanged. New code imports them from ``conflictbench`` or here.
-FORMER_CORE_MODULES = {"serving": "client", "transport": "transport", "hosting": "hosted", "launch": "launch"}
-FORMER_CORE_NAMES = [name for name in __all__ if name not in ("MAX_CONCURRENT_REQUESTS", "one_line")]
-
-
-def _keep_former_places() -> None:
-    import sys
-
-    from .. import core
-
-    for old, new in FORMER_CORE_MODULES.items():
-        module = sys.modules[f"{__name__}.{new}"]
-        sys.modules.setdefault(f"{core.__name__}.{old}", module)
-        setattr(core, old, module)
-    for name in FORMER_CORE_NAMES:
-        setattr(core, name, globals()[name])
-
-
-_keep_former_places()
+# The names that lived in ``conflictbench.core`` until 0.2 stay usable there until 0.4, each use warning (.former).
+former.install()

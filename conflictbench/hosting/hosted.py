@@ -14,7 +14,8 @@ and ``decode``) and a few declarations:
 - ``HostedConfig.minimums``: the least value of each numeric setting (a plugin's config adds its own).
 
 A plugin written before ``served`` existed declares ``environment``, ``server_module`` (whose ``serve --policy``
-command hosts a checkpoint) and ``inspect_checkpoint`` instead; both ways work.
+command hosts a checkpoint) and ``inspect_checkpoint`` instead: that way works until 0.4.0, and declaring
+``server_module`` warns (``DeprecationWarning``) that ``served`` replaces it.
 
 What it owns, the same for every model:
 
@@ -48,6 +49,7 @@ from typing import Any, ClassVar
 from ..core.errors import ServerUnavailable, UserError
 from ..core.policy import DEFAULT_MAX_STEPS
 from .client import PolicyClient, ServedPolicy, ServingConfig
+from .former import deprecated
 from .launch import ServerProcess, free_port, model_environment
 from .transport import Transport
 
@@ -127,7 +129,8 @@ class HostedPolicy(ServedPolicy):
     environment: ClassVar[str] = ""
     """Without ``served``: the model environment's name (``scripts/setup.sh --models NAME``, ``.venv/models/NAME``)."""
     server_module: ClassVar[str] = ""
-    """Without ``served``: ``python -m server_module serve --policy P ...`` hosts a checkpoint in that environment."""
+    """Deprecated (goes in 0.4.0; declaring it warns): without ``served``, ``python -m server_module serve --policy P
+    ...`` hosts a checkpoint in that environment."""
     transport: ClassVar[Callable[[str], Transport]]
     url_scheme: ClassVar[str] = "ws"
     policy_types: ClassVar[Mapping[str, str]] = {}
@@ -137,6 +140,15 @@ class HostedPolicy(ServedPolicy):
     checkpoint_errors: ClassVar[tuple[type[Exception], ...]] = ()
     """What the plugin's checkpoint checks raise for a folder that cannot be served (its message one line):
     a user mistake, reported as :class:`UserError`."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "server_module" in vars(cls):  # warned where the plugin declares it (the class statement)
+            deprecated(
+                f"{cls.__module__}.{cls.__qualname__}.server_module (HostedPolicy's)",
+                "declare served = ServedModel.of(...) instead (conflictbench_serving.command), which "
+                "conflictbench-serve POLICY hosts",
+            )
 
     def __init__(self, name: str, cfg: HostedConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.name, self.cfg, self.checkpoint, self.python = name, cfg, checkpoint, python

@@ -7,8 +7,8 @@
 A plugin declares what it serves with a :class:`ServedModel` under the entry-point group ``conflictbench_serving``
 (``pi0 = "conflictbench_pi0.serve:SERVED"``); the command finds it there, so one command serves every model and a
 plugin's own ``conflictbench-<name> serve --policy POLICY ...`` is the same code under its old name
-(:func:`plugin_main`, its console script and ``python -m conflictbench_<name> serve``). A run with
-``model.checkpoint=DIR`` starts ``python -m conflictbench_serving POLICY ...``.
+(:func:`plugin_main`, its console script and ``python -m conflictbench_<name> serve``; deprecated, they warn). A
+run with ``model.checkpoint=DIR`` starts ``python -m conflictbench_serving POLICY ...``.
 
 Every user mistake is one line on stderr and exit code 2, the last line the process writes (the client that
 starts the server shows that line as the error): a policy no installed plugin serves, bad numbers, a missing
@@ -24,6 +24,7 @@ import importlib
 import logging
 import signal
 import sys
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
@@ -264,8 +265,17 @@ def main(argv: list[str] | None = None) -> int:
 
 def plugin_main(program: str | None = None, argv: list[str] | None = None) -> int:
     """A plugin's own command, ``conflictbench-NAME serve --policy P ...`` (kept beside ``conflictbench-serve P``):
-    the plugin whose ``conflictbench_serving`` entry point is ``NAME`` (``-`` for ``_``), by the program's name."""
+    the plugin whose ``conflictbench_serving`` entry point is ``NAME`` (``-`` for ``_``), by the program's name.
+
+    Deprecated with the console scripts and ``python -m conflictbench_NAME`` that call it: it warns, blaming its
+    caller (their ``__main__``, so Python shows it), and goes in conflictbench 0.4.0 (conflictbench-serving 0.3.0)."""
     program = program or Path(sys.argv[0]).name
+    warnings.warn(
+        f"{program} serve --policy POLICY is deprecated and goes in conflictbench 0.4.0 (conflictbench-serving "
+        f"0.3.0): use {PROGRAM} POLICY with the same options (python -m conflictbench_serving POLICY)",
+        DeprecationWarning,
+        stacklevel=2,
+    )
     name = program.removeprefix("conflictbench-").replace("-", "_")
     found = [entry for entry in metadata.entry_points(group=ENTRY_POINT_GROUP) if entry.name == name]
     if not found:

@@ -1,8 +1,13 @@
-"""Moved: NVIDIA's ZeroMQ transport is conflictbench's own,
-:mod:`conflictbench.hosting.zeromq` (kept importable here)."""
+"""Deprecated (goes in conflictbench 0.4.0): NVIDIA's ZeroMQ transport moved to conflictbench's own
+:mod:`conflictbench.hosting.zeromq` in 0.3; reading a name here warns and gives that module's."""
 
-from conflictbench.hosting.zeromq import ZmqTransport, answers_ping
+from conflictbench.hosting.former import moved_names
 
-Gr00tTransport = ZmqTransport
-
-__all__ = ["Gr00tTransport", "answers_ping"]
+__getattr__ = moved_names(
+    __name__,
+    {
+        "Gr00tTransport": "conflictbench.hosting.zeromq:ZmqTransport",
+        "ZmqTransport": "conflictbench.hosting.zeromq:ZmqTransport",
+        "answers_ping": "conflictbench.hosting.zeromq:answers_ping",
+    },
+)
