@@ -190,11 +190,7 @@ def build_plan(
     if cases_per_cell is not None and cases_per_cell < 0:
         raise UserError(f"run.cases_per_cell must be >= 0 or 'all', got {cases_per_cell}")
     if base_tasks is not None:
-        wanted = set(base_tasks)
-        base_instructions = {key: text for key, text in base_instructions.items() if key in wanted}
-        left_out = sorted(wanted - set(base_instructions))
-        if left_out:
-            raise UserError(f"run.tasks names {', '.join(f'{s}/{t}' for s, t in left_out)}, outside run.libero_suites")
+        base_instructions = _only_tasks(base_instructions, base_tasks)
     suites = set(libero_suites) if libero_suites else {s for s, _ in base_instructions}
 
     def selected(c: ConflictCase) -> bool:
@@ -211,17 +207,8 @@ def build_plan(
     else:
         eligible = [c for c in cases if c.status in USABLE and selected(c)]
         chosen = [] if cases_per_cell == 0 else sample_cases(eligible, cases_per_cell, sample_seed)
-
-    conflicts: list[EpisodeSpec] = []
-    reference_keys: set[tuple[str, int, int, str]] = set()
-    for case in chosen:
-        states = [s for s in init_states if case.init_states is None or s in case.init_states]
-        base = base_instructions[(case.suite, case.task_id)]
-        for state in states:
-            for prompt in prompts:
-                spec = EpisodeSpec(case.suite, case.task_id, state, prompt, base, case, conflict_suite)
-                conflicts.append(spec)
-                reference_keys.add(spec.reference_key)
+    conflicts = _conflict_episodes(chosen, base_instructions, init_states, prompts, conflict_suite)
+    reference_keys = {spec.reference_key for spec in conflicts}
     if cases_per_cell == 0:
         reference_keys = {
             (s, t, i, p) for (s, t) in base_instructions if s in suites for i in init_states for p in prompts
@@ -232,3 +219,31 @@ def build_plan(
         references + conflicts,
         key=lambda e: (e.suite, e.task_id, e.case is not None, e.case_id or "", e.init_state, e.prompt),
     )
+
+
+def _only_tasks(base_instructions: dict[tuple[str, int], str], base_tasks: Sequence[tuple[str, int]]) -> dict:
+    """The base instructions of ``run.tasks`` alone; each of them must be among the usable ones."""
+    wanted = set(base_tasks)
+    kept = {key: text for key, text in base_instructions.items() if key in wanted}
+    left_out = sorted(wanted - set(kept))
+    if left_out:
+        raise UserError(f"run.tasks names {', '.join(f'{s}/{t}' for s, t in left_out)}, outside run.libero_suites")
+    return kept
+
+
+def _conflict_episodes(
+    chosen: list[ConflictCase],
+    base_instructions: dict[tuple[str, int], str],
+    init_states: Sequence[int],
+    prompts: Sequence[str],
+    conflict_suite: str,
+) -> list[EpisodeSpec]:
+    """Each chosen case in each of its initial states (those of the run it allows) and each prompt."""
+    conflicts = []
+    for case in chosen:
+        states = [s for s in init_states if case.init_states is None or s in case.init_states]
+        base = base_instructions[(case.suite, case.task_id)]
+        for state in states:
+            for prompt in prompts:
+                conflicts.append(EpisodeSpec(case.suite, case.task_id, state, prompt, base, case, conflict_suite))
+    return conflicts
