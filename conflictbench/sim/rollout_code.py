@@ -48,13 +48,11 @@ def _off_rollout(module: str) -> bool:
     return any(module == name or module.startswith(name + ".") for name in NOT_ROLLOUT)
 
 
-@functools.cache
-def _tree(root: str) -> tuple[dict[str, Path], dict[str, list[Path]]]:
-    """conflictbench's modules by name and its data files by file name, under ``root`` (per process: the files are
-    read again each time; only which files there are is kept)."""
+def _conflictbench() -> tuple[dict[str, Path], dict[str, list[Path]]]:
+    """conflictbench's modules by name and its data files by file name, as they are now on disk."""
     modules: dict[str, Path] = {}
     data: dict[str, list[Path]] = {}
-    base = Path(root)
+    base = Path(importlib.util.find_spec("conflictbench").origin).parent
     for path in sorted(base.rglob("*")):
         parts = path.relative_to(base).parts
         if not path.is_file() or _SKIPPED_PARTS & set(parts) or path.name.startswith("."):
@@ -65,11 +63,6 @@ def _tree(root: str) -> tuple[dict[str, Path], dict[str, list[Path]]]:
         elif not path.name.endswith(_NOT_DATA):
             data.setdefault(path.name, []).append(path)
     return modules, data
-
-
-def _conflictbench() -> tuple[dict[str, Path], dict[str, list[Path]]]:
-    spec = importlib.util.find_spec("conflictbench")
-    return _tree(str(Path(spec.origin).parent))
 
 
 @functools.cache
@@ -135,14 +128,17 @@ def conflictbench_modules() -> set[str]:
 
 def imports_of(module: str, top_only: bool = False) -> set[str]:
     """The modules of conflictbench that ``module`` imports (at its top only, or anywhere in it)."""
-    modules, _ = _conflictbench()
+    return _imports(module, _conflictbench()[0], top_only)
+
+
+def _imports(module: str, modules: dict[str, Path], top_only: bool) -> set[str]:
     imports = _read(modules[module], _package(module, modules))
     return {_target(name, imported, modules) for name, imported, top in imports if top or not top_only} & modules.keys()
 
 
-def rollout_modules(roots: Iterable[str] = ()) -> set[str]:
+def rollout_modules(roots: Iterable[str] = (), modules: dict[str, Path] | None = None) -> set[str]:
     """The modules of conflictbench a rollout may run: the closure of :data:`ROLLOUT_ENTRIES` and ``roots``."""
-    modules, _ = _conflictbench()
+    modules = _conflictbench()[0] if modules is None else modules
     whole: set[str] = set()
     tops: set[str] = set()
     todo = [(root, True) for root in (*ROLLOUT_ENTRIES, *roots)]
@@ -153,7 +149,7 @@ def rollout_modules(roots: Iterable[str] = ()) -> set[str]:
         (whole if all_of_it else tops).add(name)
         parts = name.split(".")
         todo.extend((".".join(parts[:i]), False) for i in range(1, len(parts)))
-        todo.extend((target, True) for target in imports_of(name, top_only=not all_of_it))
+        todo.extend((target, True) for target in _imports(name, modules, top_only=not all_of_it))
     return whole | tops
 
 
@@ -161,7 +157,7 @@ def rollout_files(roots: Iterable[str] = ()) -> list[tuple[str, Path]]:
     """The files of :func:`rollout_modules`, and the data files they name, by their path from conflictbench's
     parent folder (``conflictbench/sim/worker.py``)."""
     modules, data = _conflictbench()
-    files = {modules[name] for name in rollout_modules(roots)}
+    files = {modules[name] for name in rollout_modules(roots, modules)}
     texts = [path.read_text(encoding="utf-8") for path in files]
     named = {name for name in data if any(f'"{name}"' in text or f"'{name}'" in text for text in texts)}
     files |= {path for name in named for path in data[name]}
