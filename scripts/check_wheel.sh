@@ -6,7 +6,8 @@
 # import paths, imports without the simulator), not the whole selection again;
 # then add the simulator and, from an empty directory, run `conflictbench list`, a real run of the default model
 # (one reference and one conflict episode of libero_spatial, about 25 s), the viewer on it and `conflictbench doctor`
-# (the packaged goldens replayed in this fresh environment); last, each model
+# (the packaged goldens replayed in this fresh environment); then, with conflictbench-serving and the protocols'
+# extras added, every module of the installed wheel imported (what it declares is enough); last, each model
 # plugin installed alone (not editable) beside it, as `pip install . ./serving ./plugins/NAME` would.
 #
 #   scripts/check_wheel.sh          PYTHON=... picks the interpreter (default: .venv's)
@@ -93,10 +94,30 @@ grep -q "1 pair page, 1 reference episode page, 2 videos rendered" "$work/view.l
 #    them as the reference simulator (exit 0: physics within tolerance, rendering identical or another renderer's).
 "$work/venv/bin/conflictbench" doctor || { say "doctor says this simulator is not the reference one"; exit 1; }
 
-# 7. Each model plugin as a user installs it (not editable), alone beside the wheel and the server half: a plugin
-#    needs conflictbench and conflictbench-serving, never another plugin (pip brings none, and it loads alone).
+# 7. Every module of the installed wheel imports, in this environment of exactly what the wheel declares: its
+#    requirements and extras (sim and test above; the protocols' now, with conflictbench-serving, which their
+#    extras require and which is not on PyPI). pkgutil walks the package; without its extra a protocol module would
+#    name it in one line (tests/test_module_imports.py checks that); here every one must import.
+say "every module of the wheel, with its extras"
+install "$work/src/serving" "$wheel[openpi,zeromq,rest,openvla-family]"
+"$py" "$repo/tests/import_every_module.py" --strict >"$work/imports.jsonl" \
+  || { say "a module of the wheel does not import with what the wheel declares"; exit 1; }
+"$py" - "$work/imports.jsonl" <<'PY'
+import collections
+import json
+import sys
+
+said = [json.loads(line) for line in open(sys.argv[1])]
+counts = collections.Counter(s["outcome"] for s in said)
+exempt = ", ".join(s["module"] for s in said if s["outcome"] == "exempt")
+print(f"[check_wheel] all {counts['ok']} modules of the wheel import with its extras"
+      + (f" (not imported: {exempt}, another environment's script)" if exempt else ""), file=sys.stderr)
+PY
+
+# 8. Each model plugin as a user installs it (not editable), alone beside the wheel and the server half: a plugin
+#    needs conflictbench (with its protocol's extra) and conflictbench-serving, never another plugin (pip brings
+#    none, and it loads alone).
 say "each model plugin alone, not editable"
-install "$work/src/serving"
 for plugin in "$work"/src/plugins/*/; do
   dist=$(sed -n 's/^name = "\(.*\)"$/\1/p' "$plugin/pyproject.toml" | head -n 1)
   install "$plugin"
@@ -121,7 +142,7 @@ PY
   uninstall "$dist"
 done
 
-# 8. Each plugin's server half built as a wheel from the clean copy (its package lives beside it, ../conflictbench_X):
+# 9. Each plugin's server half built as a wheel from the clean copy (its package lives beside it, ../conflictbench_X):
 #    the whole package with its server modules, the entry point conflictbench-serve finds, and no requirement of
 #    conflictbench. Installing it means its model's stack (torch, LeRobot): the model environments' build does that.
 #    Built by this Python whatever the half requires (the LeRobot ones, 3.12): a wheel is only read here.
@@ -137,7 +158,7 @@ from pathlib import Path
 
 wheels, plugins = Path(sys.argv[1]), Path(sys.argv[2])
 for source in sorted(plugins.glob("*/server")):
-    package = next(source.parent.glob("conflictbench_*/serve.py")).parent
+    package = next(source.parent.glob("conflictbench_*/server.py")).parent
     wheel = next(wheels.glob(f"{package.name}_server-*.whl"), None)
     if wheel is None:
         sys.exit(f"[check_wheel] no wheel for {source}")
@@ -153,4 +174,5 @@ for source in sorted(plugins.glob("*/server")):
     print(f"[check_wheel] {wheel.name}: {len(names)} files, requires {len(requires)}, no conflictbench", file=sys.stderr)
 PY
 say "ok: the installed wheel passes the tests without a simulator, lists its plugins, plays real episodes and shows" \
-  "them, each model plugin installs and loads alone, and each server half builds whole without conflictbench"
+  "them, imports every module with its extras, each model plugin installs and loads alone, and each server half" \
+  "builds whole without conflictbench"
