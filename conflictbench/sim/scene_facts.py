@@ -102,6 +102,31 @@ def _safe_eval(env, atom: tuple[str, ...]) -> bool:
         return False
 
 
+def _settle(env, init_state) -> None:
+    """Set an initial state and let it settle, as an episode does before its first action."""
+    env.set_init_state(init_state)
+    for _ in range(DEFAULT_WARMUP_STEPS):
+        env.step(NOOP_ACTION)
+
+
+def _true_predicates(env, entities: dict[str, Entity], objects: list[str], unary_targets: list[str]):
+    """The predicates LIBERO evaluates true now: ``on``/``in`` of each object on or in another entity, and the
+    unary states of the articulated targets (``turn_on`` and the like only for what can be turned)."""
+    for a in objects:
+        for b in entities:
+            if a == b:
+                continue
+            for relation in ("on", "in"):
+                if _safe_eval(env, (relation, a, b)):
+                    yield (relation, a, b)
+    for target in unary_targets:
+        for relation in UNARY:
+            if relation.startswith("turn") and not hasattr(env.env.get_object(target), "turn_on"):
+                continue
+            if _safe_eval(env, (relation, target)):
+                yield (relation, target)
+
+
 def derive_task_facts(task: BaseTask, *, states: Iterable[int] | None = None) -> TaskFacts:
     """Facts of one base task from a fresh simulator (call inside a process configured for LIBERO)."""
     from conflictbench.sim.libero_env import EnvSettings, make_env
@@ -121,9 +146,7 @@ def derive_task_facts(task: BaseTask, *, states: Iterable[int] | None = None) ->
         objects = [n for n, e in entities.items() if e.kind == "object"]
         unary_targets = _articulated(env, entities)
         for row, index in enumerate(chosen):
-            env.set_init_state(init_states[index])
-            for _ in range(DEFAULT_WARMUP_STEPS):
-                env.step(NOOP_ACTION)
+            _settle(env, init_states[index])
             data = env.env.sim.data
             for name, entity in entities.items():
                 positions[name][row] = (
@@ -131,22 +154,9 @@ def derive_task_facts(task: BaseTask, *, states: Iterable[int] | None = None) ->
                 )
             for pair in _contacts(env, geoms):
                 contacts.setdefault(pair, set()).add(index)
-            for a in objects:
-                for b in entities:
-                    if a == b:
-                        continue
-                    for relation in ("on", "in"):
-                        if _safe_eval(env, (relation, a, b)):
-                            predicates.setdefault((relation, a, b), set()).add(index)
-            for target in unary_targets:
-                for relation in UNARY:
-                    if relation.startswith("turn") and not hasattr(env.env.get_object(target), "turn_on"):
-                        continue
-                    if _safe_eval(env, (relation, target)):
-                        predicates.setdefault((relation, target), set()).add(index)
-        env.set_init_state(init_states[chosen[0]])
-        for _ in range(DEFAULT_WARMUP_STEPS):
-            env.step(NOOP_ACTION)
+            for atom in _true_predicates(env, entities, objects, unary_targets):
+                predicates.setdefault(atom, set()).add(index)
+        _settle(env, init_states[chosen[0]])
         sized = {}
         for name in bodies:
             radius, height = _footprint(env, name, geoms)
