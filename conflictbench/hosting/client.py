@@ -18,7 +18,7 @@ Transports signal a broken or refused connection with :class:`OSError` (``Connec
 ``TimeoutError``, socket errors) and a server's error reply with :class:`InfrastructureError`.
 :class:`HttpJsonTransport` (HTTP POST with a JSON body, stdlib only) is the one built in; a
 dialect overrides its ``dumps``/``loads`` (the OpenVLA family's ``POST /act`` needs json-numpy arrays:
-conflictbench-openvla's ``JsonNumpyTransport``).
+:class:`~.rest.JsonNumpyTransport`, ``conflictbench[rest]``).
 
 Example, a complete plugin module (``conflictbench model=mymodel model.server=http://gpu:8000/act``)::
 
