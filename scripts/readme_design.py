@@ -11,14 +11,13 @@ the shipped suite and conflictbench/metrics/design.py; nothing is played. A test
 from __future__ import annotations
 
 import argparse
-import difflib
 import sys
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-README = REPO / "README.md"
+from readme_block import ReadmeBlock
+
 BEGIN = "<!-- scripts/readme_design.py writes what follows, from correlations.json and the suite; do not edit it -->"
 END = "<!-- end of scripts/readme_design.py -->"
+BLOCK = ReadmeBlock("readme_design", BEGIN, END)
 SLICES = (
     ("the default slice (`conflictbench`)", 1, 1),
     ("`run.init_states=3 run.cases_per_cell=4`", 4, 3),
@@ -124,28 +123,12 @@ def _states(n: int | None) -> str:
     return "more than 50" if n is None else str(n)
 
 
-def current(text: str) -> str:
-    start, end = text.find(BEGIN), text.find(END)
-    if start < 0 or end < start:
-        sys.exit(f"[readme_design] README.md has no block between {BEGIN!r} and {END!r}")
-    return text[start : end + len(END)]
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="compare with README instead of writing it")
     args = parser.parse_args(argv)
-    text = README.read_text()
-    old, new = current(text), block()
-    if args.check:
-        if old != new:
-            print("\n".join(difflib.unified_diff(old.splitlines(), new.splitlines(), "README.md", "now", lineterm="")))
-            print("[readme_design] README's block is not current: run scripts/readme_design.py", file=sys.stderr)
-            return 1
-        return 0
-    README.write_text(text.replace(old, new))
-    print(f"[readme_design] README.md: {'unchanged' if new == old else 'rewritten'}")
-    return 0
+    BLOCK.current()  # no block to put it in: said before the work
+    return BLOCK.write_or_check(block(), args.check, "design figures")
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ numbers; the time is the machine's and is left out of the check. CI runs the che
 from __future__ import annotations
 
 import argparse
-import difflib
 import os
 import re
 import subprocess
@@ -23,12 +22,13 @@ import tempfile
 import time
 from pathlib import Path
 
+from readme_block import ReadmeBlock
+
 from conflictbench.testing.observations import processor  # the name pinned actions record too
 
-REPO = Path(__file__).resolve().parents[1]
-README = REPO / "README.md"
 BEGIN = "<!-- scripts/readme_figures.py writes what follows, from a real default run; do not edit it by hand -->"
 END = "<!-- end of scripts/readme_figures.py -->"
+BLOCK = ReadmeBlock("readme_figures", BEGIN, END)
 TABLES = ("table1_overall", "table2_by_family", "table3_qualified_failures")
 TIME = re.compile(r", played in \d+ min \d+ s on a \d+-core machine(?: \(.*? when it started\))?")
 
@@ -64,41 +64,20 @@ def block(store: Path, seconds: float | None, load: float | None = None) -> str:
     return "\n".join([*lines, "", END])
 
 
-def current(text: str) -> str:
-    start, end = text.find(BEGIN), text.find(END)
-    if start < 0 or end < start:
-        sys.exit(f"[readme_figures] README.md has no block between {BEGIN!r} and {END!r}")
-    return text[start : end + len(END)]
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="compare with README instead of writing it")
     parser.add_argument("--store", type=Path, help="a store a default run wrote (nothing is played)")
     args = parser.parse_args()
-    text = README.read_text()
-    old = current(text)
+    BLOCK.current()  # no block to put it in: said before the run
     if args.store is not None:
         new = block(args.store, None)  # how long it took is not known: the block says nothing of it
     else:
         with tempfile.TemporaryDirectory(prefix="readme-figures-") as folder:
             store, seconds, load = play(Path(folder))
             new = block(store, seconds, load)
-    if args.check:
-        left, right = TIME.sub("", old), TIME.sub("", new)
-        if left != right:
-            diff = difflib.unified_diff(
-                left.splitlines(), right.splitlines(), "README.md", "the default run", lineterm=""
-            )
-            print("\n".join(diff))
-            print("[readme_figures] README's default-run figures are not what the run reports: "
-                  "run scripts/readme_figures.py and commit README.md", file=sys.stderr)  # fmt: skip
-            return 1
-        print("[readme_figures] README's default-run figures are what the run reports", file=sys.stderr)
-        return 0
-    README.write_text(text.replace(old, new))
-    print(f"[readme_figures] README.md: {'unchanged' if new == old else 'the default run block rewritten'}")
-    return 0
+    # the time is the machine's: the check leaves it out
+    return BLOCK.write_or_check(new, args.check, "default-run figures", same=lambda text: TIME.sub("", text))
 
 
 if __name__ == "__main__":

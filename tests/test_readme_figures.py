@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "readme_figures.py"
 
 
 def load_script():
+    if str(SCRIPT.parent) not in sys.path:  # as when it runs: its folder, with readme_block.py, on the path
+        sys.path.insert(0, str(SCRIPT.parent))
     spec = importlib.util.spec_from_file_location("readme_figures", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -33,7 +36,6 @@ def test_the_time_names_the_machine_and_its_load_and_the_check_ignores_them(tmp_
 
 def test_readmes_correlations_bounds_and_power_are_what_the_measurements_give():
     import subprocess
-    import sys
 
     script = SCRIPT.parent / "readme_design.py"
     done = subprocess.run([sys.executable, str(script), "--check"], capture_output=True, text=True, timeout=300)
