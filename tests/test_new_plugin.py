@@ -129,7 +129,8 @@ def model_python() -> str:
     root = subprocess.run([pyenv, "root"], capture_output=True, text=True).stdout.strip() if pyenv else ""
     found = [shutil.which("python3.12"), *sorted(glob.glob(f"{root}/versions/3.12*/bin/python3.12") if root else [])]
     for candidate in filter(None, found):  # a pyenv shim exists even where its version is not selected: ask it
-        if subprocess.run([candidate, "-c", "import sys; sys.exit(sys.version_info[:2] != (3, 12))"]).returncode == 0:
+        probe = [candidate, "-c", "import sys; sys.exit(sys.version_info[:2] != (3, 12))"]
+        if subprocess.run(probe, capture_output=True).returncode == 0:
             return candidate
     return sys.executable
 
@@ -177,10 +178,12 @@ def test_a_generated_plugin_installed_as_a_user_would_plays_libero_episodes_with
         assert record.error is None and record.steps == 12 and record.plugin_version == "0.1.0"
         assert "sha256:" in record.policy_identity and record.model_stack != ("unreported",)
         raw = record.raw_actions
-        for step in range(record.steps):  # each chunk from the state at the step that asked for it
+        # Each chunk pulls the end effector from where it was at the step that asked for it. The store's path is the
+        # simulator's end-effector site, the policy's state robosuite's observation of it: they differ by < 0.1 mm.
+        for step in range(record.steps):
             asked = step - step % CHUNK
             state = np.concatenate([record.eef_pos[asked], np.zeros(5)])
-            np.testing.assert_array_equal(raw[step, :3], standin_chunk(state, 0, gain=1.0)[0, :3])
+            np.testing.assert_allclose(raw[step, :3], standin_chunk(state, 0, gain=1.0)[0, :3], rtol=0, atol=2e-4)
         assert np.all(raw[:, 6] == -1.0) and np.all(np.abs(raw[:, 3:6]) <= TURN)
         assert len({tuple(raw[s, 3:6]) for s in range(0, record.steps, CHUNK)}) == record.steps // CHUNK  # per step
     assert json.loads(records[0].policy_identity)["checkpoint"] == json.loads(records[1].policy_identity)["checkpoint"]
