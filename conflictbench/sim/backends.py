@@ -25,3 +25,11 @@ def probe_stack(settings: EnvSettings, backend: str = "local", ray_address: str 
 
         return probe_on_cluster(settings, ray_address)
     return stack.probe_in_worker(settings)  # looked up when called: a test puts a probe of another machine there
+
+
+def release_probe(backend: str = "local") -> None:
+    """End what :func:`probe_stack` left open that no pool took over (Ray: the connection to the cluster)."""
+    if backend == "ray":
+        from .ray_pool import release_probe_connection
+
+        release_probe_connection()

@@ -30,7 +30,7 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.store.episodes import ClaimKeeper, EpisodeStore
 
 from . import BACKENDS
-from .backends import make_pool, probe_stack
+from .backends import make_pool, probe_stack, release_probe
 from .deciding import PolicyCalls, load_policy, reply_for, reset_error, start_policy
 from .episode_rows import episode_record, make_items, seconds_each
 from .libero_env import EnvSettings
@@ -114,10 +114,7 @@ class Runner:
             close = getattr(policy, "close", None)
             if callable(close):
                 close()
-            if self.backend == "ray":  # the probe's connection, where no pool took it over
-                from .ray_pool import release_probe_connection
-
-                release_probe_connection()
+            release_probe(self.backend)  # Ray: the probe's connection, where no pool took it over
 
     def _run_with(self, policy: Any, plan: list[EpisodeSpec]) -> RunResult:
         traits = PolicyTraits(policy)
