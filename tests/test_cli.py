@@ -9,8 +9,9 @@ import pytest
 
 import conflictbench
 
-#: Every policy the command offers: the built-ins, any installed model plugin, and the test's demo plugin.
-POLICIES = ", ".join(sorted([*conflictbench.plugins().policies(), "demo-wave"]))
+#: Every policy the command offers: the built-ins, any installed model plugin, and the test's demo plugin (which
+#: may be installed already, as any third-party plugin may).
+POLICIES = ", ".join(sorted({*conflictbench.plugins().policies(), "demo-wave"}))
 
 
 def test_list_shows_builtins_and_the_pip_installed_third_party_plugin(cli):
@@ -206,20 +207,28 @@ def test_a_model_of_this_project_whose_plugin_is_missing_names_the_command_that_
         check_group_overrides(["model=nope"], without_plugins)
 
 
-def test_the_list_of_this_projects_plugins_is_what_they_register():
-    from conflictbench.cli.overrides import PROJECT_PLUGINS
+def test_each_plugin_folder_declares_the_policies_its_plugin_registers():
+    """The "which command installs it" hint reads each ``plugins/<folder>``'s declared policies (no list of the
+    plugins outside their folders): every folder declares them, no policy twice, and an installed plugin registers
+    exactly those."""
+    import tomllib
 
-    folders = {p.name for p in (Path(__file__).parents[1] / "plugins").iterdir() if (p / "pyproject.toml").exists()}
-    registered = {
-        name: spec.plugin.removeprefix("conflictbench-").replace("-", "_")
-        for name, spec in conflictbench.plugins().policies().items()
-        if spec.plugin.removeprefix("conflictbench-").replace("-", "_") in folders
-    }
-    assert set(PROJECT_PLUGINS.values()) <= folders
+    from conflictbench.cli.overrides import checkout_plugins, project_plugins
+
+    plugins = Path(__file__).parents[1] / "plugins"
+    folders = {p.name: p for p in plugins.iterdir() if (p / "pyproject.toml").exists()}
+    declared = {folder: table["policies"] for folder, table in checkout_plugins().items()}
+    assert set(declared) == set(folders) and all(declared.values())
+    assert len(project_plugins()) == sum(len(policies) for policies in declared.values())  # no policy twice
+    names = {f: tomllib.loads((p / "pyproject.toml").read_text())["project"]["name"] for f, p in folders.items()}
+    distributions = {name: folder for folder, name in names.items()}
+    registered: dict[str, set[str]] = {}
+    for name, spec in conflictbench.plugins().policies().items():
+        if spec.plugin in distributions:
+            registered.setdefault(distributions[spec.plugin], set()).add(name)
     if not registered:
         pytest.skip("no model plugin of this project is installed here")
-    installed = set(registered.values())  # each installed plugin registers exactly the policies listed for it
-    assert registered == {name: folder for name, folder in PROJECT_PLUGINS.items() if folder in installed}
+    assert registered == {folder: set(declared[folder]) for folder in registered}
 
 
 @pytest.mark.parametrize(

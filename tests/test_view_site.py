@@ -14,7 +14,7 @@ from conflictbench.store import EpisodeStore
 from conflictbench.tasks.suite.file import load_suite
 from conflictbench.view import Selection, build_site
 from conflictbench.view.pairs import OUTCOMES, target_distance
-from conflictbench.view.site import replay_words, script_json
+from conflictbench.view.site import format_value, replay_words, script_json
 from conflictbench.view.videos import FRAME_EVERY, episode_digest
 
 SHIPPED = load_suite().cases
@@ -96,13 +96,22 @@ def shown_measures(page: str) -> dict[str, str]:
     return dict(re.findall(r"<tr><td>([^<]+)</td><td class='num'>(.*?)</td>", page))
 
 
+BUILT_IN_LABELS = {"tar": "TAR", "early20_ts": "Early20 TS", "ts": "TS", "ams": "AMS"}
+
+
 def expected_measures(reference, conflict, plugins) -> dict[str, str]:
+    """Label -> shown value of every registered metric, in the registry's order (the page shows what is
+    registered, an installed plugin's metrics too)."""
     row = evaluate_pairs([reference], [conflict], plugins=plugins).iloc[0]
-    labels = {"tar": "TAR", "early20_ts": "Early20 TS", "ts": "TS", "ams": "AMS"}
-    return {
-        label: '<span class="undefined">undefined</span>' if np.isnan(row[name]) else f"{100 * row[name]:.1f} %"
-        for name, label in labels.items()
-    }
+    registered = plugins.metrics()
+    assert set(BUILT_IN_LABELS) <= set(registered)
+    return {BUILT_IN_LABELS.get(n, m.label or n): _expected_value(row[n], m) for n, m in registered.items()}
+
+
+def _expected_value(value: float, metric) -> str:
+    if metric.name not in BUILT_IN_LABELS:  # an installed plugin's, which this test cannot know: as reports show it
+        return format_value(value, metric)
+    return '<span class="undefined">undefined</span>' if np.isnan(value) else f"{100 * value:.1f} %"
 
 
 def test_each_page_and_index_row_belongs_to_its_own_pair(store, plugins, tmp_path):
@@ -122,6 +131,29 @@ def test_each_page_and_index_row_belongs_to_its_own_pair(store, plugins, tmp_pat
         assert re.findall(r"<td class='num'>(.*?)</td>", row) == list(expected.values())
         assert f'data-family="{conflict.family}"' in row
     assert len({str(expected_measures(records["ref"], records[n], plugins)) for n in links}) == 2
+
+
+def test_the_pair_pages_hold_with_a_third_party_metric_installed(demo_plugin_site, tmp_path):
+    """A user's installed plugins are part of what the tests see: the demo plugin's metric (a real distribution,
+    found by its entry point) joins every page, and the two tests above still pass beside it."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(demo_plugin_site), os.environ.get("PYTHONPATH", "")])}
+    seen = subprocess.run(
+        [sys.executable, "-c", "import conflictbench; print(*conflictbench.plugins().metrics())"],
+        env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert "demo_path_ratio" in seen.stdout.split(), seen.stdout + seen.stderr
+    tests = ["test_one_page_per_pair_with_its_texts_measures_and_plot_data",
+             "test_each_page_and_index_row_belongs_to_its_own_pair"]  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:randomly", "-W", "ignore::DeprecationWarning",
+         *(f"{__file__}::{name}" for name in tests), "--basetemp", str(tmp_path / "inner")],
+        env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0 and "2 passed" in done.stdout, done.stdout[-3000:] + done.stderr[-3000:]
 
 
 def test_d_t_is_the_distance_to_the_nearest_target_at_each_state():
