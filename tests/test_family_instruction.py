@@ -148,36 +148,25 @@ def test_the_unplanted_cases_are_accepted(ctx):
 
 
 @pytest.mark.sim
-def test_do_it_then_undo_it_is_rejected(ctx):
-    case = _case(BOWL_ON_PLATE, "L1", ctx)
-    planted = _planted(case, "making sure the bowl is not on the plate at the end", ["avoid", "on", BOWL, "plate_1"])
-    rejected(_reasons(planted, ctx), "satisfiable by doing")
-    stove = _case(STOVE, "L1", ctx)
-    planted = _planted(stove, "and make sure the stove is off at the end", ["end", "turnoff", "flat_stove_1"])
-    rejected(_reasons(planted, ctx), "satisfiable by doing")
-
-
-@pytest.mark.sim
-def test_a_pronoun_in_a_constraint_is_rejected(ctx):
-    case = _case(BOWL_ON_PLATE, "L1", ctx)
-    rejected(_reasons(_planted(case, "without touching it", ["keep", "untouched", BOWL]), ctx), "uses a pronoun")
-
-
-@pytest.mark.sim
-def test_a_constraint_on_another_entity_is_rejected(ctx):
-    case = _case(BOWL_ON_PLATE, "L1", ctx)
-    rejected(
-        _reasons(_planted(case, "without touching the plate", ["keep", "untouched", "plate_1"]), ctx), "need not touch"
-    )
-    drawer = _case(MIDDLE_DRAWER, "L1", ctx)
-    planted = _planted(drawer, "without touching the cabinet", ["keep", "untouched", "wooden_cabinet_1"])
-    rejected(_reasons(planted, ctx), "need not touch")
-
-
-@pytest.mark.sim
-def test_not_grasping_is_rejected(ctx):
-    case = _case(BOWL_ON_PLATE, "L1", ctx)
-    rejected(_reasons(_planted(case, "without grasping the bowl", ["keep", "ungrasped", BOWL]), ctx), "scooped")
+@pytest.mark.parametrize(
+    "task, text, literal, reason",
+    [
+        pytest.param(BOWL_ON_PLATE, "making sure the bowl is not on the plate at the end",
+                     ["avoid", "on", BOWL, "plate_1"], "satisfiable by doing", id="do-it-then-undo-it"),
+        pytest.param(STOVE, "and make sure the stove is off at the end", ["end", "turnoff", "flat_stove_1"],
+                     "satisfiable by doing", id="do-it-then-undo-it-stove"),
+        pytest.param(BOWL_ON_PLATE, "without touching it", ["keep", "untouched", BOWL], "uses a pronoun",
+                     id="a-pronoun"),
+        pytest.param(BOWL_ON_PLATE, "without touching the plate", ["keep", "untouched", "plate_1"],
+                     "need not touch", id="another-entity"),
+        pytest.param(MIDDLE_DRAWER, "without touching the cabinet", ["keep", "untouched", "wooden_cabinet_1"],
+                     "need not touch", id="another-entity-cabinet"),
+        pytest.param(BOWL_ON_PLATE, "without grasping the bowl", ["keep", "ungrasped", BOWL], "scooped",
+                     id="not-grasping"),
+    ],
+)  # fmt: skip
+def test_a_planted_constraint_the_rules_refuse_is_rejected(task, text, literal, reason, ctx):
+    rejected(_reasons(_planted(_case(task, "L1", ctx), text, literal), ctx), reason)
 
 
 @pytest.mark.sim

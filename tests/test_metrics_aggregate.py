@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 from scipy import stats
+from testing_support import along_x, episode_record
 
 from conflictbench.core import EpisodeRecord
 from conflictbench.metrics import (
@@ -34,10 +34,8 @@ def episode(
     config="h1",
     settings="",
 ) -> EpisodeRecord:
-    eef = np.array([[0.0, 0, 0], [x, 0, 0]])
-    return EpisodeRecord(
+    return episode_record(
         policy=policy,
-        suite="libero_goal",
         task_id=task,
         init_state=init,
         prompt=prompt,
@@ -46,10 +44,7 @@ def episode(
         family=family,
         level=level,
         success=success,
-        eef_pos=eef,
-        target_pos=np.zeros((2, 1, 3)),
-        target_names=("bowl",),
-        actions=np.array([[x, 0, 0, 0, 0, 0, 0]]),
+        **along_x(0.0, x, action=(x, 0, 0, 0, 0, 0, 0)),
         config_hash=config,
         policy_settings=settings,
         episode_id=f"{policy}-{prompt}-{case}-{init}-{task}",

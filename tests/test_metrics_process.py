@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from testing_support import episode_record
 
 import conflictbench
 from conflictbench.core import EpisodeRecord, Pair, Plugins, hookimpl
@@ -22,21 +23,8 @@ def record(eef=None, actions=None, targets=None, names=("bowl",), case="c1", **k
     h = len(eef) - 1
     actions = np.zeros((h, 7)) if actions is None else np.asarray(actions, dtype=float)
     targets = np.zeros((len(eef), len(names), 3)) if targets is None else np.asarray(targets, dtype=float)
-    base = dict(
-        policy="p",
-        suite="libero_spatial",
-        task_id=0,
-        init_state=0,
-        prompt="p0",
-        instruction="x",
-        case_id=case,
-        eef_pos=eef,
-        actions=actions,
-        target_pos=targets,
-        target_names=tuple(names),
-    )
-    base.update(kw)
-    return EpisodeRecord(**base)
+    arrays = dict(eef_pos=eef, actions=actions, target_pos=targets, target_names=tuple(names))
+    return episode_record(**{"suite": "libero_spatial", "case_id": case, **arrays, **kw})
 
 
 def line(x):

@@ -6,8 +6,8 @@ import gc
 import math
 import weakref
 
-import numpy as np
 import pytest
+from testing_support import along_x, episode_record
 
 import conflictbench
 from conflictbench.core import EpisodeRecord, Pair, Plugins, UserError, hookimpl
@@ -16,20 +16,7 @@ from conflictbench.metrics.process import PerChunk, builtin_batch
 
 
 def record(x_end: float, steps: int, case: str | None = "c1") -> EpisodeRecord:
-    return EpisodeRecord(
-        policy="p",
-        suite="libero_goal",
-        task_id=0,
-        init_state=0,
-        prompt="p0",
-        instruction="x",
-        case_id=case,
-        steps=steps,
-        eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
-        actions=np.array([[0.2, 0, 0, 0, 0, 0, 1.0]]),
-        target_pos=np.zeros((2, 1, 3)),
-        target_names=("bowl",),
-    )
+    return episode_record(case_id=case, steps=steps, **along_x(0.5, x_end, action=(0.2, 0, 0, 0, 0, 0, 1.0)))
 
 
 class PathRatio:

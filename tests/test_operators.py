@@ -6,6 +6,7 @@ from __future__ import annotations
 import random
 
 import pytest
+from testing_support import TRAMPOLINE
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LEVELS, PluginError
@@ -176,16 +177,7 @@ class ExtraOperators:
                     "step_roles": ["original"],
                     "step_goals": [[["on", "akita_black_bowl_1", "plate_1"]]],
                     "step_entities": [["akita_black_bowl_1"]],
-                    "referents": [
-                        {
-                            "step": 1,
-                            "role": "destination",
-                            "text": "the purple trampoline",
-                            "concept": "trampoline",
-                            "source": "out_of_domain",
-                            "replaces": "plate_1",
-                        }
-                    ],
+                    "referents": [dict(TRAMPOLINE)],
                 },
             }
 

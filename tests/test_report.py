@@ -7,10 +7,10 @@ import math
 import subprocess
 import sys
 
-import numpy as np
 import pandas as pd
 import pytest
 from testing_support import in_tasks
+from testing_support import report_episode as episode
 
 import conflictbench
 from conflictbench.cli.report import command as report_command
@@ -19,31 +19,6 @@ from conflictbench.report import report_records
 from conflictbench.store import EpisodeStore
 
 PNG = b"\x89PNG\r\n\x1a\n"
-
-
-def episode(policy, case, x_end, move, success, family=None, level=None, steps=1, init=0, error=None, error_kind=None):
-    """Two recorded states on the x axis (target at the origin) and one action of size ``move``."""
-    return EpisodeRecord(
-        policy=policy,
-        suite="libero_object",
-        task_id=3,
-        init_state=init,
-        prompt="p0",
-        instruction="pick",
-        case_id=case,
-        family=family,
-        level=level,
-        success=success,
-        steps=steps,
-        error=error,
-        error_kind=error_kind,
-        eef_pos=np.array([[0.5, 0, 0], [x_end, 0, 0]]),
-        target_pos=np.zeros((2, 1, 3)),
-        target_names=("alphabet_soup_1",),
-        actions=np.array([[move, 0, 0, 0, 0, 0, 1.0]]),
-        episode_id=f"{policy}-{case}-{init}",
-        config_hash="cfg",
-    )
 
 
 def two_models() -> list[EpisodeRecord]:

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import io
 
-import numpy as np
 import pandas as pd
 import pytest
-from testing_support import in_tasks
+from testing_support import in_tasks, report_episode
 
 import conflictbench
 from conflictbench.core import EpisodeRecord, Plugins, UserError, hookimpl
@@ -16,25 +15,7 @@ from conflictbench.report import report_records
 
 
 def episode(policy: str, case: str | None, steps: int, success: bool, family: str | None = None) -> EpisodeRecord:
-    return EpisodeRecord(
-        policy=policy,
-        suite="libero_object",
-        task_id=3,
-        init_state=0,
-        prompt="p0",
-        instruction="pick",
-        case_id=case,
-        family=family,
-        level="L1" if case else None,
-        success=success,
-        steps=steps,
-        eef_pos=np.array([[0.5, 0, 0], [0.3, 0, 0]]),
-        target_pos=np.zeros((2, 1, 3)),
-        target_names=("bowl",),
-        actions=np.array([[0.1, 0, 0, 0, 0, 0, 1.0]]),
-        episode_id=f"{policy}-{case}",
-        config_hash="cfg",
-    )
+    return report_episode(policy, case, 0.3, 0.1, success, family, "L1" if case else None, steps=steps)
 
 
 def records() -> list[EpisodeRecord]:

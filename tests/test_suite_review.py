@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from testing_support import TRAMPOLINE
 
 from conflictbench.tasks.libero.base_tasks import base_task
 from conflictbench.tasks.scene.facts import load_scene_facts
@@ -78,16 +79,7 @@ def test_a_revision_may_bring_its_own_witness(cases, ctx):
     witness = {
         **c.witness,
         "steps": [text],
-        "referents": [
-            {
-                "step": 1,
-                "role": "destination",
-                "text": "the purple trampoline",
-                "concept": "trampoline",
-                "source": "out_of_domain",
-                "replaces": "plate_1",
-            }
-        ],
+        "referents": [dict(TRAMPOLINE)],
     }
     out = apply_reviews(
         cases,

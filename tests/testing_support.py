@@ -9,7 +9,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from conflictbench.core import ConflictCase
+import numpy as np
+
+from conflictbench.core import ConflictCase, EpisodeRecord
 from conflictbench.sim.plan import EpisodeSpec
 from conflictbench.tasks.libero.base_tasks import base_task
 
@@ -34,6 +36,63 @@ def pip_install_into(target: Path, source: Path, upgrade: bool = False) -> Path:
     command = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--no-compile"]
     subprocess.run([*command, *(["--upgrade"] if upgrade else []), "--target", str(target), str(source)], check=True)
     return target
+
+
+TEST_EPISODE = dict(policy="p", suite="libero_goal", task_id=0, init_state=0, prompt="p0", instruction="x")
+"""What an episode built by :func:`episode_record` is where the test does not say."""
+
+
+def episode_record(**fields) -> EpisodeRecord:
+    """An episode of the fields a test is about, the rest :data:`TEST_EPISODE`'s and the record's defaults."""
+    return EpisodeRecord(**{**TEST_EPISODE, **fields})
+
+
+def along_x(*x: float, action=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), target: str = "bowl") -> dict:
+    """A record's arrays for a path through the states ``x`` on the x axis, one target (``target``) at the origin
+    and ``action`` at every step: what the process measures read, as simple as a worked example needs."""
+    steps = len(x) - 1
+    return dict(
+        eef_pos=np.stack([np.asarray(x, dtype=float), np.zeros(len(x)), np.zeros(len(x))], axis=1),
+        target_pos=np.zeros((len(x), 1, 3)),
+        target_names=(target,),
+        actions=np.tile(np.asarray(action, dtype=float), (steps, 1)),
+    )
+
+
+def report_episode(
+    policy, case, x_end, move, success, family=None, level=None, steps=1, init=0, error=None, error_kind=None
+):
+    """An episode of the report's tests: two recorded states on the x axis (target at the origin), one action of
+    size ``move``, in libero_object's task 3."""
+    return episode_record(
+        policy=policy,
+        suite="libero_object",
+        task_id=3,
+        init_state=init,
+        instruction="pick",
+        case_id=case,
+        family=family,
+        level=level,
+        success=success,
+        steps=steps,
+        error=error,
+        error_kind=error_kind,
+        episode_id=f"{policy}-{case}-{init}",
+        config_hash="cfg",
+        **along_x(0.5, x_end, action=(move, 0, 0, 0, 0, 0, 1.0), target="alphabet_soup_1"),
+    )
+
+
+TRAMPOLINE = dict(
+    step=1,
+    role="destination",
+    text="the purple trampoline",
+    concept="trampoline",
+    source="out_of_domain",
+    replaces="plate_1",
+)
+"""A grounding witness's referent, out of any LIBERO scene: what a plugin's or a reviewer's own case may put in
+place of libero_goal's plate ("put the bowl on the purple trampoline")."""
 
 
 def rejected(reasons: list[str], needle: str) -> list[str]:
