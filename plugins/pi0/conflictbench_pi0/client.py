@@ -7,19 +7,21 @@ server that is already running (ours, or openpi's own ``scripts/serve_policy.py`
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, sampling_seed
+from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, read_published, sampling_seed
 from conflictbench.hosting.openpi import OpenpiTransport
 
 from .checkpoints import POLICY_TYPES, fingerprint
 from .processing import REPLAN_STEPS, camera_image
 from .protocol import ACTIONS, IMAGE, NOISE_SEED, NOISE_SEED_LIMIT, PROMPT, STATE, WRIST_IMAGE
-from .serve import SERVED
+from .server import SERVED
 
 
 @dataclass
@@ -78,3 +80,16 @@ class PiPolicy(HostedPolicy):
 def load(name: str, cfg: PiConfig) -> PiPolicy:
     """The policy for ``model=name``: connected to ``cfg.server``, or ready to start a server for ``cfg.checkpoint``."""
     return PiPolicy.load(name, cfg)
+
+
+@hookimpl
+def conflictbench_register_policies(register):
+    for name in POLICY_TYPES:
+        register(name, load=functools.partial(load, name), config=PiConfig)
+
+
+@hookimpl
+def conflictbench_register_published_results(register):
+    """What the model's authors published on LIBERO, with its citations (published.toml)."""
+    for entry in read_published(resources.files(__package__) / "published.toml"):
+        register(**entry)

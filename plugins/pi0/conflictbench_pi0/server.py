@@ -11,7 +11,9 @@ reply (``{"actions": chunk, "server_timing": {"infer_ms", "batch_size", "prev_to
 ``batch_size`` is ours), and on failure a text frame with the error followed by close code 1011. A
 malformed request fails only its own connection; a failing model call fails every request of that batch.
 
-This module imports neither conflictbench nor torch: it runs in the model environment.
+``SERVED`` is what ``conflictbench-serve pi0`` hosts (found through the server half's ``conflictbench_serving``
+entry point) and what the client's ``served`` names. This module imports neither conflictbench nor torch (the
+backend is imported by name, after the checks), so the client imports ``SERVED`` from it cheaply.
 """
 
 from __future__ import annotations
@@ -24,7 +26,18 @@ import numpy as np
 
 from conflictbench_pi0 import protocol
 from conflictbench_pi0.protocol import InvalidRequest, validate_request
+from conflictbench_serving.command import ServedModel
 from conflictbench_serving.websocket import FatalRequest, WebsocketPolicyServer, batched, serve_until_stopped
+
+from .checkpoints import POLICY_TYPES, check_checkpoint
+
+#: The π checkpoints (pi0, pi05, pi0-fast), on openpi's port.
+SERVED = ServedModel.of(
+    __package__,
+    policies=tuple(POLICY_TYPES),
+    protocol="openpi's websocket protocol",
+    check=lambda folder, policy, naming: check_checkpoint(folder, policy, option=naming),
+)
 
 
 class Backend(Protocol):

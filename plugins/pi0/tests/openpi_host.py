@@ -1,4 +1,4 @@
-"""openpi's own server hosting our backend: the independent counterpart of ``conflictbench-pi0 serve`` in tests.
+"""openpi's own server hosting our backend: the independent counterpart of ``conflictbench-serve pi0`` in tests.
 
 Run with the model environment's python (``openpi-server==0.1.0`` and ``openpi-client==0.1.2``
 installed there with ``--no-deps``: their pins ask for numpy < 2, while the server path needs only

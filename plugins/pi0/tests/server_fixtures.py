@@ -44,7 +44,7 @@ def policy_of(checkpoint: Path) -> str:
 def server_argv(kind: str, checkpoint: Path, port: int, max_batch: int = 4, threads: int = 1) -> list[str]:
     if kind == "ours":
         return [
-            str(MODEL_PYTHON), "-m", "conflictbench_pi0", "serve", "--policy", policy_of(checkpoint),
+            str(MODEL_PYTHON), "-m", "conflictbench_serving", policy_of(checkpoint),
             "--checkpoint", str(checkpoint), "--host", "127.0.0.1", "--port", str(port),
             "--max-batch", str(max_batch), "--threads", str(threads),
         ]  # fmt: skip

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from tiny_fixtures import TINY_POLICIES, needs_model_env
 
-from conflictbench.testing import check_pinned_actions
+from conflictbench.testing.plugin_tests import play_pinned_actions
 from conflictbench_pi0.checkpoints import fingerprint
 from conflictbench_pi0.client import PiConfig, load
 
@@ -22,8 +22,4 @@ def test_a_tiny_checkpoint_plays_its_pinned_actions(name, tiny_checkpoints, tiny
         monkeypatch.setenv(key, value)
     checkpoint = tiny_checkpoints[name]
     policy = load(name, PiConfig(checkpoint=str(checkpoint), device="cpu", max_batch=1))
-    try:
-        policy.start()
-        check_pinned_actions(policy, GOLDEN / f"actions-{name}.npz", fingerprint(checkpoint))
-    finally:
-        policy.close()
+    play_pinned_actions(policy, GOLDEN / f"actions-{name}.npz", fingerprint(checkpoint))

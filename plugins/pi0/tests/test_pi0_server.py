@@ -10,9 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -34,6 +31,7 @@ from server_fixtures import (
 )
 from websockets.sync.client import ClientConnection
 
+from conflictbench.testing.plugin_tests import lerobot_folder, serve_command
 from conflictbench_pi0.protocol import (
     ACTIONS,
     IMAGE,
@@ -264,22 +262,12 @@ def test_a_malformed_request_closes_only_its_own_connection(frame, fragment):
 
 
 # ----------------------------------------------------------------------------------------------------
-# The CLI's user errors: one line on stderr, exit 2, before any model import
-
-
-def run_cli(*args: str, python: str = sys.executable) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [python, "-m", "conflictbench_pi0", *args], capture_output=True, text=True, timeout=120, cwd=PLUGIN_ROOT
-    )
+# conflictbench-serve's user errors: one line on stderr, exit 2, before any model import (in this Python, with the
+# server half's entry point; the simulator's environment has no torch)
 
 
 def fake_checkpoint(folder: Path, kind: str | None = "pi05", weights: bool = True) -> Path:
-    folder.mkdir(parents=True)
-    if kind is not None:
-        (folder / "config.json").write_text(json.dumps({"type": kind}))
-    if weights:
-        (folder / "model.safetensors").write_bytes(b"")
-    return folder
+    return lerobot_folder(folder, kind, ("model.safetensors",) if weights else ())
 
 
 @pytest.mark.parametrize(
@@ -289,21 +277,21 @@ def fake_checkpoint(folder: Path, kind: str | None = "pi05", weights: bool = Tru
         ("pi05", None, True, "is not a LeRobot checkpoint (no config.json)"),
         ("pi05", "act", True, "holds a act policy, not a π one"),
         ("pi05", "pi05", False, "has no model.safetensors"),
-        ("pi0", "pi05", True, "is a pi05 checkpoint: use --policy pi05, not --policy pi0"),
-        ("pi0-fast", "pi0", True, "is a pi0 checkpoint: use --policy pi0, not --policy pi0-fast"),
+        ("pi0", "pi05", True, "is a pi05 checkpoint: use conflictbench-serve pi05, not conflictbench-serve pi0"),
+        ("pi0-fast", "pi0", True, "is a pi0 checkpoint: use conflictbench-serve pi0, not conflictbench-serve pi0-fast"),
     ],
 )
-def test_cli_checkpoint_errors_are_one_line_and_exit_2(tmp_path, policy, kind, weights, fragment):
+def test_serve_checkpoint_errors_are_one_line_and_exit_2(tmp_path, policy, kind, weights, fragment):
     folder = tmp_path / "missing" if kind == "missing" else fake_checkpoint(tmp_path / "ckpt", kind, weights)
-    done = run_cli("serve", "--policy", policy, "--checkpoint", str(folder))
+    done = serve_command(PLUGIN_ROOT, tmp_path, policy, "--checkpoint", str(folder))
     assert done.returncode == 2
-    assert done.stderr.count("\n") == 1 and done.stderr.startswith("conflictbench-pi0: ") and fragment in done.stderr
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("conflictbench-serve: ") and fragment in done.stderr
     assert done.stdout == ""
 
 
-def test_cli_without_the_model_stack_says_which_python_to_use(tmp_path):
+def test_serve_without_the_model_stack_says_which_python_to_use(tmp_path):
     """The simulator's environment has no torch: a valid-looking checkpoint gets that far, and no further."""
-    done = run_cli("serve", "--policy", "pi05", "--checkpoint", str(fake_checkpoint(tmp_path / "ckpt")))
+    done = serve_command(PLUGIN_ROOT, tmp_path, "pi05", "--checkpoint", str(fake_checkpoint(tmp_path / "ckpt")))
     assert done.returncode == 2 and done.stderr.count("\n") == 1
     assert "run this with the model environment's python" in done.stderr
 
@@ -311,13 +299,12 @@ def test_cli_without_the_model_stack_says_which_python_to_use(tmp_path):
 @pytest.mark.parametrize(
     "args, fragment",
     [
-        (["serve", "--policy", "pi5", "--checkpoint", "x"], "invalid choice: 'pi5'"),
-        (["serve", "--checkpoint", "x"], "the following arguments are required: --policy"),
-        (["serve", "--policy", "pi05", "--checkpoint", "x", "--max-batch", "0"], "--max-batch must be at least 1"),
-        (["serve", "--policy", "pi05", "--checkpoint", "x", "--threads", "0"], "--threads must be at least 1"),
-        ([], "the following arguments are required: command"),
+        (["pi5", "--checkpoint", "x"], "no installed plugin serves 'pi5' (installed: pi0, pi0-fast, pi05"),
+        (["--checkpoint", "x"], "the following arguments are required: POLICY"),
+        (["pi05", "--checkpoint", "x", "--max-batch", "0"], "--max-batch must be at least 1"),
+        (["pi05", "--checkpoint", "x", "--threads", "0"], "--threads must be at least 1"),
     ],
 )
-def test_cli_usage_errors_are_one_line_and_exit_2(args, fragment):
-    done = run_cli(*args)
+def test_serve_usage_errors_are_one_line_and_exit_2(tmp_path, args, fragment):
+    done = serve_command(PLUGIN_ROOT, tmp_path, *args)
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and fragment in done.stderr

@@ -1,4 +1,4 @@
-"""End to end, in the model environment: a tiny random-weight checkpoint behind ``conflictbench-pi0 serve``
+"""End to end, in the model environment: a tiny random-weight checkpoint behind ``conflictbench-serve pi05``
 and behind openpi's own ``openpi-server`` (``tests/openpi_host.py``), real processes on 127.0.0.1."""
 
 from __future__ import annotations
@@ -163,7 +163,7 @@ def test_e2e_signals_stop_the_server_cleanly(tiny_pi05, tiny_env, signum):
             connection.recv(timeout=TIMEOUT_S)
         log = server.log_path.read_text()
         assert "Traceback" not in log
-        assert f"conflictbench-pi0: serving pi05 from {tiny_pi05} on ws://127.0.0.1:" in log
+        assert f"conflictbench-serve: serving pi05 from {tiny_pi05} on ws://127.0.0.1:" in log
     finally:
         server.stop()
 
@@ -179,4 +179,4 @@ def test_e2e_a_port_in_use_is_a_user_error(tiny_pi05, tiny_env):
             timeout=STARTUP_TIMEOUT_S,
         )  # fmt: skip
     assert done.returncode == 2
-    assert done.stderr.splitlines()[-1].startswith(f"conflictbench-pi0: cannot listen on 127.0.0.1:{port}: ")
+    assert done.stderr.splitlines()[-1].startswith(f"conflictbench-serve: cannot listen on 127.0.0.1:{port}: ")
