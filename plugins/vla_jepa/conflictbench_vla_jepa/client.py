@@ -12,14 +12,25 @@ of the model (``model.checkpoint`` names it), and its sampling noise is its own.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, InfrastructureError, Observation, UserError, sampling_seed
+from conflictbench import (
+    HostedConfig,
+    HostedPolicy,
+    InfrastructureError,
+    Observation,
+    UserError,
+    hookimpl,
+    read_published,
+    sampling_seed,
+)
 from conflictbench.hosting.openpi import OpenpiTransport
 
 from .checkpoints import POLICY_TYPE, fingerprint
@@ -32,7 +43,7 @@ from .processing import (
     env_actions,
 )
 from .protocol import NOISE_SEED_LIMIT, ReplyError, infer_request, normalized_actions
-from .serve import SERVED
+from .server import SERVED
 
 
 @dataclass
@@ -159,3 +170,15 @@ def load(name: str, cfg: VlaJepaConfig) -> VlaJepaPolicy:
     """The policy for ``model=vla-jepa``: connected to ``cfg.server``, or ready to start a server for
     ``cfg.checkpoint``."""
     return VlaJepaPolicy.load(name, cfg)
+
+
+@hookimpl
+def conflictbench_register_policies(register):
+    register("vla-jepa", load=functools.partial(load, "vla-jepa"), config=VlaJepaConfig)
+
+
+@hookimpl
+def conflictbench_register_published_results(register):
+    """What the model's authors published on LIBERO, with its citations (published.toml)."""
+    for entry in read_published(resources.files(__package__) / "published.toml"):
+        register(**entry)

@@ -13,7 +13,9 @@ shape), a per-request seed (``conflictbench/noise_seed``), and metadata that say
 policy type, the checkpoint's fingerprint, ``max_batch``, the chunk length and the action statistics, so a
 client needs no ``model.stats`` against this server.
 
-This module imports neither conflictbench nor torch.
+``SERVED`` is what ``conflictbench-serve vla-jepa`` hosts (found through the server half's ``conflictbench_serving``
+entry point) and what the client's ``served`` names. This module imports neither conflictbench nor torch (the
+backend is imported by name, after the checks), so the client imports ``SERVED`` from it cheaply.
 """
 
 from __future__ import annotations
@@ -25,9 +27,15 @@ from typing import Protocol
 import numpy as np
 
 from conflictbench_serving.batching import ServerStopping
+from conflictbench_serving.command import ServedModel
 from conflictbench_serving.websocket import FatalRequest, WebsocketPolicyServer, batched, serve_until_stopped
 
+from .checkpoints import check_checkpoint
 from .protocol import InvalidRequest, Row, packb, reply, request_rows, unpackb
+
+#: A LeRobot VLA-JEPA checkpoint.
+SERVED = ServedModel.of(__package__, policies=("vla-jepa",), protocol="VLA-JEPA's websocket protocol",
+                        check=lambda folder, policy, naming: check_checkpoint(folder))  # fmt: skip
 
 
 class Backend(Protocol):

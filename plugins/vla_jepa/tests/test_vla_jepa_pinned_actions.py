@@ -7,7 +7,7 @@ from pathlib import Path
 
 from jepa_model_env import VLA_JEPA, needs_model_env
 
-from conflictbench.testing import check_pinned_actions
+from conflictbench.testing.plugin_tests import play_pinned_actions
 from conflictbench_vla_jepa.checkpoints import fingerprint
 from conflictbench_vla_jepa.client import VlaJepaConfig, load
 
@@ -18,8 +18,4 @@ GOLDEN = Path(__file__).parent / "golden"
 def test_the_tiny_checkpoint_plays_its_pinned_actions(tiny_checkpoint, monkeypatch):
     VLA_JEPA.use(monkeypatch, tiny_checkpoint)
     policy = load("vla-jepa", VlaJepaConfig(checkpoint=str(tiny_checkpoint), device="cpu", max_batch=1))
-    try:
-        policy.start()
-        check_pinned_actions(policy, GOLDEN / "actions-vla-jepa.npz", fingerprint(tiny_checkpoint))
-    finally:
-        policy.close()
+    play_pinned_actions(policy, GOLDEN / "actions-vla-jepa.npz", fingerprint(tiny_checkpoint))

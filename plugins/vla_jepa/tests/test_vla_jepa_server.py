@@ -4,9 +4,6 @@ client codec, our client reading the statistics from its metadata, and the serve
 from __future__ import annotations
 
 import asyncio
-import json
-import subprocess
-import sys
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -20,6 +17,7 @@ from websockets.sync.client import connect
 
 from conflictbench import UserError
 from conflictbench.testing import camera_observation
+from conflictbench.testing.plugin_tests import lerobot_folder, serve_command
 from conflictbench_vla_jepa.client import VlaJepaConfig, load
 from conflictbench_vla_jepa.processing import ActionStatistics, camera_image, env_actions
 from conflictbench_vla_jepa.protocol import Row, infer_request
@@ -148,35 +146,20 @@ def test_a_chunk_length_beyond_what_our_server_sends_is_a_user_error():
             load("vla-jepa", VlaJepaConfig(server=url, checkpoint="x", chunk_length=6, connect_retries=0))
 
 
-def _serve(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "conflictbench_vla_jepa", *args], capture_output=True, text=True,
-                          timeout=120, cwd=PLUGIN_ROOT)  # fmt: skip
-
-
-def _checkpoint(folder: Path, kind: str | None = "vla_jepa", files=("model.safetensors", "policy_preprocessor.json",
-                "policy_postprocessor.json")) -> Path:  # fmt: skip
-    folder.mkdir()
-    if kind:
-        (folder / "config.json").write_text(json.dumps({"type": kind}))
-    for name in files:
-        (folder / name).write_text("")
-    return folder
-
-
 @pytest.mark.parametrize(
     "make, fragment",
     [
         (lambda tmp: tmp / "nowhere", "no checkpoint folder at"),
-        (lambda tmp: _checkpoint(tmp / "c", None), "is not a LeRobot checkpoint (no config.json) (a VLA-JEPA training"),
-        (lambda tmp: _checkpoint(tmp / "c", "pi05"), "holds a pi05 policy, not a vla_jepa one"),
-        (lambda tmp: _checkpoint(tmp / "c", files=("model.safetensors",)), "has no policy_preprocessor.json"),
-        (lambda tmp: _checkpoint(tmp / "c"), "run this with the model environment's python"),  # no torch here
+        (lambda tmp: lerobot_folder(tmp / "c", None), "not a LeRobot checkpoint (no config.json) (a VLA-JEPA training"),
+        (lambda tmp: lerobot_folder(tmp / "c", "pi05"), "holds a pi05 policy, not a vla_jepa one"),
+        (lambda tmp: lerobot_folder(tmp / "c", "vla_jepa", ("model.safetensors",)), "has no policy_preprocessor.json"),
+        (lambda tmp: lerobot_folder(tmp / "c", "vla_jepa"), "run this with the model environment's python"),  # no torch
     ],
 )
 def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragment):
-    done = _serve("serve", "--policy", "vla-jepa", "--checkpoint", str(make(tmp_path)))
+    done = serve_command(PLUGIN_ROOT, tmp_path, "vla-jepa", "--checkpoint", str(make(tmp_path)))
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
-    assert done.stderr.startswith("conflictbench-vla-jepa: ") and fragment in done.stderr
+    assert done.stderr.startswith("conflictbench-serve: ") and fragment in done.stderr
 
 
 @pytest.mark.parametrize(
