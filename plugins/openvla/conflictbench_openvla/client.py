@@ -26,18 +26,20 @@ fingerprint). Either is part of every episode's identity.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from importlib import resources
 from typing import Any, ClassVar
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, Observation, UserError
+from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, read_published
 from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnorm_key
 
 from .checkpoints import POLICY_TYPE, fingerprint
 from .processing import MAX_STEPS
 from .protocol import JsonNumpyTransport, oft_request, openvla_request, read_action, read_chunk
-from .serve import SERVED
+from .server import SERVED
 
 OFT_CHUNK = 8
 
@@ -126,3 +128,16 @@ def load(name: str, cfg: HostedConfig) -> _DeployClient:
     """The policy for ``model=name``, connected to ``cfg.server``."""
     policy_class, _config = POLICIES[name]
     return policy_class.load(name, cfg)
+
+
+@hookimpl
+def conflictbench_register_policies(register):
+    for name, (_policy, config) in POLICIES.items():
+        register(name, load=functools.partial(load, name), config=config)
+
+
+@hookimpl
+def conflictbench_register_published_results(register):
+    """What the model's authors published on LIBERO, with its citations (published.toml)."""
+    for entry in read_published(resources.files(__package__) / "published.toml"):
+        register(**entry)

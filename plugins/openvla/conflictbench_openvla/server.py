@@ -6,16 +6,30 @@ the double-encoded ``{"encoded": text}`` (answered the same way: a JSON string h
 reply, the un-normalized action as a json-numpy float64 array of 7. ``GET /metadata`` says the policy type, the
 checkpoint's fingerprint, ``max_batch`` and its statistics keys.
 
-This module imports neither conflictbench nor torch.
+``SERVED`` is what ``conflictbench-serve openvla`` hosts (found through the server half's ``conflictbench_serving``
+entry point) and what the client's ``served`` names. This module imports neither conflictbench nor torch (the
+backend's model is loaded by name, after the checks), so the client imports ``SERVED`` from it cheaply.
 """
 
 import json_numpy
 import numpy as np
 
 from conflictbench_serving import rest
+from conflictbench_serving.command import ServedModel
 from conflictbench_serving.rest import InvalidRequest
 
 from .backend import Row
+from .checkpoints import check_checkpoint
+
+#: An OpenVLA checkpoint in Hugging Face format.
+SERVED = ServedModel.of(
+    __package__,
+    policies=("openvla", "openvla-oft"),  # our server hosts OpenVLA; it refuses OFT in one line
+    protocol="deploy.py's REST protocol (json-numpy)",
+    check=lambda folder, policy, naming: check_checkpoint(folder, policy),
+    url_scheme="http",
+    checkpoint_help="an OpenVLA checkpoint folder in Hugging Face format (with its own model code)",
+)
 
 
 def request_row(body: bytes) -> tuple[Row, bool]:

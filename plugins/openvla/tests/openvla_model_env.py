@@ -17,11 +17,11 @@ tiny_checkpoint = OPENVLA.checkpoint_fixture("tiny_openvla.py")
 
 
 def start_server(checkpoint: Path, log_dir: Path, max_batch: int = 1):
-    """``conflictbench-openvla serve`` for ``checkpoint`` on a free port, answering; ``(server, port)``."""
+    """``conflictbench-serve openvla`` for ``checkpoint`` on a free port, answering; ``(server, port)``."""
     from conflictbench import ServerProcess, free_port
 
     port = free_port()
-    argv = [str(MODEL_PYTHON), "-m", "conflictbench_openvla", "serve", "--policy", "openvla", "--checkpoint",
+    argv = [str(MODEL_PYTHON), "-m", "conflictbench_serving", "openvla", "--checkpoint",
             str(checkpoint), "--port", str(port), "--max-batch", str(max_batch)]  # fmt: skip
     server = ServerProcess(argv, name="openvla", health_url=f"http://127.0.0.1:{port}/healthz",
                            env=model_env(checkpoint), startup_timeout_s=300, log_dir=log_dir)  # fmt: skip

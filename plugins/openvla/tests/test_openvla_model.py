@@ -146,7 +146,7 @@ def test_serve_refuses_what_it_cannot_serve_in_one_line(tiny_checkpoint, tmp_pat
     if change == "no_code":
         (folder / "modeling_standin.py").unlink()
     policy = "openvla-oft" if change == "oft" else "openvla"
-    done = run_in_model_env(["-m", "conflictbench_openvla", "serve", "--policy", policy, "--checkpoint", str(folder),
+    done = run_in_model_env(["-m", "conflictbench_serving", policy, "--checkpoint", str(folder),
                              "--port", "0"], tiny_checkpoint, check=False)  # fmt: skip
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and message in lines[-1] and "Traceback" not in done.stderr, done.stderr[-2000:]

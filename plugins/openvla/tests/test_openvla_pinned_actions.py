@@ -10,6 +10,7 @@ from deploy_standin import start_standin
 from openvla_model_env import OPENVLA, needs_model_env
 
 from conflictbench.testing import check_pinned_actions
+from conflictbench.testing.plugin_tests import play_pinned_actions
 from conflictbench_openvla.checkpoints import fingerprint
 from conflictbench_openvla.client import OftConfig, OpenVlaConfig, load
 
@@ -20,11 +21,7 @@ GOLDEN = Path(__file__).parent / "golden"
 def test_the_tiny_openvla_checkpoint_plays_its_pinned_actions(tiny_checkpoint, monkeypatch):
     OPENVLA.use(monkeypatch, tiny_checkpoint)
     policy = load("openvla", OpenVlaConfig(checkpoint=str(tiny_checkpoint), device="cpu", max_batch=1))
-    try:
-        policy.start()
-        check_pinned_actions(policy, GOLDEN / "actions-openvla.npz", fingerprint(tiny_checkpoint))
-    finally:
-        policy.close()
+    play_pinned_actions(policy, GOLDEN / "actions-openvla.npz", fingerprint(tiny_checkpoint))
 
 
 def test_openvla_oft_against_the_deploy_standin_plays_its_pinned_actions(tmp_path):
