@@ -11,8 +11,10 @@ statistics the server's metadata carries and maps the gripper as OpenVLA's clien
 
 from __future__ import annotations
 
+import functools
 import threading
 from dataclasses import dataclass
+from importlib import resources
 from typing import Any
 
 import numpy as np
@@ -24,6 +26,8 @@ from conflictbench import (
     Observation,
     PerEpisode,
     UserError,
+    hookimpl,
+    read_published,
     sampling_seed,
 )
 from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnorm_key, unnormalize
@@ -32,7 +36,7 @@ from conflictbench.hosting.rest import JsonNumpyTransport
 from .checkpoints import POLICY_TYPE, fingerprint
 from .processing import UNIVLA_MAX_STEPS, TemporalEnsemble, history_text
 from .protocol import NOISE_SEED_LIMIT, act_request, read_reply
-from .serve import SERVED
+from .server import SERVED
 
 
 @dataclass
@@ -127,3 +131,15 @@ class UnivlaPolicy(HostedPolicy):
 def load(name: str, cfg: UnivlaConfig) -> UnivlaPolicy:
     """The policy for ``model=univla``, connected to ``cfg.server``."""
     return UnivlaPolicy.load(name, cfg)
+
+
+@hookimpl
+def conflictbench_register_policies(register):
+    register("univla", load=functools.partial(load, "univla"), config=UnivlaConfig)
+
+
+@hookimpl
+def conflictbench_register_published_results(register):
+    """What the model's authors published on LIBERO, with its citations (published.toml)."""
+    for entry in read_published(resources.files(__package__) / "published.toml"):
+        register(**entry)

@@ -4,7 +4,9 @@ Upstream has no server. This one is ``deploy.py``'s shape (``conflictbench_servi
 ``POST /act``, ``/healthz``, ``/metadata``, ``{"error": ...}`` answers, one model thread) with UniVLA's request:
 the image, the text, the client's latent history, the statistics key and the request's seed.
 
-This module imports neither conflictbench nor torch.
+``SERVED`` is what ``conflictbench-serve univla`` hosts (found through the server half's ``conflictbench_serving``
+entry point) and what the client's ``served`` names. This module imports neither conflictbench nor torch (the
+backend's model is loaded by name, after the checks), so the client imports ``SERVED`` from it cheaply.
 """
 
 import json_numpy
@@ -12,9 +14,27 @@ import numpy as np
 
 from conflictbench_serving import rest
 from conflictbench_serving.checkpoints import NOISE_SEED
+from conflictbench_serving.command import ServedModel
 from conflictbench_serving.requests import describe, is_noise_seed
 
 from .backend import Row
+from .checkpoints import check_checkpoint, check_code
+
+
+def check(folder, policy: str, naming: str) -> None:
+    check_code()  # the model's code, from the checkout UNIVLA_CODE names
+    check_checkpoint(folder)
+
+
+#: A UniVLA checkpoint, UniVLA's code read from ``UNIVLA_CODE``.
+SERVED = ServedModel.of(
+    __package__,
+    policies=("univla",),
+    protocol="our REST protocol (json-numpy)",
+    check=check,
+    url_scheme="http",
+    checkpoint_help="a UniVLA checkpoint folder: the VLA in Hugging Face format and action_decoder.pt",
+)
 
 
 def request_row(body: bytes) -> tuple[Row, bool]:

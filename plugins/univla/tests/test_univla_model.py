@@ -114,7 +114,7 @@ def test_serve_refuses_what_it_cannot_serve_in_one_line(tiny_checkpoint, tmp_pat
     env = model_env()
     if change == "no_code":
         del env["UNIVLA_CODE"]
-    argv = ["-m", "conflictbench_univla", "serve", "--policy", "univla", "--checkpoint", str(folder), "--port", "0"]
+    argv = ["-m", "conflictbench_serving", "univla", "--checkpoint", str(folder), "--port", "0"]
     done = run_in_model_env(argv, check=False, env=env)
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and message in lines[-1] and "Traceback" not in done.stderr, done.stderr[-2000:]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from univla_model_env import UNIVLA, needs_model_env
 
-from conflictbench.testing import check_pinned_actions
+from conflictbench.testing.plugin_tests import play_pinned_actions
 from conflictbench_univla.checkpoints import fingerprint
 from conflictbench_univla.client import UnivlaConfig, load
 
@@ -19,8 +19,4 @@ GOLDEN = Path(__file__).parent / "golden"
 def test_the_tiny_checkpoint_plays_its_pinned_actions(tiny_checkpoint, monkeypatch):
     UNIVLA.use(monkeypatch)
     policy = load("univla", UnivlaConfig(checkpoint=str(tiny_checkpoint), device="cpu", max_batch=1))
-    try:
-        policy.start()
-        check_pinned_actions(policy, GOLDEN / "actions-univla.npz", fingerprint(tiny_checkpoint))
-    finally:
-        policy.close()
+    play_pinned_actions(policy, GOLDEN / "actions-univla.npz", fingerprint(tiny_checkpoint))

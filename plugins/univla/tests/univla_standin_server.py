@@ -1,4 +1,4 @@
-"""A ``conflictbench-univla serve`` stand-in: our UniVLA protocol (``conflictbench_univla.protocol``), a numpy model.
+"""A ``conflictbench-serve univla`` stand-in: our UniVLA protocol (``conflictbench_univla.protocol``), a numpy model.
 
 UniVLA's model code is in no installable package; this server answers as ours does (json-numpy ``POST /act``,
 ``GET /metadata``, ``{"error": ...}`` with HTTP 500) with a model whose answer is a fixed function of what reached
