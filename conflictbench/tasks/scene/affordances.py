@@ -30,13 +30,13 @@ grounding conflict's absent referent must never be (:mod:`.lexicon`).
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from conflictbench.core import UserError
+from conflictbench.tasks.json_lines import json_objects
 
 AFFORDANCES = ("graspable", "container", "support", "openable", "turnable", "fixed", "foldable", "pourable")
 SIZES = {1: "hand-sized", 2: "tableware or cookware", 3: "large container or appliance", 4: "furniture"}
@@ -71,14 +71,7 @@ class CategoryInfo:
 
 def parse_table(text: str, source: str) -> dict[str, CategoryInfo]:
     out: dict[str, CategoryInfo] = {}
-    for number, line in enumerate(text.splitlines(), start=1):
-        where = f"{source} line {number}"
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise AffordanceTableError(f"{where}: not valid JSON ({exc.msg})") from None
-        if not isinstance(row, dict):
-            raise AffordanceTableError(f"{where}: expected a JSON object")
+    for _, where, row in json_objects(text, source, AffordanceTableError):
         for key in ("category", "names", "synonyms", "hypernyms", "size", "note", *AFFORDANCES):
             if key not in row:
                 raise AffordanceTableError(f"{where}, field {key!r}: missing")

@@ -19,7 +19,6 @@ stops the build: the generator changed under the reviewer, and the sample needs 
 
 from __future__ import annotations
 
-import json
 import random
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
@@ -28,6 +27,7 @@ from importlib import resources
 from pathlib import Path
 
 from conflictbench.core import ConflictCase, UserError
+from conflictbench.tasks.json_lines import json_objects
 from conflictbench.tasks.validation.factors import with_components
 
 REVIEW_FILE = "review.jsonl"
@@ -58,16 +58,7 @@ def review_path() -> Path:
 def parse_reviews(text: str, source: str) -> list[Decision]:
     out: list[Decision] = []
     seen: dict[tuple[str, int], int] = {}
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        where = f"{source} line {number}"
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise ReviewError(f"{where}: not valid JSON ({exc.msg})") from None
-        if not isinstance(row, dict):
-            raise ReviewError(f"{where}: expected a JSON object")
+    for number, where, row in json_objects(text, source, ReviewError, blank_lines=True):
         for key in ("case_id", "decision", "note"):
             if not isinstance(row.get(key), str) or (key != "note" and not row[key]):
                 raise ReviewError(f"{where}, field {key!r}: missing or not a string")
