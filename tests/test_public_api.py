@@ -107,10 +107,10 @@ def test_no_model_plugin_imports_or_requires_another():
 
 def test_each_server_half_is_its_plugins_package_with_the_servers_requirements_and_never_conflictbench():
     """``plugins/NAME/server`` is what a model environment holds: the client's package (not a copy), requiring
-    neither conflictbench nor any plugin's client, so every requirement in that environment can be met; it declares
-    the same ``conflictbench_serving`` entry point and command as the client, which says where they run."""
+    neither conflictbench nor any plugin's client, so every requirement in that environment can be met. Each half
+    declares one entry point: the client's module for conflictbench, the server's ``SERVED`` for conflictbench-serve."""
     plugins = Path(__file__).resolve().parents[1] / "plugins"
-    served = sorted(folder.name for folder in plugins.iterdir() if list(folder.glob("conflictbench_*/serve.py")))
+    served = sorted(folder.name for folder in plugins.iterdir() if list(folder.glob("conflictbench_*/server.py")))
     halves = sorted(folder.name for folder in plugins.iterdir() if (folder / "server" / "pyproject.toml").is_file())
     assert served == halves and len(halves) >= 5  # every plugin with a server has its server half, and only those
     clients = {
@@ -128,8 +128,9 @@ def test_each_server_half_is_its_plugins_package_with_the_servers_requirements_a
         requirements = [*server["dependencies"], *chain(*server.get("optional-dependencies", {}).values())]
         named = {canonicalize_name(Requirement(r).name) for r in requirements}
         assert "conflictbench-serving" in named and not named & (clients | {"conflictbench"}), name
-        assert server["entry-points"] == {"conflictbench_serving": client["entry-points"]["conflictbench_serving"]}
-        assert server["scripts"] == client["scripts"]
+        entry = next(iter(client["entry-points"]["conflictbench"]))
+        assert client["entry-points"] == {"conflictbench": {entry: f"{package[0]}.client"}} and "scripts" not in client
+        assert server["entry-points"] == {"conflictbench_serving": {entry: f"{package[0]}.server:SERVED"}}
         assert "optional-dependencies" not in client or not {"server", "server-test"} & set(
             client["optional-dependencies"]
         )

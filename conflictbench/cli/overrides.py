@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+import tomllib
 from collections.abc import Sequence
 from importlib import resources
+from pathlib import Path
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -13,18 +17,34 @@ from conflictbench.core.plugins import Plugins, unknown_choice
 
 GROUPS = ("model", "suite", "level", "prompt", "run")
 
-#: The model plugins of this project (``plugins/<folder>``) by the policies each registers: a run that names one
-#: whose plugin is not installed says which command installs it (tests/test_cli.py keeps this list true).
-PROJECT_PLUGINS = {
-    "pi0": "pi0",
-    "pi05": "pi0",
-    "pi0-fast": "pi0",
-    "gr00t": "gr00t",
-    "vla-jepa": "vla_jepa",
-    "openvla": "openvla",
-    "openvla-oft": "openvla",
-    "univla": "univla",
-}
+#: Where conflictbench's own folder sits in a checkout of the project (an editable install): ``plugins/`` beside it.
+CHECKOUT = Path(__file__).resolve().parents[2]
+
+
+@functools.cache
+def checkout_plugins() -> dict[str, dict[str, Any]]:
+    """The model plugins of the checkout conflictbench runs from, by folder (``plugins/<folder>``): what each
+    declares in its ``pyproject.toml`` under ``[tool.conflictbench]`` (``policies``, ``protocol``,
+    ``model-environment``). Nothing lists them elsewhere, so a new plugin is its folder alone. Empty where
+    conflictbench is not run from a checkout (an installed wheel)."""
+    try:
+        if tomllib.loads((CHECKOUT / "pyproject.toml").read_text())["project"]["name"] != "conflictbench":
+            return {}
+    except (OSError, KeyError, tomllib.TOMLDecodeError):
+        return {}
+    found = {}
+    for pyproject in sorted(CHECKOUT.glob("plugins/*/pyproject.toml")):
+        table = tomllib.loads(pyproject.read_text()).get("tool", {}).get("conflictbench")
+        if isinstance(table, dict):
+            found[pyproject.parent.name] = table
+    return found
+
+
+def project_plugins() -> dict[str, str]:
+    """Policy -> the folder of this project's plugin that registers it (:func:`checkout_plugins`): a run naming
+    one whose plugin is not installed says which command installs it (tests/test_plugin_folders.py keeps each
+    plugin's declared policies what it registers)."""
+    return {policy: folder for folder, table in checkout_plugins().items() for policy in table.get("policies", ())}
 
 
 def group_choices(group: str, plugins: Plugins) -> list[str]:
@@ -83,14 +103,14 @@ def check_group_overrides(argv: Sequence[str], plugins: Plugins) -> None:
         for item in value.split(","):
             if item.strip() not in choices:
                 failures = plugins.load_failures if key == "model" else None
-                if key == "model" and item.strip() in PROJECT_PLUGINS:
+                if key == "model" and item.strip() in project_plugins():
                     raise UserError(not_installed(item.strip()))
                 raise UserError(unknown_choice(key, item.strip(), choices, failures))
 
 
 def not_installed(model: str) -> str:
     """The one-line message for a model of this project whose plugin is not installed."""
-    folder = PROJECT_PLUGINS[model]
+    folder = project_plugins()[model]
     return (
         f"model={model} comes with the {folder} model plugin, which is not installed here: "
         f"scripts/setup.sh --models {folder} installs it with its model environment "
