@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from testing_support import reference_spec
+from testing_support import episode_record, reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import (
@@ -37,16 +37,7 @@ def test_every_outcome_field_lands_in_a_store_column_of_the_same_name():
 
 def test_episodes_stored_before_the_sim_time_column_still_read(tmp_path):
     store = EpisodeStore(tmp_path)
-    record = EpisodeRecord(
-        policy="noop",
-        suite="libero_goal",
-        task_id=0,
-        init_state=0,
-        prompt="p0",
-        instruction="x",
-        episode_id="old",
-        wall_time_s=2.0,
-    )
+    record = episode_record(policy="noop", episode_id="old", wall_time_s=2.0)
     path = store.path_for("noop", "old")
     path.parent.mkdir(parents=True)
     pq.write_table(records_to_table([record]).drop_columns(["sim_time_s", "code_versions"]), path)

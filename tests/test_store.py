@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
+from testing_support import episode_record
 
 from conflictbench.core import EpisodeRecord
 from conflictbench.store import SCHEMA, EpisodeStore
@@ -20,7 +21,6 @@ def record(eid: str, h: int = 4, k: int = 2, policy: str = "noop", seed: int = 0
     rng = np.random.default_rng(seed)
     fields = dict(
         policy=policy,
-        suite="libero_goal",
         task_id=3,
         init_state=1,
         prompt="p1",
@@ -35,8 +35,7 @@ def record(eid: str, h: int = 4, k: int = 2, policy: str = "noop", seed: int = 0
         raw_actions=rng.normal(size=(h, 7)),
         mujoco_version="2.3.7",
     )
-    fields.update(kw)
-    return EpisodeRecord(**fields)
+    return episode_record(**{**fields, **kw})
 
 
 def assert_same(a: EpisodeRecord, b: EpisodeRecord) -> None:

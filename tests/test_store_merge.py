@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from testing_support import episode_record
 
 from conflictbench.cli import main
 from conflictbench.core import INFRASTRUCTURE_ERROR_PREFIX, EpisodeRecord, UserError
@@ -13,10 +14,7 @@ def episode(eid: str, seed: int = 0, **kw) -> EpisodeRecord:
     rng = np.random.default_rng(seed)
     fields = dict(
         policy="pi0",
-        suite="libero_goal",
         task_id=3,
-        init_state=0,
-        prompt="p0",
         instruction="open the drawer",
         episode_id=eid,
         steps=4,
@@ -29,8 +27,7 @@ def episode(eid: str, seed: int = 0, **kw) -> EpisodeRecord:
         plugin_version="0.1.0",
         mujoco_version="2.3.7",
     )
-    fields.update(kw)
-    return EpisodeRecord(**fields)
+    return episode_record(**{**fields, **kw})
 
 
 def shard(path, *records) -> EpisodeStore:
