@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from policy_server import PolicyServer, served_action
-from testing_support import wait_until
+from testing_support import episode_record, wait_until
 
 from conflictbench import InfrastructureError, PolicyClient, ServerUnavailable
 from conflictbench.core import (
@@ -266,12 +266,9 @@ def test_a_bad_url_is_one_clear_line():
 
 
 def record(episode_id: str, case_id: str | None = None, error: str | None = None) -> EpisodeRecord:
-    return EpisodeRecord(
+    return episode_record(
         policy="served-test",
-        suite="libero_goal",
         task_id=1,
-        init_state=0,
-        prompt="p0",
         instruction="put the bowl on the plate",
         case_id=case_id,
         family="physical" if case_id else None,
