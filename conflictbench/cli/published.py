@@ -8,6 +8,7 @@ import difflib
 from conflictbench.core import UserError
 from conflictbench.core.plugins import Plugins
 from conflictbench.core.registry import PublishedResult
+from conflictbench.report.paper import check_paper_model
 
 from .overrides import default_model
 
@@ -48,6 +49,7 @@ def check_declaration(entry: str, model: str, plugins: Plugins) -> PublishedResu
                 f"{KEY}={entry} is a published {found.policy} checkpoint, not one of model={model}'s; "
                 f"declare it with model={found.policy}"
             )
+        check_paper_model(found)  # the report would show the paper's rows beside it
         return found
     own = sorted(name for name, result in results.items() if result.policy == model)
     if not own:

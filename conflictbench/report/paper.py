@@ -15,6 +15,8 @@ from importlib import resources
 
 import pandas as pd
 
+from conflictbench.core import PluginError
+
 PAPER_TITLE = (
     "ConflictVLA-Bench: Benchmarking Behavioral Responses of Vision-Language-Action Models to Premise Conflicts"
 )
@@ -115,12 +117,24 @@ def declared_labels(frame: pd.DataFrame, declared: Mapping[tuple[str, str], str]
             if (model := declared.get((str(policy), str(config_hash)))) in known}  # fmt: skip
 
 
+def check_paper_model(result) -> None:
+    """A :class:`PluginError` (one line) unless the published result's ``paper_model`` is None or one of
+    :func:`paper_models`: the paper's names are this data's, so they are checked where the paper is read."""
+    model = getattr(result, "paper_model", None)
+    if model is not None and model not in paper_models():
+        raise PluginError(
+            f"published result {result.name!r} of {result.plugin} {result.plugin_version}: paper_model must be one of"
+            f" {', '.join(paper_models())}, got {model!r}"
+        )
+
+
 def declared_paper_models(declarations: Mapping[tuple[str, str], str], published: Mapping[str, object]) -> dict:
     """(policy, settings hash) -> the paper's model, for the declarations (-> a published entry's name) of
-    entries that are one of the paper's checkpoints (their ``paper_model``)."""
-    known = set(paper_models())
+    entries that are one of the paper's checkpoints (their ``paper_model``, checked: :func:`check_paper_model`)."""
     out = {}
     for key, entry in declarations.items():
-        if (model := getattr(published.get(entry), "paper_model", None)) in known:
+        result = published.get(entry)
+        check_paper_model(result)
+        if (model := getattr(result, "paper_model", None)) is not None:
             out[key] = str(model)
     return out
