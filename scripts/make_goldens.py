@@ -64,16 +64,15 @@ def main() -> int:
         frames = (0, int(r.steps) // 2, int(r.steps))
         episodes.append(golden_files.GoldenEpisode(name, r.suite, int(r.task_id), int(r.init_state), int(r.seed),
                                                    warmup, int(r.steps), frames))  # fmt: skip
-        jobs.append(DoctorJob(name, r.suite, int(r.task_id), int(r.init_state), int(r.seed), warmup,
-                              np.asarray(r.actions, dtype=np.float64), frames))  # fmt: skip
+        jobs.append(DoctorJob(episodes[-1], np.asarray(r.actions, dtype=np.float64)))
     blind, seeing = play_both_ways(jobs, IMAGE_SIZE)
     for record, job, *replays in zip(records, jobs, blind.replays, seeing.replays):
         for replayed in replays:
             deviation = None if replayed.path is None else path_deviation(replayed.path, record.eef_pos)
             if deviation != 0.0 or replayed.success_state != record.steps:
-                sys.exit(f"{job.name} {'with' if replayed.cameras else 'without'} cameras does not replay the runner's "
-                         f"episode (deviation {deviation}, solved at {replayed.success_state} of {record.steps}; "
-                         f"{replayed.error}): no goldens written")  # fmt: skip
+                sys.exit(f"{job.episode.name} {'with' if replayed.cameras else 'without'} cameras does not replay the "
+                         f"runner's episode (deviation {deviation}, solved at {replayed.success_state} of "
+                         f"{record.steps}; {replayed.error}): no goldens written")  # fmt: skip
     stack = seeing.stack
     key = golden_files.this_stack_key(stack)
     family = golden_files.renderer_family(stack.get("gl_vendor", ""), stack.get("gl_renderer", ""))
@@ -85,8 +84,8 @@ def main() -> int:
         renderer_family=family,
         image_size=IMAGE_SIZE,
         episodes=episodes,
-        actions={job.name: job.actions for job in jobs},
-        eef_pos={job.name: np.asarray(r.eef_pos, dtype=np.float64) for job, r in zip(jobs, records)},
+        actions={job.episode.name: job.actions for job in jobs},
+        eef_pos={job.episode.name: np.asarray(r.eef_pos, dtype=np.float64) for job, r in zip(jobs, records)},
     )
     frames = {(r.name, camera, state): frame for r in seeing.replays for (camera, state), frame in r.frames.items()}
     golden_files.write(goldens, frames)

@@ -19,6 +19,8 @@ import numpy as np
 from conflictbench.core import UserError
 from conflictbench.sim.libero_env import CAMERAS, EnvSettings
 
+from .goldens import GoldenEpisode
+
 #: What ``--perturb`` may change (a developer's tool: it shows what a different simulator does to the goldens).
 #: ``qpos_ulp=N`` moves every joint position of the initial state N units in the last place (another CPU's
 #: rounding, in effect); the others set ``model.opt.<name>`` after every reset (a reset rebuilds the model).
@@ -42,14 +44,10 @@ def parse_perturbations(texts: list[str]) -> tuple[tuple[str, float], ...]:
 
 @dataclass(frozen=True)
 class DoctorJob:
-    name: str
-    suite: str
-    task_id: int
-    init_state: int
-    seed: int
-    warmup_steps: int
+    """A golden episode to play again (its task, initial state, seed, warm-up and frame states) and its actions."""
+
+    episode: GoldenEpisode
     actions: np.ndarray
-    frame_states: tuple[int, ...]
 
 
 @dataclass
@@ -95,24 +93,25 @@ def play(job: DoctorJob, settings: EnvSettings, perturbations=()) -> Replayed:
     from conflictbench.tasks.libero.base_tasks import base_task, load_init_states
 
     start = time.perf_counter()
-    out = Replayed(job.name, settings.needs_images)
+    episode = job.episode
+    out = Replayed(episode.name, settings.needs_images)
     env = None
     try:
-        env = libero_env.make_env(base_task(job.suite, job.task_id).bddl_path, settings, cameras=CAMERAS)
-        env.seed(job.seed)
+        env = libero_env.make_env(base_task(episode.suite, episode.task_id).bddl_path, settings, cameras=CAMERAS)
+        env.seed(episode.seed)
         env.reset()
         _perturb_model(env, perturbations)
         gate = libero_env.CameraGate(env) if settings.needs_images else None
 
         def render_into(state: int) -> None:  # render the cameras during the next env call only for a kept state
             if gate is not None:
-                gate.set(state in job.frame_states)
+                gate.set(state in episode.frame_states)
 
-        render_into(0 if job.warmup_steps == 0 else -1)
-        obs = env.set_init_state(load_init_states(job.suite, job.task_id)[job.init_state])
+        render_into(0 if episode.warmup_steps == 0 else -1)
+        obs = env.set_init_state(load_init_states(episode.suite, episode.task_id)[episode.init_state])
         _perturb_state(env, perturbations)
-        for k in range(job.warmup_steps):
-            render_into(0 if k == job.warmup_steps - 1 else -1)
+        for k in range(episode.warmup_steps):
+            render_into(0 if k == episode.warmup_steps - 1 else -1)
             obs, _, _, _ = env.step(NOOP_ACTION)
         eef_site = env.env.robots[0].eef_site_id
         path = []
@@ -124,7 +123,7 @@ def play(job: DoctorJob, settings: EnvSettings, perturbations=()) -> Replayed:
             path.append(env.sim.data.site_xpos[eef_site].copy())
             if done and out.success_state is None:
                 out.success_state = state
-            if gate is not None and state in job.frame_states:
+            if gate is not None and state in episode.frame_states:
                 for camera in CAMERAS:  # upright, as people look at it (LIBERO renders upside down)
                     out.frames[camera, state] = np.ascontiguousarray(obs[f"{camera}_image"][::-1, ::-1])
         out.path = np.array(path)

@@ -16,12 +16,7 @@ VERSION_KEYS = ("mujoco_version", "robosuite_version", "libero_version", "numpy_
 
 
 def jobs_of(goldens: golden_files.Goldens) -> list[DoctorJob]:
-    return [
-        DoctorJob(
-            e.name, e.suite, e.task_id, e.init_state, e.seed, e.warmup_steps, goldens.actions[e.name], e.frame_states
-        )  # fmt: skip
-        for e in goldens.episodes
-    ]
+    return [DoctorJob(e, goldens.actions[e.name]) for e in goldens.episodes]
 
 
 def gpu() -> str:
