@@ -34,21 +34,10 @@ def episode(
     config="h1",
     settings="",
 ) -> EpisodeRecord:
-    return episode_record(
-        policy=policy,
-        task_id=task,
-        init_state=init,
-        prompt=prompt,
-        instruction="i",
-        case_id=case,
-        family=family,
-        level=level,
-        success=success,
-        **along_x(0.0, x, action=(x, 0, 0, 0, 0, 0, 0)),
-        config_hash=config,
-        policy_settings=settings,
-        episode_id=f"{policy}-{prompt}-{case}-{init}-{task}",
-    )
+    key = dict(policy=policy, task_id=task, init_state=init, prompt=prompt, instruction="i", case_id=case)
+    identity = dict(config_hash=config, policy_settings=settings, episode_id=f"{policy}-{prompt}-{case}-{init}-{task}")
+    path = along_x(0.0, x, action=(x, 0, 0, 0, 0, 0, 0))
+    return episode_record(**key, **identity, **path, family=family, level=level, success=success)
 
 
 def frame_of(records, metrics=("tar", "early20_ts", "ts", "ams")):

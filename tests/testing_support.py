@@ -64,23 +64,10 @@ def report_episode(
 ):
     """An episode of the report's tests: two recorded states on the x axis (target at the origin), one action of
     size ``move``, in libero_object's task 3."""
-    return episode_record(
-        policy=policy,
-        suite="libero_object",
-        task_id=3,
-        init_state=init,
-        instruction="pick",
-        case_id=case,
-        family=family,
-        level=level,
-        success=success,
-        steps=steps,
-        error=error,
-        error_kind=error_kind,
-        episode_id=f"{policy}-{case}-{init}",
-        config_hash="cfg",
-        **along_x(0.5, x_end, action=(move, 0, 0, 0, 0, 0, 1.0), target="alphabet_soup_1"),
-    )
+    key = dict(policy=policy, suite="libero_object", task_id=3, init_state=init, instruction="pick", case_id=case)
+    outcome = dict(family=family, level=level, success=success, steps=steps, error=error, error_kind=error_kind)
+    path = along_x(0.5, x_end, action=(move, 0, 0, 0, 0, 0, 1.0), target="alphabet_soup_1")
+    return episode_record(**key, **outcome, **path, episode_id=f"{policy}-{case}-{init}", config_hash="cfg")
 
 
 TRAMPOLINE = dict(
