@@ -85,14 +85,9 @@ BY_NAME = {
 }
 #: The names kept at their places of 0.2 (``hosting/former.py``): read from the modules they moved to, by name.
 FORMER = "conflictbench.hosting.former"
-BY_NAME[FORMER] = {"conflictbench.hosting", *(f"conflictbench.hosting.{new}" for new in FORMER_CORE_MODULES.values())}
-#: Modules calling ``importlib.import_module`` with names their callers give.
-IMPORTS_GIVEN_NAMES = {"conflictbench.core.plugins"}
-#: The edges that keep the names of 0.2 working until 0.4.0, when they go: ``conflictbench.core``'s ``__getattr__``
-#: asks ``hosting.former`` for a name that moved up to ``conflictbench.hosting`` (a layer cycle; test_core_plugins.py
-#: names the same exception), which reads it from its new module by name (a module cycle with the modules that warn
-#: through ``former``). Left out of the checks, each named here; a test fails once one is gone.
-UNTIL_0_4 = {("conflictbench.core", FORMER)} | {(FORMER, target) for target in BY_NAME[FORMER]}
+BY_NAME[FORMER] = {f"conflictbench.hosting.{new}" for new in FORMER_CORE_MODULES.values()}
+#: Modules calling ``importlib.import_module`` with names their callers give (plugins to load, moved names).
+IMPORTS_GIVEN_NAMES = {"conflictbench.core.plugins", "conflictbench.core.deprecation"}
 
 
 @functools.cache  # read once for all the tests here (none changes it)
@@ -102,12 +97,6 @@ def package_graph() -> Graph:
         for target in targets & set(graph):  # a family without a module of its own has no rules of its own
             graph[module].setdefault(target, "(imported by name)")
     return graph
-
-
-def checked_graph() -> Graph:
-    """The package's graph without the edges of :data:`UNTIL_0_4`."""
-    return {module: {t: w for t, w in targets.items() if (module, t) not in UNTIL_0_4}
-            for module, targets in package_graph().items()}  # fmt: skip
 
 
 def layers(graph: Graph) -> Graph:
@@ -147,7 +136,7 @@ def said(graph: Graph, cycle: list[str]) -> str:
 
 
 def test_no_module_of_conflictbench_is_in_an_import_cycle():
-    graph = checked_graph()
+    graph = package_graph()
     cycle = find_cycle(graph)
     assert cycle is None, f"import cycle: {said(graph, cycle)}"
 
@@ -155,15 +144,9 @@ def test_no_module_of_conflictbench_is_in_an_import_cycle():
 def test_the_layers_import_each_other_one_way():
     """A subpackage that imports another imports nothing back (``doctor`` below ``cli``, the built-in plugins
     below the runner that plays them), with no module cycle needed for it."""
-    graph = layers(checked_graph())
+    graph = layers(package_graph())
     cycle = find_cycle(graph)
     assert cycle is None, f"import cycle between layers: {said(graph, cycle)}"
-
-
-def test_each_edge_left_out_until_0_4_is_still_there():
-    graph = package_graph()
-    gone = sorted(edge for edge in UNTIL_0_4 if edge[1] not in graph[edge[0]])
-    assert not gone, f"no longer imported: take them off UNTIL_0_4: {gone}"
 
 
 def by_name_imports(path: Path) -> tuple[bool, bool]:

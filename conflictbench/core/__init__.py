@@ -3,8 +3,9 @@ errors, seeded sampling. Imports nothing else of conflictbench, no simulator, no
 
 The client for models behind a server (transports, ``PolicyClient``, ``HostedPolicy``, ``ServerProcess``) is a
 layer above this one, :mod:`conflictbench.hosting`. Its names and modules, which lived here until 0.2, stay
-usable from here until 0.4.0, each use warning (``DeprecationWarning``) with the new place: :func:`__getattr__`,
-this package's one import of a layer above, made only when a former name is asked for."""
+usable from here until 0.4.0, each use warning (``DeprecationWarning``) with the new place: importing
+:mod:`conflictbench.hosting` (which ``import conflictbench`` does) gives this package a ``__getattr__`` (PEP 562)
+that finds them there (``hosting/former.py``), so nothing here imports upwards."""
 
 from .errors import (
     ClientError,
@@ -88,14 +89,3 @@ __all__ = [
     "rng_for",
     "sampling_seed",
 ]
-
-
-def __getattr__(name: str):
-    """PEP 562: a name this package held until 0.2 (``HostedPolicy``, the module ``serving``), deprecated, from
-    :mod:`conflictbench.hosting` where it moved; it goes in 0.4.0. The one exception to core importing nothing else
-    of conflictbench: lazy, for the former names only, and gone with them."""
-    if name.startswith("_"):  # what tools ask of any module (``__path__``, ``__wrapped__``): never a former name
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from ..hosting.former import former_core_attribute
-
-    return former_core_attribute(name)

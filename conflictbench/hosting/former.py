@@ -21,53 +21,37 @@ import importlib.abc
 import importlib.util
 import sys
 import types
-import warnings
-from collections.abc import Callable, Mapping
 from typing import Any
 
-#: The version in which the deprecated names go.
-REMOVED_IN = "0.4.0"
+from .. import core
+from ..core.deprecation import REMOVED_IN, deprecated, moved_names
+
+__all__ = ["FORMER_CORE_MODULES", "FORMER_CORE_NAMES", "REMOVED_IN", "deprecated", "install", "moved_names"]
+
 #: ``conflictbench.core``'s modules until 0.2, and their names in this package since 0.3.
 FORMER_CORE_MODULES = {"serving": "client", "transport": "transport", "hosting": "hosted", "launch": "launch"}
-#: The names those modules lent ``conflictbench.core`` until 0.2 (``from conflictbench.core import HostedPolicy``).
-FORMER_CORE_NAMES = (
-    "HostedConfig", "HostedPolicy", "HttpJsonTransport", "MODEL_PROCESS_ENV", "PolicyClient", "ServedPolicy",
-    "ServerProcess", "ServingConfig", "Transport", "free_port", "model_environment",
-)  # fmt: skip
+#: The names those modules lent ``conflictbench.core`` until 0.2 (``from conflictbench.core import HostedPolicy``),
+#: each with the module of this package that holds it now.
+FORMER_CORE_NAMES = {
+    "HostedConfig": "hosted", "HostedPolicy": "hosted", "MODEL_PROCESS_ENV": "hosted",
+    "HttpJsonTransport": "transport", "Transport": "transport",
+    "PolicyClient": "client", "ServedPolicy": "client", "ServingConfig": "client",
+    "ServerProcess": "launch", "free_port": "launch", "model_environment": "launch",
+}  # fmt: skip
 
-
-def deprecated(what: str, instead: str, stacklevel: int = 1) -> None:
-    """Warn that ``what`` is deprecated, saying ``instead``; ``stacklevel`` 1 blames the caller's caller."""
-    warnings.warn(
-        f"{what} is deprecated and goes in conflictbench {REMOVED_IN}: {instead}",
-        DeprecationWarning,
-        stacklevel=stacklevel + 2,
-    )
-
-
-def moved_names(module: str, names: Mapping[str, str]) -> Callable[..., Any]:
-    """A module ``__getattr__`` (PEP 562) for names that moved: ``names`` maps each old name to its new place,
-    ``"package.module:NAME"``. Reading one warns, naming that place, and gives the object there."""
-
-    def __getattr__(name: str, stacklevel: int = 1) -> Any:  # stacklevel 1: blame the code that read the name
-        if name not in names:
-            raise AttributeError(f"module {module!r} has no attribute {name!r}")
-        where, _, attribute = names[name].partition(":")
-        deprecated(f"{module}.{name}", f"import {attribute} from {where}", stacklevel)
-        return getattr(importlib.import_module(where), attribute)
-
-    return __getattr__
-
-
-_core_names = moved_names("conflictbench.core", {name: f"conflictbench.hosting:{name}" for name in FORMER_CORE_NAMES})
+_core_names = moved_names(
+    "conflictbench.core", {name: f"{__package__}.{new}:{name}" for name, new in FORMER_CORE_NAMES.items()}
+)
 
 
 def former_core_attribute(name: str) -> Any:
-    """``conflictbench.core.NAME`` for a name that moved to this package (a stand-in module for a former module);
-    called by ``conflictbench.core.__getattr__``, whose caller the warning blames."""
+    """``conflictbench.core.NAME`` for a name that moved to this package (a stand-in module for a former module):
+    ``conflictbench.core``'s ``__getattr__`` (PEP 562), set by :func:`install`, whose caller the warning blames."""
+    if name.startswith("_"):  # what tools ask of any module (``__path__``, ``__wrapped__``): never a former name
+        raise AttributeError(f"module 'conflictbench.core' has no attribute {name!r}")
     if name in FORMER_CORE_MODULES:
         return importlib.import_module(f"conflictbench.core.{name}")
-    return _core_names(name, 3)  # past this function and core's __getattr__
+    return _core_names(name, 2)  # past this function
 
 
 class _MovedModule(types.ModuleType):
@@ -109,6 +93,8 @@ class _FormerCoreModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 def install() -> None:
-    """Put the finder of the former core modules on ``sys.meta_path`` (once)."""
+    """Put the finder of the former core modules on ``sys.meta_path`` (once), and give ``conflictbench.core`` the
+    ``__getattr__`` that finds the former names: set from here, so that core imports nothing of this package."""
+    core.__getattr__ = former_core_attribute
     if not any(isinstance(finder, _FormerCoreModules) for finder in sys.meta_path):
         sys.meta_path.append(_FormerCoreModules())

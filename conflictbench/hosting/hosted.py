@@ -46,10 +46,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+from ..core.deprecation import deprecated
 from ..core.errors import ServerUnavailable, UserError
 from ..core.policy import DEFAULT_MAX_STEPS
 from .client import PolicyClient, ServedPolicy, ServingConfig
-from .former import deprecated
 from .launch import ServerProcess, free_port, model_environment
 from .transport import Transport
 
