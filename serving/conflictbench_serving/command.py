@@ -107,8 +107,10 @@ def served_model(policy: str) -> ServedModel:
     broken = (
         f"; plugins that failed to load: {', '.join(f'{k} ({v})' for k, v in failures.items())}" if failures else ""
     )
+    # A plugin's client half (beside the simulator) declares nothing here: its server half is in its model environment.
+    where = "" if models else "; a model plugin's server half is in its model environment: run its conflictbench-serve"
     raise LookupError(
-        f"no installed plugin serves {policy!r} (installed: {', '.join(sorted(models)) or 'none'}){broken}"
+        f"no installed plugin serves {policy!r} (installed: {', '.join(sorted(models)) or 'none'}{where}){broken}"
     )
 
 
