@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from groot_model_env import GR00T, TESTS, model_env, needs_model_env, run_in_model_env
 
-from conflictbench.store import EpisodeStore
-from conflictbench.testing import camera_observation, episode_counts, run_cli
+from conflictbench.testing import camera_observation, run_cli
+from conflictbench.testing.plugin_tests import check_served_identity, played_records
 from conflictbench_gr00t.checkpoints import fingerprint
 from conflictbench_gr00t.client import Gr00tConfig, load
 
@@ -23,13 +23,7 @@ def test_served_actions_are_lerobots_own_sampling_and_processing(tiny_groot_chec
     policy = load("gr00t", Gr00tConfig(checkpoint=str(tiny_groot_checkpoint), max_batch=2, device="cpu"))
     try:
         policy.start()
-        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
-            "checkpoint": fingerprint(tiny_groot_checkpoint),
-            "max_batch": 2,
-        }
-        assert (
-            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
-        )
+        check_served_identity(policy, fingerprint(tiny_groot_checkpoint), 2)
         observations = [camera_observation(step, text) for step, text in [(0, "pick up the bowl"), (7, "open it")]]
         served = [policy.act(obs) for obs in observations]
         requests = [policy.encode(obs)["data"] for obs in observations]
@@ -62,7 +56,4 @@ def test_served_actions_are_lerobots_own_sampling_and_processing(tiny_groot_chec
 def test_a_run_with_a_checkpoint_starts_the_server_and_plays_real_episodes(tiny_groot_checkpoint, tmp_path: Path):
     settings = ["model=gr00t", f"model.checkpoint={tiny_groot_checkpoint}", "model.max_steps=16", "model.device=cpu"]
     out = run_cli(tmp_path, *settings, env=model_env(tiny_groot_checkpoint))
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert episode_counts(out.stderr) == (2, 0, 0)
-    records = list(EpisodeStore(tmp_path / "results").records())
-    assert [record.steps for record in records] == [16, 16] and all(r.error is None for r in records)
+    played_records(tmp_path, out, 16)  # both episodes played 16 steps without an error

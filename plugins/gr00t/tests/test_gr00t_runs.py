@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from gr00t_standin import start_standin
 
-from conflictbench.store import EpisodeStore
-from conflictbench.testing import episode_counts as counts
 from conflictbench.testing import run_cli as run_one_case
+from conflictbench.testing.plugin_tests import played_one_case
 
 pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 16  # two queries of eight actions
@@ -23,22 +22,14 @@ def run_cli(tmp_path: Path, url: str, *overrides: str):
 
 
 def test_episodes_play_eight_actions_of_each_chunk_from_the_first_step(tmp_path):
-    server, url = start_standin(tmp_path)
-    try:
-        out = run_cli(tmp_path, url)
-    finally:
-        server.stop()
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert counts(out.stderr) == (2, 0, 0)
-    records = list(EpisodeStore(tmp_path / "results").records())
-    assert len(records) == 2 and {r.case_id is None for r in records} == {True, False}
+    records = played_one_case(tmp_path, start_standin(tmp_path), lambda url: run_cli(tmp_path, url), STEPS)
     for record in records:
-        assert record.steps == STEPS and record.error is None
         raw = record.raw_actions
         for step in range(STEPS):  # the stand-in's row k is (k + 1) x its first row: 8 rows, then a new query
             first = raw[8 * (step // 8)]
             np.testing.assert_allclose(raw[step, :6], first[:6] * (step % 8 + 1), rtol=1e-5)
         assert not np.allclose(raw[8, :6], raw[0, :6] * 9)  # step 8 came from a new chunk
         assert raw[:, 6].tolist() == ([1.0, -1.0, 0.0] * 3)[:8] * 2  # the gripper mapped from the dataset's [0, 1]
-    reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
+    reference, conflict = records
+    assert reference.case_id is None and conflict.case_id is not None
     assert reference.raw_actions[0, 4] != conflict.raw_actions[0, 4]  # the server got each episode's own text

@@ -14,7 +14,7 @@ import zmq
 from nvidia_standin_server import from_bytes, to_bytes
 
 from conflictbench.testing import camera_observation
-from conflictbench.testing.plugin_tests import lerobot_folder, serve_command
+from conflictbench.testing.plugin_tests import check_serve_refuses, lerobot_checkpoint_errors, server_in_thread
 from conflictbench_gr00t.client import Gr00tConfig, load
 from conflictbench_gr00t.processing import env_actions, gr00t_observation
 from conflictbench_gr00t.protocol import ACTION_KEYS, LANGUAGE_KEY
@@ -56,27 +56,12 @@ def chunk_for(row: Row) -> dict[str, np.ndarray]:
 
 @contextmanager
 def serving(backend, max_batch: int = 2, api_token: str | None = None):
-    bound, ready = {}, threading.Event()
-
-    def main() -> None:
-        async def go() -> None:
-            bound["stop"], bound["loop"] = asyncio.Event(), asyncio.get_running_loop()
-            server = bound["server"] = Gr00tPolicyServer(backend, max_batch, api_token)
-            await server.run("127.0.0.1", 0, bound["stop"], lambda h, p: (bound.update(port=p), ready.set()))
-
-        asyncio.run(go())
-
-    thread = threading.Thread(target=main, daemon=True)
-    thread.start()
-    assert ready.wait(10)
     try:
-        backend.server = bound["server"]  # for tests that watch its queue
-        yield f"tcp://127.0.0.1:{bound['port']}"
+        with server_in_thread(lambda: Gr00tPolicyServer(backend, max_batch, api_token)) as (server, port):
+            backend.server = server  # for tests that watch its queue
+            yield f"tcp://127.0.0.1:{port}"
     finally:
         backend.hold.set()
-        bound["loop"].call_soon_threadsafe(bound["stop"].set)
-        thread.join(10)
-        assert not thread.is_alive()
 
 
 @contextmanager
@@ -190,18 +175,10 @@ def test_a_text_list_that_does_not_match_the_rows_is_refused(language):
 
 @pytest.mark.parametrize(
     "make, fragment",
-    [
-        (lambda tmp: tmp / "nowhere", "no checkpoint folder at"),
-        (lambda tmp: lerobot_folder(tmp / "c", None), "not a LeRobot checkpoint (no config.json) (an Isaac-GR00T"),
-        (lambda tmp: lerobot_folder(tmp / "c", "vla_jepa"), "holds a vla_jepa policy, not a groot one"),
-        (lambda tmp: lerobot_folder(tmp / "c", "groot", ("model.safetensors",)), "has no policy_preprocessor.json"),
-        (lambda tmp: lerobot_folder(tmp / "c", "groot"), "run this with the model environment's python"),  # no torch
-    ],
+    lerobot_checkpoint_errors("groot", "vla_jepa", "not a LeRobot checkpoint (no config.json) (an Isaac-GR00T"),
 )
 def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragment):
-    done = serve_command(PLUGIN_ROOT, tmp_path, "gr00t", "--checkpoint", str(make(tmp_path)))
-    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
-    assert done.stderr.startswith("conflictbench-serve: ") and fragment in done.stderr
+    check_serve_refuses(PLUGIN_ROOT, tmp_path, "gr00t", make(tmp_path), fragment)
 
 
 def test_a_reply_that_cannot_be_built_is_still_answered_as_an_error():

@@ -16,8 +16,8 @@ from openvla_model_env import OPENVLA, TESTS, model_env, needs_model_env, run_in
 
 from conflictbench import InfrastructureError, UserError
 from conflictbench.hosting.openvla_family import env_gripper, unnormalize
-from conflictbench.store import EpisodeStore
-from conflictbench.testing import camera_observation, episode_counts, run_cli
+from conflictbench.testing import camera_observation, run_cli
+from conflictbench.testing.plugin_tests import check_served_identity, played_records
 from conflictbench_openvla.checkpoints import fingerprint
 from conflictbench_openvla.client import OftConfig, OpenVlaConfig, load
 from conflictbench_openvla.processing import detokenize
@@ -37,13 +37,7 @@ def test_served_actions_are_the_checkpoints_own_predict_action(tiny_checkpoint, 
     policy = load("openvla", OpenVlaConfig(checkpoint=str(tiny_checkpoint), device="cpu"))
     try:
         policy.start()
-        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
-            "checkpoint": fingerprint(tiny_checkpoint),
-            "max_batch": 2,
-        }
-        assert (
-            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
-        )
+        check_served_identity(policy, fingerprint(tiny_checkpoint), 2)
         assert policy.metadata["unnorm_keys"] == ["libero_10", "libero_goal", "libero_object", "libero_spatial"]
         observations = [camera_observation(0, "Pick up the bowl", suite="libero_goal"),
                         camera_observation(3, "open the drawer", suite="libero_10", stream=1)]  # fmt: skip
@@ -111,10 +105,7 @@ def test_a_double_encoded_request_is_answered_double_encoded_as_deploy_py_does(t
 def test_model_checkpoint_dir_plays_real_episodes(tiny_checkpoint, tmp_path):
     out = run_cli(tmp_path, "model=openvla", f"model.checkpoint={tiny_checkpoint}", "model.device=cpu",
                   "model.max_steps=6", env=model_env(tiny_checkpoint))  # fmt: skip
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert episode_counts(out.stderr) == (2, 0, 0)
-    records = list(EpisodeStore(tmp_path / "results").records())
-    assert all(r.steps == 6 and r.error is None for r in records)
+    records = played_records(tmp_path, out, 6)
     assert len({r.policy for r in records}) == 1
     reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
     assert not np.array_equal(reference.raw_actions, conflict.raw_actions)  # each text reached the model

@@ -9,11 +9,10 @@ import pytest
 from deploy_standin import start_standin
 from deploy_standin_model import STATS
 
-from conflictbench.store import EpisodeStore
 from conflictbench.testing import (
-    episode_counts,
     run_cli,
 )
+from conflictbench.testing.plugin_tests import played_one_case
 
 pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 16  # two OFT chunks of eight
@@ -25,16 +24,7 @@ def run(tmp_path: Path, name: str, url: str, *overrides: str):
 
 
 def played(tmp_path: Path, name: str, kind: str):
-    server, url = start_standin(tmp_path, kind)
-    try:
-        out = run(tmp_path, name, url)
-    finally:
-        server.stop()
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert episode_counts(out.stderr) == (2, 0, 0)
-    records = list(EpisodeStore(tmp_path / "results").records())
-    assert len(records) == 2 and all(r.steps == STEPS and r.error is None for r in records)
-    return sorted(records, key=lambda r: r.case_id is not None)
+    return played_one_case(tmp_path, start_standin(tmp_path, kind), lambda url: run(tmp_path, name, url), STEPS)
 
 
 def in_the_suites_range(raw: np.ndarray, key: str, epsilon: float) -> bool:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -31,7 +33,7 @@ from server_fixtures import (
 )
 from websockets.sync.client import ClientConnection
 
-from conflictbench.testing.plugin_tests import lerobot_folder, serve_command
+from conflictbench.testing.plugin_tests import check_serve_refuses, lerobot_folder, serve_command
 from conflictbench_pi0.protocol import (
     ACTIONS,
     IMAGE,
@@ -283,17 +285,13 @@ def fake_checkpoint(folder: Path, kind: str | None = "pi05", weights: bool = Tru
 )
 def test_serve_checkpoint_errors_are_one_line_and_exit_2(tmp_path, policy, kind, weights, fragment):
     folder = tmp_path / "missing" if kind == "missing" else fake_checkpoint(tmp_path / "ckpt", kind, weights)
-    done = serve_command(PLUGIN_ROOT, tmp_path, policy, "--checkpoint", str(folder))
-    assert done.returncode == 2
-    assert done.stderr.count("\n") == 1 and done.stderr.startswith("conflictbench-serve: ") and fragment in done.stderr
-    assert done.stdout == ""
+    check_serve_refuses(PLUGIN_ROOT, tmp_path, policy, folder, fragment)
 
 
 def test_serve_without_the_model_stack_says_which_python_to_use(tmp_path):
     """The simulator's environment has no torch: a valid-looking checkpoint gets that far, and no further."""
-    done = serve_command(PLUGIN_ROOT, tmp_path, "pi05", "--checkpoint", str(fake_checkpoint(tmp_path / "ckpt")))
-    assert done.returncode == 2 and done.stderr.count("\n") == 1
-    assert "run this with the model environment's python" in done.stderr
+    folder = fake_checkpoint(tmp_path / "ckpt")
+    check_serve_refuses(PLUGIN_ROOT, tmp_path, "pi05", folder, "run this with the model environment's python")
 
 
 @pytest.mark.parametrize(
@@ -308,3 +306,11 @@ def test_serve_without_the_model_stack_says_which_python_to_use(tmp_path):
 def test_serve_usage_errors_are_one_line_and_exit_2(tmp_path, args, fragment):
     done = serve_command(PLUGIN_ROOT, tmp_path, *args)
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and fragment in done.stderr
+
+
+def test_serve_beside_the_simulator_says_the_server_half_is_in_the_model_environment():
+    """The client half declares nothing for conflictbench-serve (this Python has no server half installed)."""
+    done = subprocess.run([sys.executable, "-m", "conflictbench_serving", "pi05", "--checkpoint", "x"],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1
+    assert "(installed: none; a model plugin's server half is in its model environment" in done.stderr

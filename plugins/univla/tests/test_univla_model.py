@@ -14,8 +14,8 @@ from univla_model_env import TESTS, UNIVLA, model_env, needs_model_env, run_in_m
 
 from conflictbench import UserError
 from conflictbench.hosting.openvla_family import env_gripper, unnormalize
-from conflictbench.store import EpisodeStore
-from conflictbench.testing import camera_observation, episode_counts, run_cli
+from conflictbench.testing import camera_observation, run_cli
+from conflictbench.testing.plugin_tests import check_served_identity, played_records
 from conflictbench_univla.checkpoints import fingerprint
 from conflictbench_univla.client import UnivlaConfig, load
 from conflictbench_univla.processing import TemporalEnsemble, history_text, prompt
@@ -40,13 +40,7 @@ def test_each_query_is_the_checkpoints_own_seeded_sample_and_the_loop_is_univlas
     observations = [camera_observation(step, "Put the bowl on the plate") for step in range(4)]
     try:
         policy.start()
-        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
-            "checkpoint": fingerprint(tiny_checkpoint),
-            "max_batch": 2,
-        }
-        assert (
-            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
-        )
+        check_served_identity(policy, fingerprint(tiny_checkpoint), 2)
         assert policy.window == 12
         requests, served = [], []
         for obs in observations:
@@ -71,11 +65,7 @@ def test_each_query_is_the_checkpoints_own_seeded_sample_and_the_loop_is_univlas
 def test_model_checkpoint_dir_plays_real_episodes(tiny_checkpoint, tmp_path):
     out = run_cli(tmp_path, "model=univla", f"model.checkpoint={tiny_checkpoint}", "model.device=cpu",
                   "model.max_steps=6", env=model_env())  # fmt: skip
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert episode_counts(out.stderr) == (2, 0, 0)
-    records = list(EpisodeStore(tmp_path / "results").records())
-    assert all(r.steps == 6 and r.error is None for r in records)
-    reference, conflict = sorted(records, key=lambda r: r.case_id is not None)
+    reference, conflict = played_records(tmp_path, out, 6)
     assert not np.array_equal(reference.raw_actions, conflict.raw_actions)
 
 

@@ -9,11 +9,10 @@ import pytest
 from univla_standin import start_standin
 from univla_standin_model import STATISTICS
 
-from conflictbench.store import EpisodeStore
 from conflictbench.testing import (
-    episode_counts,
     run_cli,
 )
+from conflictbench.testing.plugin_tests import played_one_case
 
 pytestmark = [pytest.mark.sim, pytest.mark.e2e]  # real episodes through the command
 STEPS = 14  # past one window of 12
@@ -25,19 +24,11 @@ def run(tmp_path: Path, url: str, *overrides: str):
 
 
 def test_episodes_query_every_step_with_their_history_and_the_suites_statistics(tmp_path):
-    server, url = start_standin(tmp_path)
-    try:
-        out = run(tmp_path, url)
-    finally:
-        server.stop()
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert episode_counts(out.stderr) == (2, 0, 0)
-    records = sorted(EpisodeStore(tmp_path / "results").records(), key=lambda r: r.case_id is not None)
+    records = played_one_case(tmp_path, start_standin(tmp_path), lambda url: run(tmp_path, url), STEPS)
     action = STATISTICS["libero_spatial"]
     low, high = np.array(action["q01"][:6]), np.array(action["q99"][:6])
     for record in records:
         raw = record.raw_actions
-        assert record.steps == STEPS and record.error is None
         assert np.all(raw[:, :6] >= low - 1e-12) and np.all(raw[:, :6] <= high + 1e-12)
         assert set(raw[:, 6]) <= {-1.0, 1.0}
         assert len({tuple(row) for row in raw[:, :3]}) == STEPS  # a new ensembled action every step

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from jepa_model_env import TESTS, VLA_JEPA, model_env, needs_model_env, run_in_model_env
 
-from conflictbench.store import EpisodeStore
-from conflictbench.testing import camera_observation, episode_counts, run_cli
+from conflictbench.testing import camera_observation, run_cli
+from conflictbench.testing.plugin_tests import check_served_identity, played_records
 from conflictbench_vla_jepa.checkpoints import fingerprint
 from conflictbench_vla_jepa.client import VlaJepaConfig, load
 
@@ -41,13 +41,7 @@ def test_served_actions_are_lerobots_own_sampling_and_postprocessing(tiny_checkp
     try:
         policy.start()
         assert policy.metadata["chunk_length"] == 7 and policy.chunk_length == 7
-        assert {k: v for k, v in policy.identity.items() if k != "model_stack"} == {
-            "checkpoint": fingerprint(tiny_checkpoint),
-            "max_batch": MAX_BATCH,
-        }
-        assert (
-            policy.identity["model_stack"]["device"] == "cpu" and "torch" in policy.identity["model_stack"]["packages"]
-        )
+        check_served_identity(policy, fingerprint(tiny_checkpoint), MAX_BATCH)
         observations = [camera_observation(step, text) for step, text in [(0, "pick up the bowl"), (5, "open it")]]
         served = [policy.act(obs) for obs in observations]
         payloads = [policy.encode(obs)["payload"] for obs in observations]
@@ -72,8 +66,5 @@ def test_served_actions_are_lerobots_own_sampling_and_postprocessing(tiny_checkp
 def test_a_run_with_a_checkpoint_starts_the_server_and_plays_real_episodes(tiny_checkpoint, tmp_path):
     settings = ["model=vla-jepa", f"model.checkpoint={tiny_checkpoint}", "model.max_steps=14", "model.device=cpu"]
     out = run_cli(tmp_path, *settings, env=model_env(tiny_checkpoint))
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert episode_counts(out.stderr) == (2, 0, 0)
-    records = list(EpisodeStore(tmp_path / "results").records())
-    assert [record.steps for record in records] == [14, 14] and all(r.error is None for r in records)
+    records = played_records(tmp_path, out, 14)
     assert all(set(np.asarray(r.raw_actions)[:, 6]) <= {-1.0, 1.0} for r in records)

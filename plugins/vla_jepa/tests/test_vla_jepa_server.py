@@ -3,8 +3,6 @@ client codec, our client reading the statistics from its metadata, and the serve
 
 from __future__ import annotations
 
-import asyncio
-import threading
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -17,7 +15,7 @@ from websockets.sync.client import connect
 
 from conflictbench import UserError
 from conflictbench.testing import camera_observation
-from conflictbench.testing.plugin_tests import lerobot_folder, serve_command
+from conflictbench.testing.plugin_tests import check_serve_refuses, lerobot_checkpoint_errors, server_in_thread
 from conflictbench_vla_jepa.client import VlaJepaConfig, load
 from conflictbench_vla_jepa.processing import ActionStatistics, camera_image, env_actions
 from conflictbench_vla_jepa.protocol import Row, infer_request
@@ -50,25 +48,8 @@ def chunk_for(row: Row) -> np.ndarray:
 
 @contextmanager
 def serving(backend, max_batch: int = 2):
-    bound, ready = {}, threading.Event()
-
-    def main() -> None:
-        async def go() -> None:
-            bound["stop"], bound["loop"] = asyncio.Event(), asyncio.get_running_loop()
-            server = JepaPolicyServer(backend, max_batch)
-            await server.run("127.0.0.1", 0, bound["stop"], lambda h, p: (bound.update(port=p), ready.set()))
-
-        asyncio.run(go())
-
-    thread = threading.Thread(target=main, daemon=True)
-    thread.start()
-    assert ready.wait(10)
-    try:
-        yield f"ws://127.0.0.1:{bound['port']}"
-    finally:
-        bound["loop"].call_soon_threadsafe(bound["stop"].set)
-        thread.join(10)
-        assert not thread.is_alive(), "the server did not stop"
+    with server_in_thread(lambda: JepaPolicyServer(backend, max_batch)) as (_server, port):
+        yield f"ws://127.0.0.1:{port}"
 
 
 def ask(connection, message) -> dict:
@@ -148,18 +129,10 @@ def test_a_chunk_length_beyond_what_our_server_sends_is_a_user_error():
 
 @pytest.mark.parametrize(
     "make, fragment",
-    [
-        (lambda tmp: tmp / "nowhere", "no checkpoint folder at"),
-        (lambda tmp: lerobot_folder(tmp / "c", None), "not a LeRobot checkpoint (no config.json) (a VLA-JEPA training"),
-        (lambda tmp: lerobot_folder(tmp / "c", "pi05"), "holds a pi05 policy, not a vla_jepa one"),
-        (lambda tmp: lerobot_folder(tmp / "c", "vla_jepa", ("model.safetensors",)), "has no policy_preprocessor.json"),
-        (lambda tmp: lerobot_folder(tmp / "c", "vla_jepa"), "run this with the model environment's python"),  # no torch
-    ],
+    lerobot_checkpoint_errors("vla_jepa", "pi05", "not a LeRobot checkpoint (no config.json) (a VLA-JEPA"),
 )
 def test_serve_command_user_errors_are_one_line_and_exit_2(tmp_path, make, fragment):
-    done = serve_command(PLUGIN_ROOT, tmp_path, "vla-jepa", "--checkpoint", str(make(tmp_path)))
-    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
-    assert done.stderr.startswith("conflictbench-serve: ") and fragment in done.stderr
+    check_serve_refuses(PLUGIN_ROOT, tmp_path, "vla-jepa", make(tmp_path), fragment)
 
 
 @pytest.mark.parametrize(
