@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import logging
 import signal
 import sys
@@ -61,9 +62,6 @@ class ServedModel:
     """The port upstream's server listens on by default."""
     url_scheme: str = "ws"
     checkpoint_help: str = "a LeRobot pretrained-model folder"
-    needs_torch: bool = True
-    """Whether the backend runs on torch (imported before the model loads, so a Python without it is named at once);
-    False for a backend of numpy alone, as ``conflictbench new-plugin``'s stand-in."""
 
     @classmethod
     def of(cls, package: str, **fields: Any) -> ServedModel:
@@ -157,6 +155,20 @@ def _stop_quietly(signum: int, frame: object) -> None:
     raise SystemExit(0)
 
 
+def _simulators_python() -> bool:
+    """Whether this Python is the simulator's: it holds conflictbench, which a model environment never does."""
+    return importlib.util.find_spec("conflictbench") is not None
+
+
+def _missing_stack(model: ServedModel, error: ImportError) -> str:
+    """The one line for a model stack that does not import: where torch is what is missing, or this Python is the
+    simulator's, it is the wrong Python; else the model environment lacks a package."""
+    wrong_python = _simulators_python() or (error.name or "").partition(".")[0] == "torch"
+    build = f"scripts/setup.sh --models {model.environment} builds it"
+    where = f"run this with the model environment's python ({build}), not the simulator's" if wrong_python else build
+    return f"cannot import the model stack ({error}): {where}"
+
+
 def serve_command(program: str, model: ServedModel, args: argparse.Namespace, naming: str = "--policy ") -> int:
     """Check ``args`` and the folder (``model.check``), import torch, load the model and serve it until stopped.
     The exit code."""
@@ -181,18 +193,17 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
     try:
         import torch
     except ImportError as error:
-        if model.needs_torch:
-            return user_error(
-                f"cannot import the model stack ({error}): run this with the model environment's python "
-                f"(scripts/setup.sh --models {model.environment} builds it), not the simulator's"
-            )
-        torch = None
+        if _simulators_python():  # it never hosts a model, so its error comes before the backend's own checks
+            return user_error(_missing_stack(model, error))
+        torch = None  # a backend of numpy alone is served without it; one that needs it says so as it loads
     if args.threads is not None and torch is not None:
         torch.set_num_threads(args.threads)
     cuda = torch is not None and torch.cuda.is_available()
     device = args.device
     if device == "auto":
         device = "cuda" if cuda else "cpu"
+    if device.startswith("cuda") and torch is None:
+        return user_error(_missing_stack(model, ModuleNotFoundError("No module named 'torch'", name="torch")))
     if device.startswith("cuda") and not cuda:
         return user_error(f"--device {args.device}: this machine has no CUDA device torch can use (try --device cpu)")
     try:
@@ -204,9 +215,7 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
     except CheckpointError as error:
         return user_error(str(error))
     except ImportError as error:
-        return user_error(
-            f"cannot import the model stack ({error}): scripts/setup.sh --models {model.environment} builds it"
-        )
+        return user_error(_missing_stack(model, error))
 
     listening = False
 
