@@ -67,6 +67,10 @@ def test_what_a_plugin_imports_of_conflictbench_counts_for_its_own_episodes_only
     assert "conflictbench/hosting/openvla_family.py" not in own and "conflictbench/policies/scripted/grasp.py" in own
 
 
+#: The built-in policies other than the one the real run below plays (noop).
+OTHER_BUILTINS = ("random", "scripted", "oracle", "subject")
+
+
 @pytest.mark.sim
 def test_a_real_run_imports_nothing_of_conflictbench_that_the_closure_misses(tmp_path, builtins):
     """Every module of conflictbench a run imports, in any of its processes, is one its rollout may run, or one
@@ -90,7 +94,10 @@ def test_a_real_run_imports_nothing_of_conflictbench_that_the_closure_misses(tmp
     rollout = rollout_modules(policy_modules(builtins.policy("noop")))
     # What a module the rollout does not run imports is no rollout's either (the command's own helpers).
     off_rollout = {target for module in imported - rollout for target in imports_of(module)}
-    assert sorted(imported - rollout - off_rollout - set(under(imported, *NOT_ROLLOUT))) == []
+    # Registering the built-ins imports each one's module; only the played one's code runs in its episodes.
+    others = set().union(*(rollout_modules(policy_modules(builtins.policy(name))) for name in OTHER_BUILTINS))
+    assert sorted(imported - rollout - off_rollout - others - set(under(imported, *NOT_ROLLOUT))) == []
+    assert {"conflictbench.policies.subject.policy", "conflictbench.policies.scripted"} <= imported - rollout
     assert under(imported, *SUITE_BUILDING) == []
 
 

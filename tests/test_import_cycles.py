@@ -20,6 +20,7 @@ from conflictbench.cli import VERBS
 from conflictbench.core import FAMILIES
 from conflictbench.hosting.former import FORMER_CORE_MODULES
 from conflictbench.metrics.registered import BUILTINS_MODULE
+from conflictbench.policies import EXPORTS as POLICIES_EXPORTS
 
 PACKAGE = conflictbench.__name__
 ROOT = Path(conflictbench.__file__).parent
@@ -82,6 +83,7 @@ BY_NAME = {
     "conflictbench.metrics.registered": {BUILTINS_MODULE},  # the default registry of the metrics
     "conflictbench.cli": {f"conflictbench.cli.{verb}" for verb in ["run", *VERBS.values()]},
     "conflictbench.tasks.validation.suite_rules": {f"conflictbench.tasks.validation.{family}" for family in FAMILIES},
+    "conflictbench.policies": {f"conflictbench.policies.{module}" for module in POLICIES_EXPORTS.values()},
 }
 #: The names kept at their places of 0.2 (``hosting/former.py``): read from the modules they moved to, by name.
 FORMER = "conflictbench.hosting.former"

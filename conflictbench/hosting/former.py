@@ -54,6 +54,9 @@ def former_core_attribute(name: str) -> Any:
     return _core_names(name, 2)  # past this function
 
 
+_ABSENT = object()  # a name the moved module did not hold
+
+
 class _MovedModule(types.ModuleType):
     """A former module at its old place: each name read from it warns and is the new module's."""
 
@@ -69,6 +72,29 @@ class _MovedModule(types.ModuleType):
             raise AttributeError(name)
         deprecated(f"{self.__name__}.{name}", f"import {name} from {self.__moved_to__}")
         return getattr(new, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        """A name set here (``mock.patch("conflictbench.core.launch.free_port", ...)``) is set where the code reads it,
+        the moved module, so that a test patching the old place still patches what runs; its value there is kept
+        for :meth:`__delattr__`."""
+        if name.startswith("__"):
+            super().__setattr__(name, value)
+            return
+        deprecated(f"{self.__name__}.{name}", f"set {name} on {self.__moved_to__}")
+        new = importlib.import_module(self.__moved_to__)
+        self.__dict__.setdefault("__patched__", {}).setdefault(name, getattr(new, name, _ABSENT))
+        setattr(new, name, value)
+
+    def __delattr__(self, name: str) -> None:
+        """Undoing a patch made here (pytest's ``monkeypatch`` and ``mock.patch`` delete what they set on a module
+        that held no such name of its own) gives the moved module its own value back."""
+        deprecated(f"{self.__name__}.{name}", f"delete {name} from {self.__moved_to__}")
+        new = importlib.import_module(self.__moved_to__)
+        original = self.__dict__.get("__patched__", {}).pop(name, _ABSENT)
+        if original is _ABSENT:
+            delattr(new, name)
+        else:
+            setattr(new, name, original)
 
     def __dir__(self) -> list[str]:
         return dir(importlib.import_module(self.__moved_to__))

@@ -26,6 +26,11 @@ class NoopPolicy:
         return [self.act(o) for o in observations]
 
 
+def noop(config: object) -> NoopPolicy:
+    """``model=noop``'s loader: the policy has no settings."""
+    return NoopPolicy()
+
+
 @dataclass
 class RandomConfig:
     seed: int = 0

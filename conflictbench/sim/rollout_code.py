@@ -39,6 +39,11 @@ NOT_ROLLOUT = {
     "id holds its case's id and text and the suite's version",
     "conflictbench.tasks.operators": "the suite's operators write its cases (their text is in their episodes' ids)",
     "conflictbench.tasks.validation": "checks the suite's cases as it is built",
+    "conflictbench.sim.code_identity": "says which code an episode's identity holds; decides no action (the "
+    "sampling seed takes the versions alone)",
+    "conflictbench.sim.rollout_code": "finds the files of that identity",
+    "conflictbench.sim.identity_change": "says what changed between a store's identity and this run's",
+    "conflictbench.sim.progress": "the progress bar and the run's printed lines",
 }
 _SKIPPED_PARTS = {"__pycache__", ".pytest_cache"}
 _NOT_DATA = (".py", ".pyc", ".swp", ".swo", ".orig", ".rej", ".bak", "~")

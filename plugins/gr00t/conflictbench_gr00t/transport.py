@@ -3,11 +3,10 @@
 
 from conflictbench.core.deprecation import moved_names
 
-__getattr__ = moved_names(
-    __name__,
-    {
-        "Gr00tTransport": "conflictbench.hosting.zeromq:ZmqTransport",
-        "ZmqTransport": "conflictbench.hosting.zeromq:ZmqTransport",
-        "answers_ping": "conflictbench.hosting.zeromq:answers_ping",
-    },
-)
+MOVED = {
+    "Gr00tTransport": "conflictbench.hosting.zeromq:ZmqTransport",
+    "ZmqTransport": "conflictbench.hosting.zeromq:ZmqTransport",
+    "answers_ping": "conflictbench.hosting.zeromq:answers_ping",
+}
+__getattr__ = moved_names(__name__, MOVED)
+__all__ = ["Gr00tTransport", "answers_ping"]  # noqa: F822 (0.2's exports: a star import warns and works)

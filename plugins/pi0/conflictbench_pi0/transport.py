@@ -4,3 +4,4 @@
 from conflictbench.core.deprecation import moved_names
 
 __getattr__ = moved_names(__name__, {"OpenpiTransport": "conflictbench.hosting.openpi:OpenpiTransport"})
+__all__ = ["OpenpiTransport"]  # noqa: F822 (0.2's exports: a star import warns and works)
