@@ -42,7 +42,7 @@ def checkout_plugins() -> dict[str, dict[str, Any]]:
 
 def project_plugins() -> dict[str, str]:
     """Policy -> the folder of this project's plugin that registers it (:func:`checkout_plugins`): a run naming
-    one whose plugin is not installed says which command installs it (tests/test_plugin_folders.py keeps each
+    one whose plugin is not installed says which command installs it (tests/test_cli.py keeps each
     plugin's declared policies what it registers)."""
     return {policy: folder for folder, table in checkout_plugins().items() for policy in table.get("policies", ())}
 
