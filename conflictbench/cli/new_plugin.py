@@ -20,11 +20,16 @@ from importlib import metadata, resources
 from pathlib import Path
 
 from conflictbench.cli.args import Parser
+from conflictbench.cli.overrides import CHECKOUT
 from conflictbench.core import UserError
 from conflictbench.core.plugins import Plugins
 
-#: A name a distribution, a package (``conflictbench_NAME``), an entry point and a policy can all have.
-NAME = re.compile(r"[a-z][a-z0-9_]{0,19}")
+#: A name a distribution, a package (``conflictbench_NAME``), an entry point and a policy can all have: at most 20
+#: characters, no ``_`` at the end (the distribution's name would end in ``-``, which no installer takes).
+NAME = re.compile(r"[a-z][a-z0-9_]{0,18}[a-z0-9]|[a-z]")
+#: What the generated plugin requires: the releases whose API the template uses (the plugin layout, ServedModel.of).
+CONFLICTBENCH_VERSION = "0.3"
+SERVING_VERSION = "0.2"
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,10 @@ class Protocol:
     test_dependencies: tuple[str, ...] = ()
     envelope: str = ""
     """Where the protocol's request sits in what the client sends (``["data"]``: inside ZeroMQ's envelope)."""
+    client_imports: tuple[str, ...] = ()
+    """What else the client module imports for the protocol, each ``MODULE:NAME``."""
+    ready_check: str = ""
+    """The client policy's ``ready_check`` where the protocol has no HTTP ``/healthz`` (a method's lines)."""
 
 
 PROTOCOLS = {
@@ -54,7 +63,12 @@ PROTOCOLS = {
         "zeromq:ZmqTransport",
         client_extra="[zeromq]",
         server_extra="[zeromq]",
-        envelope='["data"]',
+        envelope='["data"]',  # the request is the data of a get_action call
+        client_imports=("conflictbench.hosting.zeromq:answers_ping", "conflictbench_serving.zeromq:GET_ACTION"),
+        ready_check="""
+    def ready_check(self, url: str):
+        return lambda: answers_ping(url)  # ZeroMQ has no HTTP /healthz: a started server answers a ping
+""",
     ),  # fmt: skip
     "rest": Protocol(
         "REST POST /act with json-numpy bodies",
@@ -66,13 +80,6 @@ PROTOCOLS = {
         test_dependencies=("fastapi>=0.110", "uvicorn>=0.29"),  # the server half, in the round trip's Python
     ),  # fmt: skip
 }
-#: What ZeroMQ's client adds: its envelope's endpoint, and a readiness check (it has no HTTP /healthz).
-ZEROMQ_IMPORTS = "\nfrom conflictbench_serving.zeromq import GET_ACTION"
-ZEROMQ_READY = """
-    def ready_check(self, url: str):
-        return lambda: answers_ping(url)  # ZeroMQ has no HTTP /healthz: a started server answers a ping
-"""
-
 #: Each template file and where it goes, below ``DIR/NAME``.
 FILES = {
     "README.md.tmpl": "README.md",
@@ -91,19 +98,55 @@ FILES = {
 }
 
 
-def _version(distribution: str, fallback: str) -> str:
-    """``MAJOR.MINOR`` of an installed distribution: the least the generated plugin requires."""
-    try:
-        return ".".join(metadata.version(distribution).split(".")[:2])
-    except metadata.PackageNotFoundError:
-        return fallback
+#: The README's first steps: in conflictbench's checkout (``plugins/NAME``), set-up installs both halves; elsewhere,
+#: by hand, from the plugin's folder.
+TRY_IN_CHECKOUT = """From conflictbench's checkout (`scripts/setup.sh` made `.venv`):
+
+```bash
+scripts/setup.sh --models ${name}   # the client into .venv, the server half into .venv/models/${name}
+mkdir -p standin && echo '{"type": "${name}"}' > standin/config.json   # the stand-in's checkpoint
+MUJOCO_GL=egl .venv/bin/conflictbench model=${name} model.checkpoint=standin suite=physical level=L1 \\
+    run.cases_per_cell=1 run.libero_suites=[libero_spatial] run.max_steps=40
+.venv/bin/pip install -e './plugins/${name}[test]' && .venv/bin/pytest plugins/${name}/tests
+```
+
+By hand, anywhere: `pip install ./serving ./plugins/${name}` beside conflictbench (the client half; neither is on
+PyPI), `pip install ./serving ./plugins/${name}/server` in the Python that will host the model (the server half; not
+both halves in one Python), and `model.python=` that Python in the run."""
+TRY_ELSEWHERE = """From this folder, `CHECKOUT` being a checkout of conflictbench (conflictbench-serving, which both
+halves require, is not on PyPI): the client half beside conflictbench, the server half in a Python of its own (not
+both halves in one Python), `model.python=` that Python in the run.
+
+```bash
+pip install CHECKOUT/serving -e '.[test]'   # the client half, in the Python that has conflictbench
+python3 -m venv model-env && model-env/bin/pip install CHECKOUT/serving ./server   # the server half
+mkdir -p standin && echo '{"type": "${name}"}' > standin/config.json   # the stand-in's checkpoint
+MUJOCO_GL=egl conflictbench model=${name} model.checkpoint=standin model.python=model-env/bin/python \\
+    suite=physical level=L1 run.cases_per_cell=1 run.libero_suites=[libero_spatial] run.max_steps=40
+pytest tests
+```"""
 
 
-def substitutions(name: str, protocol: str) -> dict[str, str]:
-    """What the template's ``${...}`` stand for."""
+def in_checkout(target: Path) -> bool:
+    """Whether ``target`` is a folder of the ``plugins/`` of conflictbench's checkout (which README's table lists)."""
+    return (CHECKOUT / "serving").is_dir() and target.resolve().parent == (CHECKOUT / "plugins").resolve()
+
+
+def client_imports(spec: Protocol) -> str:
+    """The client module's imports for the protocol: its transport and ``spec.client_imports``, one line a module."""
+    names: dict[str, list[str]] = {}
+    for entry in (f"conflictbench.hosting.{spec.transport}", *spec.client_imports):
+        module, name = entry.split(":")
+        names.setdefault(module, []).append(name)
+    return "\n".join(f"from {module} import {', '.join(names[module])}" for module in sorted(names))
+
+
+def substitutions(name: str, protocol: str, checkout: bool = True) -> dict[str, str]:
+    """What the template's ``${...}`` stand for (``checkout``: the plugin is in conflictbench's ``plugins/``)."""
     spec = PROTOCOLS[protocol]
-    module, transport = spec.transport.split(":")
+    transport = spec.transport.partition(":")[2]
     wire = '{"endpoint": GET_ACTION, "data": request}' if spec.envelope else "request"
+    try_it = string.Template(TRY_IN_CHECKOUT if checkout else TRY_ELSEWHERE).substitute(name=name)
     return {
         "name": name,
         "Name": "".join(part.capitalize() for part in name.split("_")),
@@ -113,10 +156,9 @@ def substitutions(name: str, protocol: str) -> dict[str, str]:
         "protocol_words": spec.words,
         "scheme": spec.scheme,
         "port": str(spec.port),
-        "transport_import": f"from conflictbench.hosting.{module} import {transport}"
-        + (", answers_ping" + ZEROMQ_IMPORTS if spec.envelope else ""),
+        "transport_import": client_imports(spec),
         "transport": transport,
-        "ready_check": ZEROMQ_READY if spec.envelope else "",
+        "ready_check": spec.ready_check,
         "wire_request": wire,
         "inner": spec.envelope,
         "client_dependencies": "".join(f'    "{requirement}",\n' for requirement in spec.client_dependencies),
@@ -124,8 +166,9 @@ def substitutions(name: str, protocol: str) -> dict[str, str]:
         "client_extra": spec.client_extra,
         "server_extra": spec.server_extra,
         "conflictbench_extra": f"[{protocol}]",
-        "conflictbench_version": _version("conflictbench", "0.2"),
-        "serving_version": _version("conflictbench-serving", "0.1"),
+        "conflictbench_version": CONFLICTBENCH_VERSION,
+        "serving_version": SERVING_VERSION,
+        "try_it": try_it,
     }
 
 
@@ -133,8 +176,8 @@ def check_name(name: str, plugins: Plugins) -> None:
     """One line (UserError) for a name a plugin cannot have, or one an installed plugin already uses."""
     if not NAME.fullmatch(name) or keyword.iskeyword(name):
         raise UserError(
-            f"new-plugin: {name!r} cannot name a plugin: lower-case letters, digits and _, starting with a letter, "
-            "at most 20 (it names the policy, the package conflictbench_NAME and both entry points)"
+            f"new-plugin: {name!r} cannot name a plugin: lower-case letters, digits and _, starting with a letter and "
+            "not ending with _, at most 20 (it names the policy, the package conflictbench_NAME and both entry points)"
         )
     if name in plugins.policies():
         raise UserError(f"new-plugin: an installed plugin already registers the policy {name!r} (conflictbench list)")
@@ -145,7 +188,7 @@ def check_name(name: str, plugins: Plugins) -> None:
 
 def write_plugin(name: str, protocol: str, target: Path) -> list[Path]:
     """Write the plugin into ``target`` (missing or empty); the files written."""
-    values = substitutions(name, protocol)
+    values = substitutions(name, protocol, in_checkout(target))
     template = resources.files(__package__) / "plugin_template"
     written = []
     for source, destination in FILES.items():
@@ -170,14 +213,19 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     args = parser.parse_args(argv)
     check_name(args.name, plugins)
     target = Path(args.dir) / args.name
-    if target.exists() and (not target.is_dir() or any(target.iterdir())):
-        raise UserError(f"new-plugin: {target} exists and is not empty")
-    written = write_plugin(args.name, args.protocol, target)
+    try:
+        if target.exists() and (not target.is_dir() or any(target.iterdir())):
+            raise UserError(f"new-plugin: {target} exists and is not empty")
+        written = write_plugin(args.name, args.protocol, target)
+    except OSError as error:  # a folder it may not write in, or not read
+        raise UserError(f"new-plugin: cannot write {target}: {error.strerror or error}") from None
     for path in written:
         print(path)
+    # README's table lists the checkout's plugins, and a test keeps it current: the new folder is a row to write.
+    table = "; then add it to README's table: .venv/bin/python scripts/readme_plugins.py" if in_checkout(target) else ""
     print(
         f"conflictbench: wrote the {args.name} plugin ({args.protocol}) in {target}, {len(written)} files; "
-        f"try it: {target / 'README.md'}",
+        f"try it: {target / 'README.md'}{table}",
         file=sys.stderr,
     )
     return 0
