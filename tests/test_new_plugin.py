@@ -1,6 +1,8 @@
 """``conflictbench new-plugin``: the plugin it writes has the target layout, is clean to ruff, passes its own tests
-(its client and its real server half talking on 127.0.0.1, for each protocol), and, installed as a user installs
-it, plays real LIBERO episodes with the stand-in backend's actions (marked e2e)."""
+(its client and its real server half talking on 127.0.0.1, for each protocol); its server half, installed in a model
+environment of its own, is started by its client through conflictbench-serve for a checkpoint (marked model_env,
+each protocol); and, installed as a user installs it, it plays real LIBERO episodes with the stand-in backend's
+actions (marked e2e)."""
 
 from __future__ import annotations
 
@@ -18,10 +20,12 @@ import numpy as np
 import pytest
 
 from conflictbench.cli import main
-from conflictbench.cli.new_plugin import PROTOCOLS
+from conflictbench.cli.new_plugin import PROTOCOLS, in_checkout
 from conflictbench.store import EpisodeStore
 
 REPO = Path(__file__).resolve().parents[1]
+#: A name no plugin has, README's tutorial's (``mymodel``) included: a reader who followed it has that one installed.
+NAME = "np_probe"
 BIN = Path(sys.executable).parent
 TREE = {
     "README.md",
@@ -51,14 +55,14 @@ def generated(tmp_path: Path, name: str, protocol: str) -> Path:
 
 @pytest.mark.parametrize("protocol", sorted(PROTOCOLS))
 def test_it_writes_both_halves_in_the_target_layout_each_with_one_entry_point(tmp_path, protocol, capsys):
-    plugin = generated(tmp_path, "mymodel", protocol)
+    plugin = generated(tmp_path, NAME, protocol)
     files = {str(path.relative_to(plugin)) for path in plugin.rglob("*") if path.is_file()}
-    assert files == {path.format(name="mymodel") for path in TREE}
+    assert files == {path.format(name=NAME) for path in TREE}
     assert sorted(capsys.readouterr().out.split()) == sorted(str(plugin / f) for f in files)  # what it wrote, said
     client = tomllib.loads((plugin / "pyproject.toml").read_text())["project"]
     server = tomllib.loads((plugin / "server" / "pyproject.toml").read_text())["project"]
-    assert client["entry-points"] == {"conflictbench": {"mymodel": "conflictbench_mymodel.client"}}
-    assert server["entry-points"] == {"conflictbench_serving": {"mymodel": "conflictbench_mymodel.server:SERVED"}}
+    assert client["entry-points"] == {"conflictbench": {NAME: f"conflictbench_{NAME}.client"}}
+    assert server["entry-points"] == {"conflictbench_serving": {NAME: f"conflictbench_{NAME}.server:SERVED"}}
     assert "scripts" not in client and "scripts" not in server
     assert not any("conflictbench>" in r or "conflictbench[" in r for r in server["dependencies"])  # never the client's
     for path in plugin.rglob("*.py"):
@@ -82,9 +86,10 @@ def test_the_generated_python_is_clean_to_the_projects_ruff_for_every_protocol_a
         (["My-Model", "--protocol", "openpi"], "'My-Model' cannot name a plugin"),
         (["class", "--protocol", "openpi"], "'class' cannot name a plugin"),
         (["a" * 21, "--protocol", "openpi"], "cannot name a plugin"),
+        (["zz_", "--protocol", "rest"], "'zz_' cannot name a plugin"),  # its distribution, conflictbench-zz-: no
         (["noop", "--protocol", "rest"], "already registers the policy 'noop'"),
-        (["mymodel", "--protocol", "grpc"], "invalid choice: 'grpc'"),
-        (["mymodel"], "--protocol"),
+        ([NAME, "--protocol", "grpc"], "invalid choice: 'grpc'"),
+        ([NAME], "--protocol"),
     ],
 )
 def test_a_name_a_plugin_cannot_have_is_one_line_and_exit_code_2(tmp_path, capsys, args, words):
@@ -95,15 +100,35 @@ def test_a_name_a_plugin_cannot_have_is_one_line_and_exit_code_2(tmp_path, capsy
 
 
 def test_a_folder_that_is_not_empty_is_refused_an_empty_one_filled(tmp_path, capsys):
-    (tmp_path / "mymodel").mkdir()
-    (tmp_path / "mymodel" / "notes.txt").write_text("mine")
-    assert new_plugin("mymodel", "--protocol", "openpi", "--dir", str(tmp_path)) == 2
+    (tmp_path / NAME).mkdir()
+    (tmp_path / NAME / "notes.txt").write_text("mine")
+    assert new_plugin(NAME, "--protocol", "openpi", "--dir", str(tmp_path)) == 2
     err = capsys.readouterr().err
-    assert f"{tmp_path / 'mymodel'} exists and is not empty" in err and err.count("\n") == 1
-    assert [p.name for p in (tmp_path / "mymodel").iterdir()] == ["notes.txt"]
+    assert f"{tmp_path / NAME} exists and is not empty" in err and err.count("\n") == 1
+    assert [p.name for p in (tmp_path / NAME).iterdir()] == ["notes.txt"]
     (tmp_path / "other").mkdir()
     assert new_plugin("other", "--protocol", "openpi", "--dir", str(tmp_path)) == 0
     assert (tmp_path / "other" / "conflictbench_other" / "backend.py").is_file()
+
+
+def test_a_folder_it_cannot_write_in_is_one_line_and_exit_code_2(tmp_path, capsys):
+    (tmp_path / "a_file").write_text("not a folder")
+    assert new_plugin("x", "--protocol", "rest", "--dir", str(tmp_path / "a_file")) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.startswith(f"conflictbench: error: new-plugin: cannot write {tmp_path / 'a_file' / 'x'}: ")
+        and err.count("\n") == 1
+    )
+
+
+def test_in_the_checkouts_plugins_the_readme_says_set_up_and_the_next_step_is_readmes_table(tmp_path, capsys):
+    """README's table lists the checkout's plugins/ (a test keeps it current): a plugin written there is told to add
+    its row; elsewhere its README's steps start from its own folder, naming no path of the checkout."""
+    assert in_checkout(REPO / "plugins" / NAME) and not in_checkout(tmp_path / "plugins" / NAME)
+    plugin = generated(tmp_path, NAME, "rest")
+    assert "scripts/readme_plugins.py" not in capsys.readouterr().err
+    readme = (plugin / "README.md").read_text()
+    assert "From this folder" in readme and "./plugins/" not in readme and "setup.sh" not in readme
 
 
 @pytest.mark.parametrize("protocol", sorted(PROTOCOLS))
@@ -117,7 +142,28 @@ def test_the_generated_tests_pass_its_client_and_real_server_half_talking_on_loo
         cwd=plugin, env=env, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
-    assert re.search(r"\b7 passed\b", done.stdout), done.stdout[-1000:]
+    assert re.search(r"\b8 passed\b", done.stdout), done.stdout[-1000:]
+
+
+def test_the_rest_server_half_refuses_a_json_numpy_array_it_cannot_read_in_one_line(tmp_path):
+    """A ``__numpy__`` object without its dtype, or with one numpy does not know: an invalid request (400), not a
+    server error (500, a traceback)."""
+    plugin = generated(tmp_path, "np_rest", "rest")
+    probe = (
+        "import sys\nfrom conflictbench_serving import rest\nfrom conflictbench_np_rest.server import request_row\n"
+        "for body in sys.argv[1:]:\n    try:\n        request_row(body.encode())\n"
+        "    except rest.InvalidRequest as error:\n        print(error)\n"
+    )
+    bodies = [
+        '{"image": {"__numpy__": "AAAA", "shape": [3]}}',
+        '{"image": {"__numpy__": "AAAA", "dtype": "<zz", "shape": [1]}}',
+    ]
+    env = {**os.environ, "PYTHONPATH": str(plugin)}
+    done = subprocess.run([sys.executable, "-c", probe, *bodies], capture_output=True, text=True, env=env)
+    assert done.returncode == 0 and done.stdout.splitlines() == [
+        "a json-numpy array that cannot be read (KeyError: 'dtype')",
+        "a json-numpy array that cannot be read (TypeError: data type '<zz' not understood)",
+    ], done.stdout + done.stderr
 
 
 # ---- installed as a user would, and played --------------------------------------------------------------------
@@ -138,6 +184,62 @@ def model_python() -> str:
 def uv(*args: object) -> None:
     done = subprocess.run([BIN / "uv", "--color", "never", *map(str, args)], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
+
+
+#: The client's lifecycle for a checkpoint, in this Python with the plugin importable from its folder: load (the
+#: model environment's Python named), start (conflictbench-serve there, ready by the protocol's own check), act, close.
+LIFECYCLE = """
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from conflictbench import Observation, sampling_seed
+from PACKAGE import client
+from PACKAGE.backend import standin_chunk
+from PACKAGE.checkpoints import POLICY, fingerprint
+from PACKAGE.protocol import NOISE_SEED_LIMIT
+
+checkpoint, python = Path(sys.argv[1]), sys.argv[2]
+config = next(v for k, v in vars(client).items() if k.endswith("Config") and k != "HostedConfig")
+policy = client.load(POLICY, config(checkpoint=str(checkpoint), python=python, startup_timeout_s=120.0))
+policy.start()
+try:
+    obs = Observation(
+        step=3, instruction="pick up the bowl", eef_pos=np.zeros(3), eef_quat=np.array([1.0, 0, 0, 0]),
+        gripper_qpos=np.zeros(2), state=np.arange(8.0) / 10, agentview_image=np.zeros((256, 256, 3), np.uint8),
+        wrist_image=None, stream=0, episode_id="e0",
+    )
+    np.testing.assert_array_equal(policy.act(obs), standin_chunk(obs.state, sampling_seed(obs) % NOISE_SEED_LIMIT, 1.0))
+    assert policy.identity["checkpoint"] == fingerprint(checkpoint), policy.identity
+    print("served", policy.metadata["policy_type"], flush=True)
+finally:
+    policy.close()
+"""
+
+
+@pytest.mark.model_env
+@pytest.mark.parametrize("protocol", sorted(PROTOCOLS))
+def test_its_client_starts_its_server_half_in_a_model_environment_for_a_checkpoint(tmp_path, protocol):
+    """The path a run with ``model.checkpoint=`` takes, without a simulator: the server half installed alone in a
+    model environment (conflictbench-serving with the protocol's extra, the plugin's server distribution, its entry
+    point; no conflictbench), started there by ``conflictbench-serve`` for the client, which answers the stand-in's
+    chunk."""
+    name = f"np_{protocol}"
+    plugin = generated(tmp_path, name, protocol)
+    model = tmp_path / "model-env"
+    uv("venv", "-q", "--python", model_python(), model)
+    uv("pip", "install", "-q", "--python", model / "bin" / "python", REPO / "serving", plugin / "server")
+    checkpoint = tmp_path / "standin"
+    checkpoint.mkdir()
+    (checkpoint / "config.json").write_text(json.dumps({"type": name}))
+    env = {**os.environ, "PYTHONPATH": str(plugin)}
+    script = LIFECYCLE.replace("PACKAGE", f"conflictbench_{name}")
+    done = subprocess.run(
+        [sys.executable, "-c", script, checkpoint, model / "bin" / "python"],
+        capture_output=True, text=True, timeout=240, env=env, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0 and done.stdout == f"served {name}\n", done.stdout[-2000:] + done.stderr[-3000:]
 
 
 @pytest.mark.sim
