@@ -5,10 +5,11 @@
 # read what the wheel must carry or find what it must declare (the config tree, plugin discovery, the public API's
 # import paths, imports without the simulator), not the whole selection again;
 # then add the simulator and, from an empty directory, run `conflictbench list`, a real run of the default model
-# (one reference and one conflict episode of libero_spatial, about 25 s), the viewer on it and `conflictbench doctor`
-# (the packaged goldens replayed in this fresh environment); then, with conflictbench-serving and the protocols'
-# extras added, every module of the installed wheel imported (what it declares is enough); last, each model
-# plugin installed alone (not editable) beside it, as `pip install . ./serving ./plugins/NAME` would.
+# (one reference and one conflict episode of libero_spatial, about 25 s), the viewer on it, `conflictbench new-plugin`
+# (its packaged template) and `conflictbench doctor` (the packaged goldens replayed in this fresh environment); then,
+# with conflictbench-serving and the protocols' extras added, every module of the installed wheel imported (what it
+# declares is enough); last, each model plugin installed alone (not editable) beside it, as
+# `pip install . ./serving ./plugins/NAME` would.
 #
 #   scripts/check_wheel.sh          PYTHON=... picks the interpreter (default: .venv's)
 set -euo pipefail
@@ -89,6 +90,14 @@ grep -q "2 played, 0 already stored, 0 played by another job, 0 with errors" "$w
 cat "$work/view.log" >&2
 grep -q "1 pair page, 1 reference episode page, 2 videos rendered" "$work/view.log" && [ -s results/view/assets/viewer.js ] \
   || { say "the viewer did not write its site with both videos"; exit 1; }
+
+# 5b. new-plugin from the wheel: its template is package data, so a plugin is written from it, every file of it.
+"$work/venv/bin/conflictbench" new-plugin x --protocol rest --dir "$work/new-plugin" >"$work/new-plugin.log" \
+  || { say "new-plugin failed from the wheel"; exit 1; }
+want=$("$py" -c 'from conflictbench.cli.new_plugin import FILES; print(len(FILES))')
+[ "$(wc -l <"$work/new-plugin.log")" -eq "$want" ] && "$py" -m py_compile "$work"/new-plugin/x/conflictbench_x/*.py \
+  || { say "new-plugin did not write the $want files of its template from the wheel"; exit 1; }
+say "new-plugin wrote a plugin of $want files from the wheel's template"
 
 # 6. doctor from the wheel: its goldens are packaged, and this environment (not the one that made them) replays
 #    them as the reference simulator (exit 0: physics within tolerance, rendering identical or another renderer's).
