@@ -43,6 +43,8 @@ def request_row(body: bytes) -> tuple[Row, bool]:
             payload = json_numpy.loads(payload["encoded"])
     except (ValueError, TypeError) as error:
         raise InvalidRequest(f"not a json-numpy body: {error}") from None
+    except KeyError as error:  # a "__numpy__" object without its dtype or shape: a 400, not a 500 with a traceback
+        raise InvalidRequest(f"not a json-numpy body: an array without its {error}") from None
     if not isinstance(payload, dict):
         raise InvalidRequest("the body must be a JSON object {'image': np.ndarray, 'instruction': str}")
     image, instruction, key = payload.get("image"), payload.get("instruction"), payload.get("unnorm_key")

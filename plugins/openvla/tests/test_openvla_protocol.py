@@ -92,3 +92,13 @@ def test_the_family_steps_and_transport_live_in_conflictbench_and_stay_importabl
     assert images.policy_image is openvla_family.policy_image and images.center_crop is openvla_family.center_crop
     moved = ("env_gripper", "unnorm_key", "unnormalize", "SUITE_KEYS")
     assert all(getattr(processing, name) is getattr(openvla_family, name) for name in moved)
+
+
+@pytest.mark.parametrize("body", [b'{"image": {"__numpy__": "AAAA", "shape": [7]}, "instruction": "x"}', b"[1, 2"])
+def test_the_server_answers_a_body_it_cannot_read_with_an_invalid_request(body):
+    from conflictbench_openvla.server import request_row
+    from conflictbench_serving.rest import InvalidRequest
+
+    with pytest.raises(InvalidRequest, match="not a json-numpy body") as refused:  # a 400 with the message
+        request_row(body)
+    assert "\n" not in str(refused.value)
