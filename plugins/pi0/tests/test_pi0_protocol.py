@@ -51,6 +51,8 @@ def test_arrays_openpi_cannot_carry_are_refused(value):
 
 def test_the_transport_lives_in_conflictbench_and_stays_importable_here():
     from conflictbench.hosting.openpi import OpenpiTransport
-    from conflictbench_pi0.transport import OpenpiTransport as former
+
+    with pytest.warns(DeprecationWarning, match=r"conflictbench_pi0\.transport\.OpenpiTransport .*hosting\.openpi"):
+        from conflictbench_pi0.transport import OpenpiTransport as former
 
     assert former is OpenpiTransport
