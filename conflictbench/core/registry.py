@@ -283,7 +283,7 @@ def published_spec(
         raise PluginError(f"{where}: protocol max_steps names suites LIBERO lacks")
     if paper_model is not None and (not isinstance(paper_model, str) or not paper_model.strip()):
         # which of the paper's models it names is the report's to check (conflictbench.report.paper)
-        raise PluginError(f"{where}: paper_model must be one of the paper's models or None, got {paper_model!r}")
+        raise PluginError(f"{where}: paper_model must be a model's name (the paper's) or None, got {paper_model!r}")
     if status not in ("primary", "secondary"):
         raise PluginError(f"{where}: status must be 'primary' or 'secondary', got {status!r}")
     if counts is not None and (

@@ -5,7 +5,7 @@
     conflictbench-serve --list
 
 A plugin declares what it serves with a :class:`ServedModel` under the entry-point group ``conflictbench_serving``
-(``pi0 = "conflictbench_pi0.serve:SERVED"``); the command finds it there, so one command serves every model and a
+(``pi0 = "conflictbench_pi0.server:SERVED"``); the command finds it there, so one command serves every model and a
 plugin's own ``conflictbench-<name> serve --policy POLICY ...`` is the same code under its old name
 (:func:`plugin_main`, its console script and ``python -m conflictbench_<name> serve``; deprecated, they warn). A
 run with ``model.checkpoint=DIR`` starts ``python -m conflictbench_serving POLICY ...``.

@@ -1,4 +1,5 @@
-"""``python -m conflictbench_gr00t serve ...``: ``conflictbench-gr00t serve``, as ``conflictbench-serve POLICY``."""
+"""Deprecated (goes in conflictbench 0.4.0): ``python -m conflictbench_gr00t serve ...``,
+like ``conflictbench-gr00t serve``, runs ``conflictbench-serve POLICY ...`` after a warning."""
 
 import sys
 

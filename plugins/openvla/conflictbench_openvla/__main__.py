@@ -1,4 +1,5 @@
-"""``python -m conflictbench_openvla serve ...``: ``conflictbench-openvla serve``, as ``conflictbench-serve POLICY``."""
+"""Deprecated (goes in conflictbench 0.4.0): ``python -m conflictbench_openvla serve ...``,
+like ``conflictbench-openvla serve``, runs ``conflictbench-serve POLICY ...`` after a warning."""
 
 import sys
 

@@ -59,8 +59,11 @@ _MOVED = ("SUITE_KEYS", "env_gripper", "unnorm_key", "unnormalize")
 
 
 def __getattr__(name: str):
-    if name in _MOVED:  # moved to the client layer; imported on use, as the model environment has no conflictbench
-        from conflictbench.hosting import openvla_family
+    """Names that moved to the client layer in 0.3 (deprecated, they go in 0.4.0): imported on use, since the model
+    environment, which runs this module too, has no conflictbench."""
+    if name not in _MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from conflictbench.core.deprecation import moved_names
 
-        return getattr(openvla_family, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    moved = moved_names(__name__, {name: f"conflictbench.hosting.openvla_family:{name}"})
+    return moved(name, 2)  # the warning blames the code that read the name, past this function

@@ -84,14 +84,16 @@ def test_a_url_without_a_path_gets_deploys_route(given, used):
     assert JsonNumpyTransport(given).url == used
 
 
-def test_the_family_steps_and_transport_live_in_conflictbench_and_stay_importable_here():
+def test_the_family_steps_and_transport_live_in_conflictbench_and_their_former_names_warn():
     from conflictbench.hosting import openvla_family, rest
     from conflictbench_openvla import images, processing, protocol
 
     assert protocol.JsonNumpyTransport is rest.JsonNumpyTransport
-    assert images.policy_image is openvla_family.policy_image and images.center_crop is openvla_family.center_crop
-    moved = ("env_gripper", "unnorm_key", "unnormalize", "SUITE_KEYS")
-    assert all(getattr(processing, name) is getattr(openvla_family, name) for name in moved)
+    moved = [(images, "policy_image"), (images, "center_crop")]
+    moved += [(processing, name) for name in ("env_gripper", "unnorm_key", "unnormalize", "SUITE_KEYS")]
+    for module, name in moved:
+        with pytest.warns(DeprecationWarning, match=rf"{module.__name__}\.{name} .*hosting\.openvla_family"):
+            assert getattr(module, name) is getattr(openvla_family, name)
 
 
 @pytest.mark.parametrize("body", [b'{"image": {"__numpy__": "AAAA", "shape": [7]}, "instruction": "x"}', b"[1, 2"])

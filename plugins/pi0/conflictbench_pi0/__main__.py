@@ -1,4 +1,5 @@
-"""``python -m conflictbench_pi0 serve ...``: ``conflictbench-pi0 serve``, as ``conflictbench-serve POLICY``."""
+"""Deprecated (goes in conflictbench 0.4.0): ``python -m conflictbench_pi0 serve ...``,
+like ``conflictbench-pi0 serve``, runs ``conflictbench-serve POLICY ...`` after a warning."""
 
 import sys
 

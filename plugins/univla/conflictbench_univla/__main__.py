@@ -1,4 +1,5 @@
-"""``python -m conflictbench_univla serve ...``: ``conflictbench-univla serve``, as ``conflictbench-serve POLICY``."""
+"""Deprecated (goes in conflictbench 0.4.0): ``python -m conflictbench_univla serve ...``,
+like ``conflictbench-univla serve``, runs ``conflictbench-serve POLICY ...`` after a warning."""
 
 import sys
 

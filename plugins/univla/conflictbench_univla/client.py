@@ -47,7 +47,7 @@ class UnivlaConfig(HostedConfig):
     """A UniVLA checkpoint folder (the VLA and ``action_decoder.pt``; our server is started for it, with UniVLA's
     code from ``UNIVLA_CODE``); with ``server``, the name of what that server hosts where it does not say."""
     server: str = ""
-    """``http://HOST:PORT`` of a running ``conflictbench-univla serve``."""
+    """``http://HOST:PORT`` of a running ``conflictbench-serve univla``."""
     unnorm_key: str = "suite"
     """The statistics to un-normalize with: ``suite`` (the episode's LIBERO suite, or its ``_no_noops`` key where
     the checkpoint has only that, as upstream's evaluation falls back), ``suite_no_noops``, or a key as it is."""
@@ -96,7 +96,7 @@ class UnivlaPolicy(HostedPolicy):
         if not window or not isinstance(statistics, dict) or not statistics:
             raise UserError(
                 f"the server at {self.cfg.server} does not say its ensembling window and action statistics: "
-                "UniVLA plays against conflictbench-univla serve (upstream has no server)"
+                "UniVLA plays against conflictbench-serve univla (upstream has no server)"
             )
         self.window, self.statistics = int(window), statistics
 

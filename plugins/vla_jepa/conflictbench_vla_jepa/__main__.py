@@ -1,4 +1,5 @@
-"""``python -m conflictbench_vla_jepa serve ...``: ``conflictbench-vla-jepa serve`` (``conflictbench-serve POLICY``)."""
+"""Deprecated (goes in conflictbench 0.4.0): ``python -m conflictbench_vla_jepa serve ...``,
+like ``conflictbench-vla-jepa serve``, runs ``conflictbench-serve POLICY ...`` after a warning."""
 
 import sys
 
