@@ -48,5 +48,5 @@ def test_a_paper_model_of_the_paper_is_declared_and_read():
 
 
 def test_a_paper_model_that_is_not_a_name_is_refused_when_registered():
-    with pytest.raises(PluginError, match=r"paper_model must be one of the paper's models or None, got 3$"):
+    with pytest.raises(PluginError, match=r"paper_model must be a model's name \(the paper's\) or None, got 3$"):
         published(3).published_results()
