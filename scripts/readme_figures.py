@@ -9,6 +9,12 @@
 README holds the block between the markers below: the run's three tables as it writes them (``report/*.md``, the
 numbers it prints), and how long it took. The rollouts are deterministic, so a fresh clone reports the same
 numbers; the time is the machine's and is left out of the check. CI runs the check (.ci/run).
+
+On a processor other than the one README's block names, the learned subject's actions differ in their last bits
+(its network's float kernels are the processor's, as the pinned actions' note says), and the closed loop makes
+those bits another path: every episode's outcome stays, its process measures do not. There the check compares the
+outcome columns (the rates, dSR and FR, their intervals and counts) and says in a line that the process columns
+are the recording processor's.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from readme_block import ReadmeBlock
@@ -31,6 +38,9 @@ END = "<!-- end of scripts/readme_figures.py -->"
 BLOCK = ReadmeBlock("readme_figures", BEGIN, END)
 TABLES = ("table1_overall", "table2_by_family", "table3_qualified_failures")
 TIME = re.compile(r", played in \d+ min \d+ s on a \d+-core machine(?: \(.*? when it started\))?")
+RECORDED_ON = re.compile(r"on a \d+-core machine \((.*?), no GPU used")
+#: The columns a processor's float kernels cannot change (outcomes, and what names a row).
+OUTCOME_COLUMNS = {"model", "prompt", "family", "level", "tasks", "PCSR", "RGSR", "dSR", "FR"}
 
 
 def play(folder: Path) -> tuple[Path, float, float]:
@@ -64,6 +74,35 @@ def block(store: Path, seconds: float | None, load: float | None = None) -> str:
     return "\n".join([*lines, "", END])
 
 
+def outcome_columns(text: str) -> str:
+    """``text`` with each Markdown table cut to :data:`OUTCOME_COLUMNS`, its cells stripped of the padding that
+    the other columns' widths decide."""
+    out, keep = [], None
+    for line in text.splitlines():
+        if not line.startswith("|"):
+            out.append(line)
+            keep = None
+            continue
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if keep is None:  # the header
+            keep = [i for i, cell in enumerate(cells) if cell.strip("*") in OUTCOME_COLUMNS]
+        out.append("| " + " | ".join(cells[i] for i in keep) + " |")
+    return "\n".join(out)
+
+
+def comparison(readme_block: str) -> tuple[Callable[[str], str], str | None]:
+    """How to compare README's block with a run here: all of it where this processor recorded it, else only the
+    outcome columns (with the line that says so)."""
+    recorded = RECORDED_ON.search(readme_block)
+    if recorded is None or recorded.group(1) == processor():
+        return (lambda text: TIME.sub("", text)), None
+    note = (
+        f"[readme_figures] README's figures were played on {recorded.group(1)}, this is {processor()}: "
+        "the outcome columns are compared; the process columns are the recording processor's"
+    )
+    return (lambda text: outcome_columns(TIME.sub("", text))), note
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="compare with README instead of writing it")
@@ -76,8 +115,11 @@ def main() -> int:
         with tempfile.TemporaryDirectory(prefix="readme-figures-") as folder:
             store, seconds, load = play(Path(folder))
             new = block(store, seconds, load)
-    # the time is the machine's: the check leaves it out
-    return BLOCK.write_or_check(new, args.check, "default-run figures", same=lambda text: TIME.sub("", text))
+    # the time is the machine's: the check leaves it out; another processor's process columns too
+    same, note = comparison(BLOCK.current()) if args.check else ((lambda text: text), None)
+    if note:
+        print(note)
+    return BLOCK.write_or_check(new, args.check, "default-run figures", same=same)
 
 
 if __name__ == "__main__":

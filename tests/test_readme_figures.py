@@ -40,3 +40,28 @@ def test_readmes_correlations_bounds_and_power_are_what_the_measurements_give():
     script = SCRIPT.parent / "readme_design.py"
     done = subprocess.run([sys.executable, str(script), "--check"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+TABLE = """### Table 1
+
+| model   | prompt   |   tasks |        PCSR |        TAR |
+|:--------|:---------|--------:|------------:|-----------:|
+| subject | p0       |      13 | 68.8 (11/16) | **75.2** (n=16) |
+"""
+
+
+def test_on_another_processor_the_check_compares_the_outcome_columns_alone(monkeypatch):
+    """The subject's float kernels are the processor's: its episodes' outcomes stay and their paths do not, so a
+    run elsewhere is held to README's outcome columns; on the recording processor, to every column."""
+    figures = load_script()
+    recorded = ", played in 3 min 5 s on a 2-core machine (Chip A, no GPU used, load average 0.1 when it started)"
+    block = f"`conflictbench`, the default slice (29 episodes{recorded}):\n\n{TABLE}"
+    elsewhere = block.replace("75.2", "71.9").replace("Chip A", "Chip B")
+    monkeypatch.setattr(figures, "processor", lambda: "Chip B")
+    same, note = figures.comparison(block)
+    assert "played on Chip A, this is Chip B" in note
+    assert same(block) == same(elsewhere) and "TAR" not in same(block) and "68.8 (11/16)" in same(block)
+    assert same(block) != same(block.replace("68.8 (11/16)", "62.5 (10/16)"))  # an outcome is still held
+    monkeypatch.setattr(figures, "processor", lambda: "Chip A")
+    same, note = figures.comparison(block)
+    assert note is None and same(block) != same(block.replace("75.2", "71.9"))
