@@ -9,6 +9,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+#: It plays again tests the default selection plays (20 s): marked by that cost, it runs in CI's marked lane.
+pytestmark = pytest.mark.e2e
+
 HERE = Path(__file__).parent
 #: The tests that read what is registered (metrics on the pair pages, the policies a bad model= lists, the global
 #: hooks left when one plugin is disabled), by node id.
