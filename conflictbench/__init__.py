@@ -24,7 +24,7 @@ from .core import (
     sampling_seed,
 )
 from .core.plugins import DISABLE_PLUGINS_VARIABLE  # the command line's --disable-plugins sets it
-from .core.registry import read_published
+from .core.registry import published_results, read_published
 from .hosting import (
     HostedConfig,
     HostedPolicy,
@@ -90,6 +90,7 @@ __all__ = [
     "free_port",
     "model_environment",
     # a model plugin's published LIBERO figures, read from its data file
+    "published_results",
     "read_published",
     # the plugin manager
     "BUILTIN_PLUGINS",

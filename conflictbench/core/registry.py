@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .errors import PluginError, UserError
+from .hookspecs import hookimpl
 from .records import FAMILIES, LEVELS, LIBERO_SUITES
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -320,3 +321,19 @@ def read_published(path: Any) -> list[dict[str, Any]]:
             entry["protocol"] = protocol
             found.append(entry)
     return found
+
+
+def published_results(package: str) -> Callable[..., None]:
+    """A model plugin's ``conflictbench_register_published_results`` hook for the ``published.toml`` of its
+    ``package``: ``conflictbench_register_published_results = published_results(__package__)`` in the module its
+    entry point names registers each entry :func:`read_published` reads."""
+
+    @hookimpl
+    def conflictbench_register_published_results(register):
+        """What the model's authors published on LIBERO, with its citations (published.toml)."""
+        from importlib import resources
+
+        for entry in read_published(resources.files(package) / "published.toml"):
+            register(**entry)
+
+    return conflictbench_register_published_results

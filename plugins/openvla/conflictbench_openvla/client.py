@@ -28,12 +28,11 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from importlib import resources
 from typing import Any, ClassVar
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, read_published
+from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, published_results
 from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnorm_key
 
 from .checkpoints import POLICY_TYPE, fingerprint
@@ -136,8 +135,5 @@ def conflictbench_register_policies(register):
         register(name, load=functools.partial(load, name), config=config)
 
 
-@hookimpl
-def conflictbench_register_published_results(register):
-    """What the model's authors published on LIBERO, with its citations (published.toml)."""
-    for entry in read_published(resources.files(__package__) / "published.toml"):
-        register(**entry)
+#: What the model's authors published on LIBERO, with its citations (published.toml).
+conflictbench_register_published_results = published_results(__package__)

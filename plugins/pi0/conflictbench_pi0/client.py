@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, read_published, sampling_seed
+from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, published_results, sampling_seed
 from conflictbench.hosting.openpi import OpenpiTransport
 
 from .checkpoints import POLICY_TYPES, fingerprint
@@ -88,8 +87,5 @@ def conflictbench_register_policies(register):
         register(name, load=functools.partial(load, name), config=PiConfig)
 
 
-@hookimpl
-def conflictbench_register_published_results(register):
-    """What the model's authors published on LIBERO, with its citations (published.toml)."""
-    for entry in read_published(resources.files(__package__) / "published.toml"):
-        register(**entry)
+#: What the model's authors published on LIBERO, with its citations (published.toml).
+conflictbench_register_published_results = published_results(__package__)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import functools
 import threading
 from dataclasses import dataclass
-from importlib import resources
 from typing import Any
 
 import numpy as np
@@ -27,7 +26,7 @@ from conflictbench import (
     PerEpisode,
     UserError,
     hookimpl,
-    read_published,
+    published_results,
     sampling_seed,
 )
 from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnorm_key, unnormalize
@@ -138,8 +137,5 @@ def conflictbench_register_policies(register):
     register("univla", load=functools.partial(load, "univla"), config=UnivlaConfig)
 
 
-@hookimpl
-def conflictbench_register_published_results(register):
-    """What the model's authors published on LIBERO, with its citations (published.toml)."""
-    for entry in read_published(resources.files(__package__) / "published.toml"):
-        register(**entry)
+#: What the model's authors published on LIBERO, with its citations (published.toml).
+conflictbench_register_published_results = published_results(__package__)

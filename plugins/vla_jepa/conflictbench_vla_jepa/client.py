@@ -15,7 +15,6 @@ from __future__ import annotations
 import functools
 import hashlib
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -28,7 +27,7 @@ from conflictbench import (
     Observation,
     UserError,
     hookimpl,
-    read_published,
+    published_results,
     sampling_seed,
 )
 from conflictbench.hosting.openpi import OpenpiTransport
@@ -177,8 +176,5 @@ def conflictbench_register_policies(register):
     register("vla-jepa", load=functools.partial(load, "vla-jepa"), config=VlaJepaConfig)
 
 
-@hookimpl
-def conflictbench_register_published_results(register):
-    """What the model's authors published on LIBERO, with its citations (published.toml)."""
-    for entry in read_published(resources.files(__package__) / "published.toml"):
-        register(**entry)
+#: What the model's authors published on LIBERO, with its citations (published.toml).
+conflictbench_register_published_results = published_results(__package__)
