@@ -2,7 +2,9 @@
 
 - an array is the map ``{b"__ndarray__": True, b"data": <C-order bytes>, b"dtype": <dtype.str>,
   b"shape": <shape>}``; a numpy scalar is ``{b"__npgeneric__": True, b"data": <item>, b"dtype": ...}``;
-- arrays of object, void or complex dtype cannot be sent (openpi refuses them too).
+- arrays of object, void or complex dtype cannot be sent (openpi refuses them too); one received is refused before
+  it is built when it holds or hides objects or its bytes do not match its shape (:mod:`.arrays`: a frame naming
+  an object dtype over its own bytes would otherwise be an array of pointers the sender chose).
 
 openpi's servers and starVLA's (VLA-JEPA) use it; so do ours and the clients that talk to them.
 """
@@ -13,6 +15,8 @@ from typing import Any
 
 import msgpack
 import numpy as np
+
+from .arrays import from_buffer, scalar
 
 _UNSENDABLE_KINDS = "OVc"  # object, void (structured), complex
 
@@ -34,9 +38,9 @@ def _encode(value: Any) -> Any:
 
 def _decode(obj: dict) -> Any:
     if b"__ndarray__" in obj:
-        return np.ndarray(buffer=obj[b"data"], dtype=np.dtype(obj[b"dtype"]), shape=obj[b"shape"])
+        return from_buffer(obj.get(b"data"), obj.get(b"dtype"), obj.get(b"shape"))
     if b"__npgeneric__" in obj:
-        return np.dtype(obj[b"dtype"]).type(obj[b"data"])
+        return scalar(obj.get(b"data"), obj.get(b"dtype"))
     return obj
 
 
@@ -46,5 +50,6 @@ def packb(obj: Any) -> bytes:
 
 
 def unpackb(data: bytes) -> Any:
-    """The value in one openpi frame. Arrays come back read-only (they view the frame's bytes)."""
+    """The value in one openpi frame. Arrays come back read-only (they view the frame's bytes); one that is
+    refused raises :class:`~.arrays.UnsafeArray` (a ValueError)."""
     return msgpack.unpackb(data, object_hook=_decode)

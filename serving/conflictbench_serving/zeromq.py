@@ -5,7 +5,8 @@ The facts, from Isaac-GR00T's ``gr00t/policy/server_client.py`` (``PolicyServer`
 
 - one request, one reply, each a msgpack map; an array is the map ``{"__ndarray_class__": True, "as_npy": <the
   bytes np.save writes, allow_pickle=False>}`` (dtype and shape travel inside the .npy header); arrays of object
-  dtype cannot be sent (:func:`packb`, :func:`unpackb`);
+  dtype cannot be sent (:func:`packb`, :func:`unpackb`; one received is refused, as are structured and void ones
+  and a header whose shape does not match the bytes, before the data is read: :mod:`.arrays`);
 - a request is ``{"endpoint": NAME, "data": {...}}`` (``data`` left out for endpoints without input), plus
   ``"api_token"`` when the server wants one; endpoints ``ping``, ``get_action``, ``reset``,
   ``get_modality_config``, ``kill``;
@@ -35,6 +36,7 @@ import numpy as np
 import zmq
 import zmq.asyncio
 
+from .arrays import load_npy
 from .batching import Batcher, ServerStopping
 
 logger = logging.getLogger(__name__)
@@ -63,7 +65,7 @@ def _encode(value: Any) -> Any:
 
 def _decode(obj: dict) -> Any:
     if _ARRAY_TAG in obj:
-        return np.load(io.BytesIO(obj["as_npy"]), allow_pickle=False)
+        return load_npy(obj.get("as_npy"))
     return obj
 
 
