@@ -23,7 +23,7 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     parser.add_argument("--delete", action="store_true", help="remove the superseded episodes' files")
     args = parser.parse_args(argv)
     from conflictbench.store import EpisodeStore
-    from conflictbench.store.prune import superseded
+    from conflictbench.store.prune import remove, superseded
 
     root = store_dir(args.store)
     store = EpisodeStore(root)
@@ -41,6 +41,5 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         f"conflictbench: {len(old)} of {counted(total, 'episode')} {verb}: {by_policy}; {size:.1f} MB", file=sys.stderr
     )
     if args.delete:
-        for item in old:
-            item.path.unlink(missing_ok=True)
+        remove(store, old)
     return 0

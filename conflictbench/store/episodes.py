@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 
 from conflictbench.core import EpisodeRecord
 
+from . import paths
 from .schema import SCHEMA, records_to_table, table_to_records
 
 SUFFIX = ".parquet"
@@ -67,11 +68,17 @@ class EpisodeStore:
 
     # -- writing ---------------------------------------------------------------------------
     def path_for(self, policy: str, episode_id: str) -> Path:
-        return self.episodes_dir / policy / f"{episode_id}{SUFFIX}"
+        """Where an episode is kept. Its names come from records (a shard's files, too): each must be one plain
+        name, and the path must stay in the store once resolved (a linked folder does not take it out), #42."""
+        return self._confined(self.episodes_dir, policy, episode_id)
 
     def replay_path_for(self, policy: str, episode_id: str) -> Path:
         """Where an episode the serving infrastructure ended waits to be played again."""
-        return self.replay_dir / policy / f"{episode_id}{SUFFIX}"
+        return self._confined(self.replay_dir, policy, episode_id)
+
+    def _confined(self, folder: Path, policy: str, episode_id: str) -> Path:
+        path = folder / paths.check_name("policy", policy) / f"{paths.check_name('episode id', episode_id)}{SUFFIX}"
+        return paths.confined(self.root, path)
 
     def _land(self, final: Path, write: Callable[[Path], object]) -> None:
         """``write(temporary)`` beside ``final``, flushed to disk, then renamed into place: whole or absent."""
@@ -126,9 +133,10 @@ class EpisodeStore:
     # -- what is there ---------------------------------------------------------------------
     @staticmethod
     def _parquet_files(folder: Path) -> list[Path]:
-        if not folder.is_dir():
-            return []
-        return sorted(p for p in folder.glob(f"*/*{SUFFIX}") if not p.name.startswith("."))
+        """The episode files of ``folder``; linked files and folders are skipped and said once (#42)."""
+        found, links = paths.listing(folder, f"*/*{SUFFIX}")
+        paths.say_skipped(folder, links)
+        return [p for p in found if not p.name.startswith(".")]
 
     def kept_files(self) -> list[Path]:
         """The episodes stored for good (not those waiting to be played again)."""

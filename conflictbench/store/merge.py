@@ -20,7 +20,8 @@ import pyarrow.dataset as ds
 
 from conflictbench.core import UserError
 
-from .episodes import EpisodeStore
+from . import paths
+from .episodes import SUFFIX, EpisodeStore
 from .schema import ARRAY_COLUMNS, SCHEMA
 
 #: What must agree for two copies of one episode id to be the same experiment.
@@ -84,7 +85,21 @@ def read_copy(path: Path) -> Copy:
         _digest_column(digest, name, table[name])
     row = table.select(["policy", "episode_id", *VERSION_COLUMNS]).to_pylist()[0]
     versions = tuple(tuple(row[k] or ()) if k == "code_versions" else row[k] for k in VERSION_COLUMNS)
-    return Copy(path, row["policy"], row["episode_id"], versions, digest.hexdigest()[:20])
+    return Copy(path, *_names(path, row["policy"], row["episode_id"]), versions, digest.hexdigest()[:20])
+
+
+def _names(path: Path, policy: object, episode_id: object) -> tuple[str, str]:
+    """The policy and episode id a file holds, which become the path of its copy: each one plain name, and the
+    ones its own path says (``<policy>/<episode id>.parquet``). A shard is data from another machine, never a
+    path: a name with a separator or ``..`` would put the copy outside the store (#42), and a file renamed from
+    another episode's would be counted under one id and stored under another."""
+    where = f"{path}: "
+    paths.check_name("policy", policy, where)
+    paths.check_name("episode id", episode_id, where)
+    if (path.parent.name, path.name) != (policy, f"{episode_id}{SUFFIX}"):
+        raise UserError(f"{where}holds episode {episode_id} of {policy}, which its name does not say (renamed or "
+                        f"crafted): nothing merged")  # fmt: skip
+    return policy, episode_id  # type: ignore[return-value]
 
 
 def _describe(a: Copy, b: Copy) -> str:

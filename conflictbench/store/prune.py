@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .episodes import SUFFIX, EpisodeStore
+from .paths import unlink_inside
 
 #: What a user chose for an episode; episodes agreeing on these are one episode played under several identities.
 CHOSEN = ("policy", "policy_settings", "max_steps", "policy_identity", "suite", "task_id", "init_state", "prompt",
@@ -49,6 +50,12 @@ def superseded(store: EpisodeStore) -> list[Superseded]:
             if row["config_hash"] != current and (path := files.get(row["episode_id"])) is not None:
                 out.append(Superseded(row["policy"], row["episode_id"], path, path.stat().st_size))
     return sorted(out, key=lambda s: (s.policy, s.episode_id))
+
+
+def remove(store: EpisodeStore, items: list[Superseded]) -> int:
+    """Delete the superseded episodes' files; how many were there. Never through a link (#42): the listing skipped
+    linked files and folders, and a folder turned into a link since is refused in one line, not followed."""
+    return sum(unlink_inside(store.root, item.path) for item in items)
 
 
 def _join_older_rows(groups: dict[tuple, list[dict]]) -> None:

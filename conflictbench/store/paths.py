@@ -1,0 +1,186 @@
+"""A store is data, never a path (#42): the helpers every writer and deleter of a store, a merge and a site uses.
+
+A store's root is the user's choice (``run.out``, a command's DIR or ``--out``) and is trusted, a link included.
+Everything below it is data someone else may have written: a shard copied from another machine, a store shared on
+a network file system, a site folder. So
+
+- a name read from a file (a policy, an episode id) becomes a path part only if it is one plain name
+  (:func:`check_name`: the registry's name pattern, no separators, no leading dot, bounded length);
+- a path written or deleted must stay under its root after resolution (:func:`inside`, :func:`confined`);
+- nothing that deletes follows a link (:func:`unlink_inside` walks from the root with ``O_NOFOLLOW`` and
+  removes a link itself, never what it names);
+- reading a store skips linked files and folders (:func:`listing`) and says so once (:func:`say_skipped`).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+
+from conflictbench.core import UserError
+from conflictbench.core.words import counted
+
+#: The registry's name pattern (``conflictbench.core.registry``): policies are registered under it, and episode
+#: ids (hex digests) match it too. No separator, no leading dot, so never ``..``, a hidden file or a path.
+NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+#: Longer names are refused: with a suffix and a temporary file's tag they must still fit a file name (255 bytes).
+MAX_NAME = 128
+RULE = f"letters, digits, '_', '.', '-', starting with a letter or digit, at most {MAX_NAME} characters"
+
+
+def is_name(name: object) -> bool:
+    return isinstance(name, str) and len(name) <= MAX_NAME and NAME.match(name) is not None
+
+
+def check_name(what: str, name: object, where: str = "") -> str:
+    """``name`` if it can be one path part, else a :class:`UserError` saying ``where`` it came from and why."""
+    if not is_name(name):
+        shown = repr(name) if not isinstance(name, str) or len(name) <= 2 * MAX_NAME else repr(name[:60]) + "..."
+        raise UserError(f"{where}{what} {shown} cannot name a file ({RULE}): a store's contents are never paths")
+    return name  # type: ignore[return-value]
+
+
+def inside(root: str | os.PathLike, path: str | os.PathLike) -> bool:
+    """Whether ``path``, every link and ``..`` resolved, is ``root`` (resolved) or under it."""
+    return Path(path).resolve().is_relative_to(Path(root).resolve())
+
+
+def confined(root: str | os.PathLike, path: Path, what: str = "the store") -> Path:
+    """``path`` if :func:`inside` ``root``, else one line saying it leads out."""
+    if not inside(root, path):
+        raise UserError(f"{path} leads out of {what} {root} (through a link or '..'): nothing is written there")
+    return path
+
+
+def _relative(root: Path, path: Path, what: str) -> tuple[str, ...]:
+    """``path``'s parts below ``root``, ``..`` taken lexically (the walk that follows never crosses a link)."""
+    try:
+        parts = Path(os.path.abspath(path)).relative_to(os.path.abspath(root)).parts
+    except ValueError:
+        raise UserError(f"{path} leads out of {what} {root}: nothing is deleted there") from None
+    if not parts:
+        raise UserError(f"{path} is {what} itself, not a file in it")
+    return parts
+
+
+def _open_folder(root: Path, parts: Iterable[str], what: str, make: bool = False) -> int | None:
+    """A descriptor of the folder ``root/parts``, reached without following any link below ``root`` (each part made
+    first where ``make``); None where a part is missing. A part that is a link (or not a folder) is refused."""
+    fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
+    here = Path(root)
+    try:
+        for part in parts:
+            here = here / part
+            if make:
+                try:
+                    os.mkdir(part, dir_fd=fd)
+                except FileExistsError:
+                    pass
+            try:
+                below = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
+            except FileNotFoundError:
+                return None
+            except OSError as exc:
+                if exc.errno in (errno.ELOOP, errno.ENOTDIR):
+                    raise UserError(f"{here} is a link or not a folder: {what} is never followed out of it") from None
+                raise
+            os.close(fd)
+            fd = below
+        fd, done = -1, fd
+        return done
+    finally:
+        if fd >= 0:
+            os.close(fd)
+
+
+def unlink_inside(root: str | os.PathLike, path: str | os.PathLike, what: str = "the store") -> bool:
+    """Remove the file ``path`` under ``root`` without following a link: a linked folder on the way is refused in
+    one line, and a link at ``path`` is removed itself, never what it names. False where it was not there."""
+    root, path = Path(root), Path(path)
+    *folders, name = _relative(root, path, what)
+    fd = _open_folder(root, folders, what)
+    if fd is None:
+        return False
+    try:
+        os.unlink(name, dir_fd=fd)
+    except FileNotFoundError:
+        return False
+    finally:
+        os.close(fd)
+    return True
+
+
+def write_inside(root: str | os.PathLike, path: str | os.PathLike, data: bytes, what: str = "the site") -> None:
+    """Write ``path`` under ``root`` whole (a temporary file renamed into place), its folders made or entered
+    without following a link: a link on the way is refused in one line; a link at ``path`` is replaced by the file,
+    never written through."""
+    root, path = Path(root), Path(path)
+    *folders, name = _relative(root, path, what)
+    fd = _open_folder(root, folders, what, make=True)
+    if fd is None:
+        raise UserError(f"{path.parent} vanished while {what} was written")
+    temporary = f".{name}.{os.getpid()}.tmp"
+    try:
+        out = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644, dir_fd=fd)
+        with os.fdopen(out, "wb") as fh:
+            fh.write(data)
+        os.replace(temporary, name, src_dir_fd=fd, dst_dir_fd=fd)
+    except BaseException:
+        try:
+            os.unlink(temporary, dir_fd=fd)
+        except FileNotFoundError:
+            pass
+        raise
+    finally:
+        os.close(fd)
+
+
+def listing(folder: Path, pattern: str) -> tuple[list[Path], set[Path]]:
+    """The entries of ``folder`` matching ``pattern`` (a glob), sorted, none reached through a link and none a link
+    itself; and the links skipped (a linked folder counted once, however much it holds)."""
+    if folder.is_symlink():
+        return [], {folder}
+    if not folder.is_dir():
+        return [], set()
+    linked: dict[Path, bool] = {folder: False}  # each folder on the way checked once, not once per file
+
+    def first_link(path: Path) -> Path | None:
+        here = folder
+        for part in path.relative_to(folder).parts:
+            here = here / part
+            if linked.setdefault(here, here.is_symlink()):
+                return here
+        return None
+
+    kept, links = [], set()
+    for path in folder.glob(pattern):
+        link = first_link(path)
+        if link is None:
+            kept.append(path)
+        else:
+            links.add(link)
+    parents = Path(pattern).parts[:-1]  # a linked folder on the way that glob did not enter counts too
+    if parents:
+        links.update(p for p in folder.glob(str(Path(*parents))) if p.is_symlink())
+    return sorted(kept), links
+
+
+_said: set[tuple[Path, frozenset[Path]]] = set()
+
+
+def say_skipped(folder: Path, links: set[Path]) -> None:
+    """One line, once per process for the same links, naming what a reading of ``folder`` left out."""
+    key = (folder, frozenset(links))
+    if not links or key in _said:
+        return
+    _said.add(key)
+    first = sorted(links)[0]
+    print(
+        f"conflictbench: skipped {counted(len(links), 'link')} in {folder}/ (a store is read without following "
+        f"links), e.g. {first.name} -> {os.readlink(first) if first.is_symlink() else '?'}",
+        file=sys.stderr,
+    )
