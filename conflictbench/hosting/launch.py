@@ -8,6 +8,13 @@ without HTTP, until a ``ready`` check the plugin gives returns true), and
 :meth:`ServerProcess.stop` ends it: called by the run, at interpreter exit, and, on Linux, by the kernel
 when the run's process dies any other way (the server is asked to exit with its parent).
 
+Where the server can say where it listens (``reports_address=True``; ``conflictbench-serve`` can), the run never
+names a port: the command gets ``--ready-fd N``, the writing end of a pipe only that process holds, binds any free
+port (``--port 0``) once its model is loaded, and writes ``HOST PORT`` there. The run reads the address from its
+end of the pipe, so what it then talks to is the port the process it started holds: no other process can take it
+first (a port chosen ahead, :func:`free_port`, is free for anyone during the minutes a model loads, and its number
+shows on the server's command line) or answer in its name. :attr:`ServerProcess.address` is what it said.
+
 A server that exits during start-up with code 2 reports a user mistake (a checkpoint that is not what
 the plugin expects): its last line becomes a :class:`UserError`. Any other early exit, or no answer
 within the start-up limit, is :class:`ServerUnavailable` (the run stops, exit code 3), naming the log.
@@ -19,6 +26,7 @@ import atexit
 import ctypes
 import itertools
 import os
+import select
 import signal
 import socket
 import subprocess
@@ -36,6 +44,8 @@ from ..core.errors import ServerUnavailable, UserError
 USER_ERROR_EXIT_CODE = 2
 _PR_SET_PDEATHSIG = 1
 _log_numbers = itertools.count()
+#: Where a server that reports its address is, in a failure before it said.
+_UNREPORTED = "127.0.0.1 (a port the started server had not reported yet)"
 #: Health checks of a local server never go through a proxy (http_proxy would catch 127.0.0.1 too).
 _DIRECT = urllib.request.build_opener(urllib.request.ProxyHandler({}))
 
@@ -48,10 +58,20 @@ def _exit_with_parent() -> None:  # runs in the child between fork and exec
 
 
 def free_port(host: str = "127.0.0.1") -> int:
-    """A TCP port nothing listens on now (the server binds it a moment later)."""
+    """A TCP port nothing listens on now. Any process may take it before the server does (a model loads for
+    minutes): a server the run starts reports the port it bound instead (``ServerProcess(reports_address=True)``)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind((host, 0))
         return sock.getsockname()[1]
+
+
+def answers_health(url: str) -> bool:
+    """Whether ``url`` (a server's ``/healthz``) answers 200 now, asked directly (never through a proxy)."""
+    try:
+        with _DIRECT.open(url, timeout=2) as reply:
+            return reply.status == 200
+    except (OSError, urllib.error.URLError, ValueError):
+        return False
 
 
 def model_environment(name: str) -> Path:
@@ -71,13 +91,19 @@ class ServerProcess:
         argv: Sequence[str],
         *,
         name: str,
-        health_url: str,
+        health_url: str = "",
         ready: Callable[[], bool] | None = None,
         env: Mapping[str, str] | None = None,
         startup_timeout_s: float = 600.0,
         log_dir: Path | None = None,
+        reports_address: bool = False,
     ):
         self.argv, self.name, self.health_url = list(argv), name, health_url
+        self.reports_address = reports_address
+        """Whether the command says where it listens over ``--ready-fd N`` (then ``health_url`` and ``ready`` are
+        checked after, when given; ``health_url`` may hold ``{port}``)."""
+        self.address: tuple[str, int] | None = None
+        """``(host, port)`` the started process said it listens on (``reports_address``)."""
         self._ready = ready  # a protocol's own readiness check (a ZeroMQ ping); else GET health_url
         self.env = {**os.environ, **(env or {})}
         self.startup_timeout_s = startup_timeout_s
@@ -89,23 +115,32 @@ class ServerProcess:
 
     def start(self) -> ServerProcess:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.log_path, "ab") as log:
-            try:
+        reading, writing = os.pipe() if self.reports_address else (-1, -1)
+        argv = [*self.argv, "--ready-fd", str(writing)] if self.reports_address else self.argv
+        try:
+            with open(self.log_path, "ab") as log:
                 self.process = subprocess.Popen(
-                    self.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env,
+                    argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env,
                     start_new_session=True,  # Ctrl-C reaches the run, which then stops the server itself
                     preexec_fn=_exit_with_parent if sys.platform.startswith("linux") else None,
+                    pass_fds=(writing,) if self.reports_address else (),  # the same number in the child
                 )  # fmt: skip
-            except OSError as exc:
-                raise UserError(f"could not start the {self.name} server ({self.argv[0]}): {exc}") from None
+        except OSError as exc:
+            raise UserError(f"could not start the {self.name} server ({self.argv[0]}): {exc}") from None
+        finally:
+            if self.reports_address:
+                os.close(writing)  # the child's copy alone: its exit is the pipe's end
         atexit.register(self.stop)
-        started = time.monotonic()
+        deadline = time.monotonic() + self.startup_timeout_s
         try:
+            if self.reports_address:
+                self.address = self._read_address(reading, deadline)
+                self.health_url = self.health_url.format(host=self.address[0], port=self.address[1])
+                if not self.health_url and self._ready is None:
+                    return self
             while not self._healthy():
-                code = self.process.poll()
-                if code is not None:
-                    self._failed_start(code)
-                if time.monotonic() - started > self.startup_timeout_s:
+                self._check_alive()
+                if time.monotonic() > deadline:
                     raise ServerUnavailable(
                         self.health_url,
                         f"the {self.name} server did not answer within {self.startup_timeout_s:g} s "
@@ -115,7 +150,50 @@ class ServerProcess:
         except BaseException:
             self.stop()
             raise
+        finally:
+            if self.reports_address:
+                os.close(reading)
         return self
+
+    def _check_alive(self) -> None:
+        code = self.process.poll()
+        if code is not None:
+            self._failed_start(code)
+
+    def _read_address(self, reading: int, deadline: float) -> tuple[str, int]:
+        """The ``HOST PORT`` line the started process writes on its ready pipe once it listens."""
+        said = b""
+        while b"\n" not in said:
+            self._check_alive()
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise ServerUnavailable(
+                    _UNREPORTED,
+                    f"the {self.name} server did not say where it listens within {self.startup_timeout_s:g} s "
+                    f"(model.startup_timeout_s); its log: {self.log_path}",
+                )
+            if not select.select([reading], [], [], min(left, 0.25))[0]:
+                continue
+            chunk = os.read(reading, 256)
+            if not chunk:  # every writer closed it: the process is ending, or will never say
+                time.sleep(0.5)
+                self._check_alive()
+                raise ServerUnavailable(
+                    _UNREPORTED,
+                    f"the {self.name} server closed its ready pipe without saying where it listens; "
+                    f"its log: {self.log_path}",
+                )
+            said += chunk
+            if len(said) > 256:
+                break
+        host, _, port = said.partition(b"\n")[0].decode(errors="replace").strip().rpartition(" ")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise ServerUnavailable(
+                _UNREPORTED,
+                f"the {self.name} server wrote {said[:80]!r} on its ready pipe, not a HOST PORT line; "
+                f"its log: {self.log_path}",
+            )
+        return host, int(port)
 
     def _healthy(self) -> bool:
         if self._ready is not None:
@@ -123,18 +201,14 @@ class ServerProcess:
                 return bool(self._ready())
             except Exception:  # not up yet, whatever the protocol's way of saying so
                 return False
-        try:
-            with _DIRECT.open(self.health_url, timeout=2) as reply:
-                return reply.status == 200
-        except (OSError, urllib.error.URLError):
-            return False
+        return answers_health(self.health_url)
 
     def _failed_start(self, code: int) -> None:
         last = self.log_tail(1)
         if code == USER_ERROR_EXIT_CODE and last:
             raise UserError(last)
         raise ServerUnavailable(
-            self.health_url,
+            self.health_url if self.address or not self.reports_address else _UNREPORTED,
             f"the {self.name} server exited with code {code} while starting ({last or 'no output'}); "
             f"its log: {self.log_path}",
         )
