@@ -7,7 +7,8 @@ with HTTP 200 (its traceback stays in the server's log); a body FastAPI cannot r
 (``conflictbench_serving.rest``) add ``GET /metadata`` and ``GET /healthz``. What a request and a reply hold is
 the model's (its plugin's ``protocol``).
 
-Needs the ``rest`` extra, ``conflictbench[rest]``: ``json-numpy`` (a plugin speaking the protocol requires it).
+Needs the ``rest`` extra, ``conflictbench[rest]``: ``json-numpy`` (a plugin speaking the protocol requires it) and
+``conflictbench-serving`` (the shared check of every array a peer sends, :mod:`conflictbench_serving.arrays`).
 """
 
 from __future__ import annotations
@@ -22,8 +23,10 @@ from .transport import HttpJsonTransport, extra_missing
 
 try:
     import json_numpy
+
+    from conflictbench_serving.arrays import UnsafeArray, json_numpy_loads
 except ModuleNotFoundError as missing:
-    raise extra_missing(__name__, "rest", missing) from None
+    raise extra_missing(__name__, "rest", missing, install="./serving") from None
 
 ROUTE = "/act"
 METADATA_ROUTE = "/metadata"
@@ -66,9 +69,9 @@ class JsonNumpyTransport(HttpJsonTransport):
 
     def loads(self, text: bytes) -> Any:
         try:
-            reply = json_numpy.loads(text)
-        except (KeyError, TypeError) as exc:  # a "__numpy__" object without dtype or shape, an unknown dtype
-            raise ValueError(f"a json-numpy array that cannot be read ({type(exc).__name__}: {exc})") from None
+            reply = json_numpy_loads(text)  # each array checked before it is built (conflictbench_serving.arrays)
+        except UnsafeArray as exc:  # an object, structured or void dtype, a shape that does not match the bytes
+            raise ValueError(f"a json-numpy array that cannot be read ({exc})") from None
         if isinstance(reply, str) and reply == ERROR_REPLY:
             raise InfrastructureError(
                 f'{self.url} answered "error": the server caught an exception on this request (its log has the '

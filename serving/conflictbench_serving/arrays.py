@@ -41,7 +41,8 @@ def checked_dtype(spec: Any) -> np.dtype:
     if isinstance(spec, bytes):
         spec = spec.decode("ascii", "replace")
     if not isinstance(spec, str):  # a list or a map names a structured dtype
-        raise UnsafeArray(f"an array's dtype must be named by a string, got {type(spec).__name__}")
+        kind = type(spec).__name__
+        raise UnsafeArray(f"an array's dtype must be a string (structured dtypes are refused), got {kind}")
     try:
         dtype = np.dtype(spec)
     except (TypeError, ValueError, SyntaxError) as error:

@@ -11,10 +11,10 @@ entry point) and what the client's ``served`` names. This module imports neither
 backend's model is loaded by name, after the checks), so the client imports ``SERVED`` from it cheaply.
 """
 
-import json_numpy
 import numpy as np
 
 from conflictbench_serving import rest
+from conflictbench_serving.arrays import json_numpy_loads
 from conflictbench_serving.command import ServedModel
 from conflictbench_serving.rest import InvalidRequest
 
@@ -35,12 +35,12 @@ SERVED = ServedModel.of(
 def request_row(body: bytes) -> tuple[Row, bool]:
     """The row a body asks for, and whether it came double-encoded (its answer is then encoded too)."""
     try:
-        payload = json_numpy.loads(body)
+        payload = json_numpy_loads(body)
         encoded = isinstance(payload, dict) and "encoded" in payload
         if encoded:
             if len(payload) != 1:
                 raise InvalidRequest("an encoded request holds nothing but 'encoded'")
-            payload = json_numpy.loads(payload["encoded"])
+            payload = json_numpy_loads(payload["encoded"])
     except (ValueError, TypeError) as error:
         raise InvalidRequest(f"not a json-numpy body: {error}") from None
     except KeyError as error:  # a "__numpy__" object without its dtype or shape: a 400, not a 500 with a traceback

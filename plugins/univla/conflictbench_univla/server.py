@@ -9,10 +9,10 @@ entry point) and what the client's ``served`` names. This module imports neither
 backend's model is loaded by name, after the checks), so the client imports ``SERVED`` from it cheaply.
 """
 
-import json_numpy
 import numpy as np
 
 from conflictbench_serving import rest
+from conflictbench_serving.arrays import json_numpy_loads
 from conflictbench_serving.checkpoints import NOISE_SEED
 from conflictbench_serving.command import ServedModel
 from conflictbench_serving.requests import describe, is_noise_seed
@@ -40,7 +40,7 @@ SERVED = ServedModel.of(
 def request_row(body: bytes) -> tuple[Row, bool]:
     """The row a body asks for (never double-encoded: no upstream client of this protocol exists)."""
     try:
-        payload = json_numpy.loads(body)
+        payload = json_numpy_loads(body)
     except (ValueError, TypeError) as error:
         raise rest.InvalidRequest(f"not a json-numpy body: {error}") from None
     if not isinstance(payload, dict):
