@@ -1,7 +1,7 @@
 """``conflictbench-serve``: host a local checkpoint of any installed model plugin (model environment side).
 
     conflictbench-serve POLICY --checkpoint DIR [--host 127.0.0.1] [--port N] [--device cpu] [--max-batch 8]
-                        [--threads N]
+                        [--threads N] [--token-file PATH] [--max-message-mib M] [--max-connections N]
     conflictbench-serve --list
 
 A plugin declares what it serves with a :class:`ServedModel` under the entry-point group ``conflictbench_serving``
@@ -15,6 +15,16 @@ starts the server shows that line as the error): a policy no installed plugin se
 folder or one that is not the policy's checkpoint (checked before torch is imported, which takes seconds), a
 Python without the model stack (the simulator's environment, not the model's), a port that cannot be bound. Once
 the model is loaded the port is bound and one line says so; SIGTERM or SIGINT then stop it with exit 0.
+
+Who may use it (README, "Security"): with a token, every request must carry it (openpi-client's ``Authorization:
+Api-Key TOKEN`` header on websocket and REST, the ``api_token`` field on ZeroMQ); without one, anyone who reaches
+the port may. The token comes from the environment variable ``CONFLICTBENCH_SERVER_TOKEN`` or from a file
+(``--token-file``), never from the command line, which ``ps`` shows every user; it is never printed. A token does
+not encrypt: reach a server on another machine through an SSH tunnel or a private network. ``--max-message-mib`` and
+``--max-connections`` bound what one peer can make the server read or hold (:mod:`.guard`).
+
+``--ready-fd N`` is how a run that starts the server learns where it listens: with ``--port 0`` the server binds
+any free port and, once it listens, writes ``HOST PORT`` and a newline to that inherited file descriptor.
 """
 
 from __future__ import annotations
@@ -23,7 +33,9 @@ import argparse
 import importlib
 import importlib.util
 import logging
+import os
 import signal
+import stat
 import sys
 import warnings
 from collections.abc import Callable
@@ -32,10 +44,12 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from . import guard
 from .checkpoints import DEVICE, CheckpointError
 from .stack import installed_versions, model_stack
 
 USER_ERROR = 2
+_LOOPBACK = ("127.0.0.1", "localhost", "::1")
 PROGRAM = "conflictbench-serve"
 ENTRY_POINT_GROUP = "conflictbench_serving"
 
@@ -113,7 +127,11 @@ def served_model(policy: str) -> ServedModel:
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (exit 2), not its usage block."""
+    """argparse with one-line errors (exit 2), not its usage block, and no abbreviations: ``--token VALUE`` would
+    otherwise be read as ``--token-file VALUE`` and a secret typed there named in an error."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, allow_abbrev=False, **kwargs)
 
     def error(self, message: str) -> None:
         self.exit(USER_ERROR, f"{self.prog}: {message}\n")
@@ -130,6 +148,22 @@ def _add_options(parser: argparse.ArgumentParser, port: int | None, checkpoint_h
         help="rows of every forward pass: the requests waiting, padded with copies (default: %(default)s)",
     )  # fmt: skip
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument(
+        "--token-file", type=Path, default=None, metavar="PATH",
+        help=f"a file holding the token every request must carry (default: ${guard.TOKEN_VARIABLE}, else none)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--max-message-mib", type=float, default=None, metavar="M",
+        help=f"largest request read, in MiB (default: {guard.DEFAULT_MAX_MESSAGE_BYTES / 2**20:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--max-connections", type=int, default=None, metavar="N",
+        help=f"connections served at once, at least the run's workers (default: {guard.DEFAULT_MAX_CONNECTIONS})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--ready-fd", type=int, default=None, metavar="N",
+        help="once listening, write 'HOST PORT' to this inherited file descriptor (how a run learns the port)",
+    )  # fmt: skip
 
 
 def build_parser() -> Parser:
@@ -184,6 +218,11 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
     if args.threads is not None and args.threads < 1:
         return user_error(f"--threads must be at least 1, got {args.threads}")
     try:
+        ready = _ready_pipe(args.ready_fd)
+        _configure_guard(args)
+    except ValueError as error:
+        return user_error(str(error))
+    try:
         model.check(args.checkpoint, args.policy, naming)
     except CheckpointError as error:
         return user_error(str(error))
@@ -224,6 +263,16 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
         listening = True
         url = f"{model.url_scheme}://{host}:{port}"
         print(f"{program}: serving {args.policy} from {args.checkpoint} on {url}", file=sys.stderr, flush=True)
+        if guard.current().token is None and host not in _LOOPBACK:
+            print(
+                f"{program}: warning: no token: anyone who reaches {host}:{port} may use this model (set "
+                f"{guard.TOKEN_VARIABLE} or --token-file; README, Security)",
+                file=sys.stderr,
+                flush=True,
+            )
+        if ready is not None:  # after the line above: the run that reads it may stop us at once
+            with ready:
+                ready.write(f"{host} {port}\n".encode())
 
     try:
         _resolve(model.server)(backend, args.host, args.port, args.max_batch, on_ready=announce)
@@ -232,6 +281,58 @@ def serve_command(program: str, model: ServedModel, args: argparse.Namespace, na
             raise
         return user_error(f"cannot listen on {args.host}:{args.port}: {getattr(error, 'strerror', None) or error}")
     return 0
+
+
+def _ready_pipe(fd: int | None):
+    """The file ``--ready-fd`` names, opened for writing (None without it); ValueError (one line) if it is not open.
+    Not passed on to the model's own processes: the run must see it close when this process ends."""
+    if fd is None:
+        return None
+    try:
+        if fd < 3 or not stat.S_ISFIFO(os.fstat(fd).st_mode) and not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError("not a pipe or a file")
+        os.set_inheritable(fd, False)
+        return open(fd, "wb", buffering=0)  # noqa: SIM115 (closed once the address is written)
+    except OSError as error:
+        raise ValueError(f"--ready-fd {fd}: no open pipe there ({getattr(error, 'strerror', None) or error})") from None
+
+
+def _read_token(args: argparse.Namespace) -> str | None:
+    """The token from ``--token-file`` or the environment (taken out of it: the model's own code and the processes
+    it starts need not see it); None for none. ValueError (one line, never the token) for an unusable one."""
+    from_environment = os.environ.pop(guard.TOKEN_VARIABLE, None) or None
+    if args.token_file is None:
+        return from_environment
+    try:
+        token = args.token_file.read_text().strip()
+        mode = args.token_file.stat().st_mode
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"--token-file {args.token_file}: cannot read it ({type(error).__name__})") from None
+    if not token or any(character.isspace() for character in token):
+        raise ValueError(f"--token-file {args.token_file}: the token must be one word, on one line, not empty")
+    if mode & (stat.S_IRGRP | stat.S_IROTH):
+        print(
+            f"{PROGRAM}: warning: --token-file {args.token_file} is readable by other users (chmod 600 it)",
+            file=sys.stderr,
+            flush=True,
+        )
+    return token
+
+
+def _configure_guard(args: argparse.Namespace) -> None:
+    """The process-wide guard every server of ours uses, from the options and the environment."""
+    changes: dict[str, Any] = {"token": _read_token(args)}
+    if args.max_message_mib is not None:
+        if not args.max_message_mib > 0:
+            raise ValueError(f"--max-message-mib must be more than 0, got {args.max_message_mib:g}")
+        changes["max_message_bytes"] = max(1, int(args.max_message_mib * 2**20))
+    if args.max_connections is not None:
+        if args.max_connections < 1:
+            raise ValueError(f"--max-connections must be at least 1, got {args.max_connections}")
+        changes["max_connections"] = args.max_connections
+    if changes["token"] is not None and any(character.isspace() for character in changes["token"]):
+        raise ValueError(f"${guard.TOKEN_VARIABLE}: the token must be one word, without spaces")
+    guard.configure(**changes)
 
 
 def _run(program: str, model: ServedModel, run: Callable[[], int]) -> int:
