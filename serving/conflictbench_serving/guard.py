@@ -23,6 +23,11 @@ import hmac
 import os
 
 TOKEN_VARIABLE = "CONFLICTBENCH_SERVER_TOKEN"  # env var a server reads its token from (never argv: ps shows argv)
+#: How the token travels on websockets and REST, as openpi-client sends its API key: ``Authorization: Api-Key <token>``
+#: (on the websocket upgrade, on every HTTP request). GR00T's ZeroMQ requests carry it as their ``api_token`` field.
+AUTHORIZATION, SCHEME = "Authorization", "Api-Key"
+#: env var that sets ``max_message_bytes`` for servers and clients alike (a run and its servers must agree)
+MESSAGE_LIMIT_VARIABLE = "CONFLICTBENCH_MAX_MESSAGE_BYTES"
 
 CAMERAS = 3  # LIBERO's agent view, wrist and one more
 IMAGE_SIDE = 512  # the largest render any plugin asks for (most use 224 or 256)
@@ -76,6 +81,13 @@ class Guard:
             presented = presented.encode("utf-8", "surrogateescape")
         return hmac.compare_digest(presented, self.token.encode("utf-8"))
 
+    def admits_header(self, authorization: str | None) -> bool:
+        """Whether an ``Authorization`` header's value carries the token (``Api-Key <token>``)."""
+        if self.token is None:
+            return True
+        scheme, _, presented = (authorization or "").strip().partition(" ")
+        return scheme.lower() == SCHEME.lower() and self.admits(presented.strip())
+
     def __repr__(self) -> str:  # never print the token (logs, tracebacks)
         token = "None" if self.token is None else "'***'"
         return (
@@ -84,13 +96,14 @@ class Guard:
         )
 
 
-_current = Guard()
+_current: Guard | None = None  # read from the environment on first use
 
 
 def configure(**changes) -> Guard:
     """Set the process-wide guard (what servers use when given none) to the current one with ``changes``;
     returns it. Raising ``max_connections`` alone raises ``max_queued`` with it where it would fall short."""
     global _current
+    _current = current()
     if "max_connections" in changes and "max_queued" not in changes:
         changes["max_queued"] = max(_current.max_queued, changes["max_connections"])
     _current = dataclasses.replace(_current, **changes)
@@ -98,10 +111,34 @@ def configure(**changes) -> Guard:
 
 
 def current() -> Guard:
-    """The process-wide guard."""
+    """The process-wide guard: until :func:`configure` is called, the defaults with the token in
+    :data:`TOKEN_VARIABLE` and the message bound in :data:`MESSAGE_LIMIT_VARIABLE`, where they are set."""
+    global _current
+    if _current is None:
+        _current = Guard(token=token_from_environment(), max_message_bytes=message_limit_from_environment())
     return _current
+
+
+def authorization(token: str | None) -> dict[str, str]:
+    """The header a client sends with ``token`` (none without one)."""
+    return {AUTHORIZATION: f"{SCHEME} {token}"} if token else {}
 
 
 def token_from_environment() -> str | None:
     """The token in :data:`TOKEN_VARIABLE` (None when unset or empty)."""
     return os.environ.get(TOKEN_VARIABLE) or None
+
+
+def message_limit_from_environment() -> int:
+    """``max_message_bytes`` from :data:`MESSAGE_LIMIT_VARIABLE`, else the default; ValueError (one line) for a
+    value that is not a positive integer."""
+    text = os.environ.get(MESSAGE_LIMIT_VARIABLE, "").strip()
+    if not text:
+        return DEFAULT_MAX_MESSAGE_BYTES
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise ValueError(f"{MESSAGE_LIMIT_VARIABLE} must be a positive number of bytes, got {text[:40]!r}")
+    return value

@@ -32,10 +32,33 @@ def test_the_token_is_checked_and_never_shown():
 
 
 def test_configure_sets_what_servers_use_and_raises_the_queue_with_the_connections():
-    before = guard.current()
+    before = guard._current
     try:
         configured = guard.configure(token="t", max_connections=1000)
         assert guard.current() is configured
         assert configured.max_queued >= 1000 and configured.token == "t"
     finally:
         guard._current = before
+
+
+def test_the_first_guard_reads_the_token_and_the_message_bound_from_the_environment(monkeypatch):
+    before = guard._current
+    monkeypatch.setenv(guard.TOKEN_VARIABLE, "from-env")
+    monkeypatch.setenv(guard.MESSAGE_LIMIT_VARIABLE, "1000")
+    try:
+        guard._current = None
+        assert guard.current().token == "from-env" and guard.current().max_message_bytes == 1000
+        monkeypatch.setenv(guard.MESSAGE_LIMIT_VARIABLE, "lots")
+        guard._current = None
+        with pytest.raises(ValueError, match="CONFLICTBENCH_MAX_MESSAGE_BYTES must be a positive number"):
+            guard.current()
+    finally:
+        guard._current = before
+
+
+def test_the_authorization_header_carries_the_token_as_openpi_client_sends_its_api_key():
+    header = guard.authorization("s3cret")
+    assert header == {"Authorization": "Api-Key s3cret"} and guard.authorization(None) == {}
+    assert Guard(token="s3cret").admits_header(header["Authorization"])
+    assert not Guard(token="s3cret").admits_header("Bearer s3cret")
+    assert not Guard(token="s3cret").admits_header(None) and Guard().admits_header(None)
