@@ -8,6 +8,7 @@
     conflictbench view DIR            view.py     a static HTML site of the store's pairs, videos by replay
     conflictbench merge OUT SHARD...  merge.py    one store from stores written on different machines
     conflictbench prune DIR           prune.py    the superseded episodes, listed or removed
+    conflictbench store check DIR     store.py    read every episode file, name the damaged ones
     conflictbench suite ...           suite.py    validate, inspect, sample, export or rebuild the conflict suite
     conflictbench train-subject       train_subject.py   the learned default policy, trained from scratch
     conflictbench doctor              doctor.py   is this machine's simulator the reference one (golden replays)
@@ -41,6 +42,7 @@ VERBS = {
     "view": "view",
     "merge": "merge",
     "prune": "prune",
+    "store": "store",
     "train-subject": "train_subject",
     "doctor": "doctor",
     "new-plugin": "new_plugin",
@@ -55,6 +57,7 @@ USAGE = """usage: conflictbench [OVERRIDE ...]        play a run, e.g. model=noo
        conflictbench view DIR              a web page per pair (videos, paths, measures): DIR/view/index.html
        conflictbench merge OUT SHARD...    one store from stores written on different machines
        conflictbench prune DIR [--delete]  the episodes stored again under a newer identity, listed or removed
+       conflictbench store check DIR [--quarantine]   read every episode file; name (or set aside) damaged ones
        conflictbench suite validate|stats|sample|export|build ...   the conflict suite (see: suite --help)
        conflictbench train-subject [--out DIR]   train the learned default policy from scratch (--help)
        conflictbench doctor [model=NAME ...]     is this machine's simulator the reference one? (--help)

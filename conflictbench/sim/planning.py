@@ -91,6 +91,7 @@ def left_to_play(
     why in one line where the policy's newest stored episodes of these settings were played under another
     identity."""
     result = RunResult(planned=len(items), episode_ids=[i.job.episode_id for i in items])
+    store.set_aside_damaged(result.episode_ids)  # names only below: a damaged file must not count as stored
     stored = store.stored_ids()
     todo = [i for i in items if i.job.episode_id not in stored]
     result.already_stored = len(items) - len(todo)

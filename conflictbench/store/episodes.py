@@ -27,9 +27,10 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from conflictbench.core import EpisodeRecord
+from conflictbench.core import EpisodeRecord, UserError
 
 from . import paths
+from .check import footer_damage, read_intact, set_aside
 from .schema import SCHEMA, records_to_table, table_to_records
 
 SUFFIX = ".parquet"
@@ -103,7 +104,8 @@ class EpisodeStore:
         replay = record.infrastructure_failed  # not the model's behaviour: the next run plays it again
         final = (self.replay_path_for if replay else self.path_for)(record.policy, record.episode_id)
         repeated = replay and self._last_failure(final) == (record.failure_kind, record.error)
-        self._land(final, lambda tmp: pq.write_table(records_to_table([record]), tmp))
+        # Page checksums: a byte flipped on disk later is found by a full read (`conflictbench store check`).
+        self._land(final, lambda tmp: pq.write_table(records_to_table([record]), tmp, write_page_checksum=True))
         marker = self.replay_path_for(record.policy, record.episode_id).with_suffix(REPEATED_SUFFIX)
         if repeated:
             marker.touch()
@@ -167,22 +169,42 @@ class EpisodeStore:
         return len(self.files())
 
     def read_table(self, columns: Iterable[str] | None = None, episode_ids: Iterable[str] | None = None) -> pa.Table:
-        """Every stored episode, or only those named (missing ones are skipped)."""
+        """Every stored episode, or only those named (missing ones are skipped). A damaged file is named, set aside
+        and left out (``check.read_intact``): the read goes on, and the next run plays that episode again."""
         files = self.files()
         if episode_ids is not None:
             wanted = set(episode_ids)
             files = [f for f in files if f.name[: -len(SUFFIX)] in wanted]
-        if not files:
-            return SCHEMA.empty_table() if columns is None else SCHEMA.empty_table().select(list(columns))
-        dataset = ds.dataset([str(f) for f in files], format="parquet", schema=SCHEMA)
-        return dataset.to_table(columns=list(columns) if columns is not None else None)
+        empty = SCHEMA.empty_table() if columns is None else SCHEMA.empty_table().select(list(columns))
+        tables = read_intact(files, columns)
+        return pa.concat_tables(tables) if tables else empty
 
     def load(self, keys: Iterable[tuple[str, str]]) -> list[EpisodeRecord]:
-        """The episodes named by (episode_id, policy), read straight from their files."""
-        paths = [str(self.path_for(policy, eid)) for eid, policy in keys]
-        if not paths:
-            return []
-        return table_to_records(ds.dataset(paths, format="parquet", schema=SCHEMA).to_table())
+        """The episodes named by (episode_id, policy), read straight from their files. One found damaged here
+        (its keys read, its arrays not) is set aside, and the command ends in one line: its caller chose it from
+        the keys, so the next call, which no longer sees it, goes on without it."""
+        paths = [self.path_for(policy, eid) for eid, policy in keys]
+        damaged: list[tuple[Path, str, Path | None]] = []
+        tables = read_intact(paths, on_damage=lambda path, why: damaged.append((path, why, set_aside(path, why))))
+        if damaged:
+            path, why, moved = damaged[0]
+            more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
+            aside = f"set aside as {moved.relative_to(self.root)}" if moved is not None else "left in place"
+            raise UserError(f"episode {path.stem} of {path.parent.name} is damaged ({why}){more}: {aside}; "
+                            "run the same command again: it goes on without it")  # fmt: skip
+        return table_to_records(pa.concat_tables(tables)) if tables else []
+
+    def set_aside_damaged(self, episode_ids: Iterable[str]) -> set[str]:
+        """Of the named episodes, those whose kept file is damaged by its Parquet frame (``check.footer_damage``:
+        12 bytes read, cheap enough for every planned episode): each named in one line and set aside. Planning
+        calls it, since runs read names only: those episodes are no longer stored and are played again."""
+        wanted, damaged = set(episode_ids), set()
+        for path in self.kept_files():
+            eid = path.name[: -len(SUFFIX)]
+            if eid in wanted and (why := footer_damage(path)) is not None:
+                set_aside(path, why, then="this run plays it again")
+                damaged.add(eid)
+        return damaged
 
     def records(self, episode_ids: Iterable[str] | None = None) -> list[EpisodeRecord]:
         return table_to_records(self.read_table(episode_ids=episode_ids))

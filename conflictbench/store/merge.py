@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.dataset as ds
 
 from conflictbench.core import UserError
 
 from . import paths
+from .check import left_out, read_intact
 from .episodes import SUFFIX, EpisodeStore
-from .schema import ARRAY_COLUMNS, SCHEMA
+from .schema import ARRAY_COLUMNS
 
 #: What must agree for two copies of one episode id to be the same experiment.
 VERSION_COLUMNS = (
@@ -69,15 +69,16 @@ def _digest_column(digest, name: str, column: pa.ChunkedArray) -> None:
     digest.update(array.to_numpy(zero_copy_only=False).astype("float64").tobytes())
 
 
-def read_copy(path: Path) -> Copy:
+def read_copy(path: Path) -> Copy | None:
     """One episode file's identity, recorded versions and a digest of its rollout (its arrays). Read through the
     store's schema, as the store reads it (a file from before a column was added has it empty)."""
     try:
-        table = ds.dataset([str(path)], format="parquet", schema=SCHEMA).to_table(
-            columns=["policy", "episode_id", *VERSION_COLUMNS, *ARRAY_COLUMNS]
-        )
+        tables = read_intact([path], ["policy", "episode_id", *VERSION_COLUMNS, *ARRAY_COLUMNS], on_damage=left_out)
     except (pa.ArrowException, OSError) as exc:
         raise UserError(f"cannot read {path} as a stored episode: {exc}") from None
+    if not tables:  # damaged (named, left in place: a shard is only read) or gone meanwhile: left out (#42)
+        return None
+    [table] = tables
     if table.num_rows != 1:
         raise UserError(f"{path} holds {table.num_rows} rows, not one episode")
     digest = hashlib.sha256()
@@ -119,6 +120,8 @@ def plan_merge(
             copy = read_copy(path)
             if on_file is not None:
                 on_file()
+            if copy is None:
+                continue
             first = kept.get(copy.episode_id)
             if first is None:
                 kept[copy.episode_id] = copy

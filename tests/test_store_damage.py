@@ -1,0 +1,252 @@
+"""A damaged store says so and keeps working (#42, section 5): real Parquet files, truncated or corrupted on disk.
+
+A damaged episode file is named in one line, set aside under ``<store>/damaged/`` (never deleted), skipped by the
+report, merge, prune and the viewer, and played again by the next run; ``conflictbench store check DIR`` reads every
+file and says what it found.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+
+import numpy as np
+import pytest
+from testing_support import episode_record
+
+from conflictbench.core import PolicyTraits
+from conflictbench.store import EpisodeStore
+
+
+def episode(eid: str, *, case: str | None = None, state: int = 0, seed: int = 0, policy: str = "noop", **kw):
+    rng = np.random.default_rng(seed)
+    fields = dict(
+        policy=policy, suite="libero_goal", task_id=3, init_state=state, prompt="p0", instruction="open the drawer",
+        case_id=case, family="spatial" if case else None, level="L1" if case else None, episode_id=eid,
+        success=bool(seed % 2), steps=4, eef_pos=rng.normal(size=(5, 3)), target_pos=rng.normal(size=(5, 2, 3)),
+        target_names=("a", "b"), actions=rng.normal(size=(4, 7)), raw_actions=rng.normal(size=(4, 7)),
+        config_hash="h", mujoco_version="2.3.7",
+    )  # fmt: skip
+    return episode_record(**{**fields, **kw})
+
+
+def truncate(path) -> None:
+    """What a copy cut short or a crash of a tool writing in place leaves: the file's first half."""
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def corrupt_footer(path) -> None:
+    """Garbage over the footer's metadata, the magic bytes and the length intact (a bad sector, a bad copy)."""
+    data = bytearray(path.read_bytes())
+    length = struct.unpack("<I", data[-8:-4])[0]
+    start = len(data) - 8 - length
+    data[start : len(data) - 8] = bytes(range(256)) * (length // 256) + bytes(length % 256)
+    path.write_bytes(bytes(data))
+
+
+def stored_pairs(root, policy="noop") -> EpisodeStore:
+    """Two pairs (a reference and a conflict episode each) and a third reference episode."""
+    store = EpisodeStore(root)
+    for state in (0, 1):
+        store.write(episode(f"ref{state}", state=state, seed=state, policy=policy))
+        store.write(episode(f"con{state}", case=f"case{state}", state=state, seed=state + 2, policy=policy))
+    store.write(episode("ref2", state=2, seed=5, policy=policy))
+    return store
+
+
+def set_aside(store: EpisodeStore, policy: str, eid: str):
+    return store.root / "damaged" / "episodes" / policy / f"{eid}.parquet"
+
+
+def test_a_report_skips_a_truncated_episode_names_it_and_sets_it_aside(tmp_path, plugins, capsys):
+    from conflictbench.report import report_store
+
+    store = stored_pairs(tmp_path / "store")
+    truncate(store.path_for("noop", "con1"))
+    report_store(store, plugins, stream=io.StringIO(), figures=False)  # today: ArrowInvalid, every call
+    err = capsys.readouterr().err
+    [line] = [x for x in err.splitlines() if "con1" in x]
+    assert "damaged" in line and "damaged/episodes/noop/con1.parquet" in line and "next run plays it again" in line
+    assert not store.path_for("noop", "con1").exists()
+    moved = set_aside(store, "noop", "con1")
+    assert moved.is_file() and "magic" in moved.with_name(moved.name + ".why").read_text().lower()
+    assert store.stored_ids() == {"ref0", "ref1", "ref2", "con0"}  # the next run plays con1 again
+    report_store(store, plugins, stream=io.StringIO(), figures=False)
+    assert "con1" not in capsys.readouterr().err  # said once: it is no longer in the store
+
+
+def test_reading_falls_back_to_file_by_file_and_keeps_every_readable_episode_in_order(tmp_path, capsys):
+    store = EpisodeStore(tmp_path / "store")
+    ids = [f"e{i:02d}" for i in range(12)]
+    for i, eid in enumerate(ids):
+        store.write(episode(eid, state=i, seed=i))
+    truncate(store.path_for("noop", "e03"))
+    corrupt_footer(store.path_for("noop", "e09"))
+    table = store.read_table(columns=["episode_id", "init_state"])
+    assert table["episode_id"].to_pylist() == [e for e in ids if e not in ("e03", "e09")]
+    assert sorted(p.name for p in (store.root / "damaged" / "episodes" / "noop").glob("*.parquet")) == [
+        "e03.parquet", "e09.parquet",
+    ]  # fmt: skip
+    assert len([x for x in capsys.readouterr().err.splitlines() if "damaged" in x]) == 2
+
+
+def test_prune_skips_a_damaged_episode_and_never_deletes_it(tmp_path, capsys):
+    from conflictbench.cli.prune import command as prune_command
+
+    store = EpisodeStore(tmp_path / "store")
+    store.write(episode("old", config_hash="h1", created_at="2026-11-01T10:00:00+00:00"))
+    store.write(episode("new", config_hash="h2", created_at="2026-11-02T10:00:00+00:00"))
+    store.write(episode("other", state=1, config_hash="h1", created_at="2026-11-01T10:00:00+00:00"))
+    corrupt_footer(store.path_for("noop", "other"))
+    assert prune_command([str(store.root), "--delete"], None) == 0  # today: a raw ArrowInvalid
+    out, err = capsys.readouterr()
+    assert out.split() == [str(store.path_for("noop", "old"))]
+    assert "other" in err and set_aside(store, "noop", "other").is_file()
+    assert store.stored_ids() == {"new"}
+
+
+def test_merge_names_a_shards_damaged_episode_and_merges_the_rest(tmp_path, capsys):
+    from conflictbench.store.merge import merge_stores
+
+    shard = stored_pairs(tmp_path / "shard")
+    truncate(shard.path_for("noop", "ref1"))
+    out = EpisodeStore(tmp_path / "out")
+    plan = merge_stores(out, [shard])  # today: "cannot read ... as a stored episode", nothing merged
+    assert len(plan.new) == 4 and out.stored_ids() == {"ref0", "con0", "con1", "ref2"}
+    [line] = [x for x in capsys.readouterr().err.splitlines() if "ref1" in x]
+    assert "damaged" in line and "left out" in line and "store check --quarantine" in line
+    assert shard.path_for("noop", "ref1").exists()  # a shard is only read: named, left in place
+
+
+def test_the_viewer_skips_a_damaged_episode(tmp_path, plugins, capsys):
+    from conflictbench.view import Selection, build_site
+
+    store = stored_pairs(tmp_path / "store")
+    truncate(store.path_for("noop", "con0"))
+    built = build_site(store.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    assert built.pairs == 1  # con1 and its reference; con0's pair is gone with it
+    assert set_aside(store, "noop", "con0").is_file()
+
+
+def test_records_whose_arrays_cannot_be_read_are_set_aside_and_the_loader_says_so_in_one_line(tmp_path):
+    """A file whose key columns read but whose arrays do not (damage inside a data page) is caught where the arrays
+    are read: set aside, and the command that met it ends in one line; the next call goes on without it."""
+    from conflictbench.core import UserError
+
+    store = stored_pairs(tmp_path / "store")
+    path = store.path_for("noop", "ref1")
+    data = bytearray(path.read_bytes())
+    data[4:40] = b"\xff" * 36  # the first column's first page, inside the file: the footer is intact
+    path.write_bytes(bytes(data))
+    with pytest.raises(UserError, match="ref1.*damaged.*again"):
+        store.load([("ref1", "noop"), ("ref0", "noop")])
+    assert set_aside(store, "noop", "ref1").is_file()
+    assert [r.episode_id for r in store.load([("ref0", "noop")])] == ["ref0"]
+
+
+def _items(count: int):
+    """Real planned items (episode specs with their jobs) for the noop policy."""
+    import conflictbench
+    from conflictbench.policies import NoopPolicy
+    from conflictbench.sim.episode_rows import make_items
+    from conflictbench.sim.plan import EpisodeSpec
+
+    specs = [EpisodeSpec("libero_goal", 3, state, "p0", "open the drawer") for state in range(count)]
+    return make_items(specs, PolicyTraits(NoopPolicy()), conflictbench.plugins(), "noop", "h", 7, "h")
+
+
+def test_the_next_run_plays_a_damaged_episode_again(tmp_path, capsys):
+    """Planning reads names, and checks each planned stored file's Parquet footer (magic at both ends, a length
+    that fits): a truncated episode is set aside and played again, not counted as stored."""
+    from conflictbench.sim.planning import RunIdentity, left_to_play
+
+    items = _items(3)
+    store = EpisodeStore(tmp_path / "store")
+    for item in items:
+        store.write(episode(item.job.episode_id, config_hash="h"))
+    truncate(store.path_for("noop", items[1].job.episode_id))
+    identity = RunIdentity(config_hash="h", sampling_hash="h", code_versions=(), model_stack=())
+    todo, result = left_to_play(store, items, identity, "noop", None, retry=False)
+    assert [i.job.episode_id for i in todo] == [items[1].job.episode_id]  # today: [] (stored by name)
+    assert result.already_stored == 2
+    eid = items[1].job.episode_id
+    [line] = [x for x in capsys.readouterr().err.splitlines() if eid in x]
+    assert "this run plays it again" in line and set_aside(store, "noop", eid).is_file()
+
+
+def test_store_check_reads_every_file_and_says_what_it_found(tmp_path, capsys):
+    from conflictbench.cli import main
+
+    store = stored_pairs(tmp_path / "store")
+    store.write(episode("waiting", state=4, error="server: gone", error_kind="server"))
+    assert main(["store", "check", str(store.root)]) == 0
+    assert "6 episode files read: all readable" in capsys.readouterr().out
+    truncate(store.path_for("noop", "ref0"))
+    corrupt_footer(store.replay_path_for("noop", "waiting"))
+    assert main(["store", "check", str(store.root)]) == 1
+    out = capsys.readouterr().out
+    assert "2 of 6 episode files damaged" in out
+    assert len([x for x in out.splitlines() if "episodes/noop/ref0.parquet" in x]) == 1
+    assert len([x for x in out.splitlines() if "replay/noop/waiting.parquet" in x]) == 1
+    assert store.path_for("noop", "ref0").exists()  # a check changes nothing unless asked
+    assert main(["store", "check", str(store.root), "--quarantine"]) == 1
+    assert set_aside(store, "noop", "ref0").is_file()
+    assert (store.root / "damaged" / "replay" / "noop" / "waiting.parquet").is_file()
+    capsys.readouterr()
+    assert main(["store", "check", str(store.root)]) == 0
+    assert "4 episode files read: all readable; 2 set aside earlier" in capsys.readouterr().out
+
+
+def test_store_check_finds_damage_inside_a_data_page_by_its_checksum(tmp_path, capsys):
+    """Episodes are written with page checksums: a flipped byte in an array is found by a full read."""
+    from conflictbench.cli import main
+
+    store = EpisodeStore(tmp_path / "store")
+    store.write(episode("a", steps=300, eef_pos=np.zeros((301, 3)), actions=np.ones((300, 7)),
+                        raw_actions=np.ones((300, 7)), target_pos=np.zeros((301, 2, 3))))  # fmt: skip
+    path = store.path_for("noop", "a")
+    import pyarrow.parquet as pq
+
+    meta = pq.read_metadata(path)
+    actions = next(
+        meta.row_group(0).column(i) for i in range(meta.num_columns) if meta.row_group(0).column(i).path_in_schema
+        .startswith("actions")
+    )  # fmt: skip
+    data = bytearray(path.read_bytes())
+    spot = actions.data_page_offset + actions.total_compressed_size - 16
+    data[spot] ^= 0xFF
+    path.write_bytes(bytes(data))
+    assert main(["store", "check", str(store.root)]) == 1
+    assert "episodes/noop/a.parquet" in capsys.readouterr().out
+
+
+def test_store_check_of_a_folder_that_is_not_a_store_is_one_line(tmp_path):
+    from conflictbench.cli import main
+
+    assert main(["store", "check", str(tmp_path / "nothing")]) == 2
+    assert main(["store", "frobnicate", str(tmp_path)]) == 2
+
+
+def test_damage_that_cannot_be_set_aside_is_still_skipped(tmp_path, capsys):
+    """Where the file cannot be moved (a read-only store; here a file where the quarantine folder would go), it
+    stays where it is and the read goes on without it."""
+    store = stored_pairs(tmp_path / "store")
+    truncate(store.path_for("noop", "ref2"))
+    (store.root / "damaged").write_text("in the way")
+    table = store.read_table(columns=["episode_id"])
+    assert sorted(table["episode_id"].to_pylist()) == ["con0", "con1", "ref0", "ref1"]
+    assert store.path_for("noop", "ref2").exists()
+    assert "cannot set it aside" in capsys.readouterr().err
+
+
+def test_an_unreadable_episode_is_not_quarantined_when_it_only_vanished(tmp_path):
+    """A file removed meanwhile (another job's prune) is not damage: nothing is set aside."""
+    store = stored_pairs(tmp_path / "store")
+    files = store.files()
+    store.path_for("noop", "ref2").unlink()
+    from conflictbench.store.check import read_intact
+
+    tables = read_intact(files, ["episode_id"])
+    assert sorted(t for tb in tables for t in tb["episode_id"].to_pylist()) == ["con0", "con1", "ref0", "ref1"]
+    assert not (store.root / "damaged").exists()
