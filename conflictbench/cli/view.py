@@ -52,6 +52,8 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     selection = Selection(**{name: _names(getattr(args, name)) for name in ("model", "family", "level", "prompt",
                                                                              "outcome")})  # fmt: skip
     out = Path(args.out) if args.out else root / "view"
+    if not args.out and out.is_symlink():  # --out is the user's choice; a link inside a store is the store's data
+        raise UserError(f"{out} is a link: the site is written in the store's own view/ folder only (or give --out)")
     pages = {name.removesuffix(".html") for name in _names(args.pair)}  # an id, or its page's file name
     try:
         built = build_site(root, out, plugins, selection, videos=_videos(args.videos), video_pairs=pages,

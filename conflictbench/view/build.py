@@ -16,11 +16,12 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.core.words import counted
 from conflictbench.sim.progress import duration
 from conflictbench.store import EpisodeStore
+from conflictbench.store.paths import check_name
 
 from .episodes import reference_episodes
 from .pages import Site
 from .pairs import Selection, choose
-from .videos import FRAME_EVERY, lacking_videos, render_videos
+from .videos import FOLDERS, FRAME_EVERY, lacking_videos, render_videos
 
 #: A replay's cost per rendered frame on a CPU (software rendering, the simulation between frames included) where
 #: the site has no replays of its own to go by: README's viewer figures, 81 ms a replayed step with a frame every
@@ -82,9 +83,14 @@ class Built:
 
 
 def prepare_out(out: Path) -> None:
-    """The site's folder exists and takes files, or the user hears why not in one line."""
+    """The site's folder exists and takes files, or the user hears why not in one line. Its own folders are never
+    links: the viewer writes pages there and deletes stale ones, which a link would take to another folder (#42)."""
     if out.exists() and not out.is_dir():
         raise UserError(f"cannot write the site to {out}: it is a file, not a folder")
+    for name in FOLDERS:
+        if (out / name).is_symlink():
+            raise UserError(f"cannot write the site to {out}: {out / name} is a link (the viewer writes and deletes "
+                            "only in folders of its own; remove the link)")  # fmt: skip
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / f".conflictbench-probe.{os.getpid()}.tmp"
@@ -120,6 +126,9 @@ def build_site(
     if not pairs and not references:
         raise UserError(f"{store.root} holds no pairs and no reference episodes to show")
     names = [p.conflict.episode_id for p in pairs]
+    for episode_id in sorted({r.episode_id for p in pairs for r in (p.reference, p.conflict)}
+                             | {r.episode_id for _, r in references}):  # fmt: skip
+        check_name("episode id", episode_id, f"{store.root}: ")  # each names files of the site: checked before any
     if unknown := set(video_pairs) - set(names):
         raise UserError(f"--pair {', '.join(sorted(unknown))}: not among the pairs this command shows")
     prepare_out(out)

@@ -17,10 +17,11 @@ from conflictbench.metrics import evaluate_pairs
 from conflictbench.report.from_store import CHUNK_PAIRS, loaded_pairs, paper_beside
 from conflictbench.report.summary import select_metrics
 from conflictbench.store import EpisodeStore
+from conflictbench.store.paths import unlink_inside
 
 from .episodes import episode_page, references_section
 from .site import index_page, pair_page, paper_section
-from .videos import current_meta, playable, write_atomic
+from .videos import current_meta, playable, site_file, write_atomic
 
 
 @dataclass
@@ -61,22 +62,22 @@ class Site:
                 hint = "Render it with: " + shlex.join([*self.rerun, "--pair", conflict.episode_id])
                 page = pair_page(row, reference, conflict, self.cases.get(conflict.case_id or ""), metrics, metas,
                                  neighbours, hint)  # fmt: skip
-                write_atomic(out / "pairs" / f"{conflict.episode_id}.html", page)
+                write_atomic(out, site_file(out, "pairs", conflict.episode_id, ".html"), page)
         shown_references = self._write_reference_pages()
         shown = set(names)
         for stale in (out / "pairs").glob("*.html"):  # pages of pairs this build does not show (filters, a new store)
             if stale.stem not in shown:
-                stale.unlink(missing_ok=True)
+                unlink_inside(out, stale, "the site")  # a link goes itself, never what it names
         beside = (
             paper_section(pd.concat(frames, ignore_index=True), metrics, paper_beside(store, self.plugins))
             if frames
             else ""
         )
         listed = references_section(self.references, shown_references)
-        write_atomic(out / "index.html", index_page(index_rows, metrics, self.source, with_both, beside, listed))
+        write_atomic(out, out / "index.html", index_page(index_rows, metrics, self.source, with_both, beside, listed))
         for name in ("viewer.js", "viewer.css"):
             asset = (resources.files("conflictbench.view") / "assets" / name).read_bytes()
-            write_atomic(out / "assets" / name, asset)
+            write_atomic(out, out / "assets" / name, asset)
 
     def _write_reference_pages(self) -> set[str]:
         """The reference episodes' pages; returns the ids of those with a video."""
@@ -88,10 +89,11 @@ class Site:
             for label, light in part:
                 record = loaded[light.episode_id]
                 meta = current_meta(out, record)
-                write_atomic(out / "episodes" / f"{record.episode_id}.html", episode_page(label, record, meta, hint))
+                page = episode_page(label, record, meta, hint)
+                write_atomic(out, site_file(out, "episodes", record.episode_id, ".html"), page)
                 if playable(meta):
                     shown.add(record.episode_id)
         for stale in (out / "episodes").glob("*.html"):
             if stale.stem not in {r.episode_id for _, r in self.references}:
-                stale.unlink(missing_ok=True)
+                unlink_inside(out, stale, "the site")
         return shown

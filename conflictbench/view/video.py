@@ -43,6 +43,7 @@ class Mp4Sink:
         import av
 
         Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        self._temporary.unlink(missing_ok=True)  # a link left at this name (a site copied in) is never written through
         self._container = av.open(str(self._temporary), mode="w", format="mp4", options={"movflags": "+faststart"})
         self._stream = None
 

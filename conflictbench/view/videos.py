@@ -10,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import os
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 
 from conflictbench.core import EpisodeRecord
 from conflictbench.sim.progress import CountProgress
-from conflictbench.store import EpisodeStore
+from conflictbench.store import EpisodeStore, paths
 from conflictbench.store.episodes import pid_alive
 
 from .video import FPS, Mp4Sink
@@ -29,11 +28,18 @@ FRAME_EVERY = 2  # 10 frames per second of a 20 Hz rollout, played in real time:
 LOAD_CHUNK = 64  # episodes whose arrays are in memory at once
 
 
-def write_atomic(path: Path, data: str | bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
-    os.replace(temporary, path)
+#: The site's folders: made by the viewer, never links (a link would take its writes and deletes elsewhere, #42).
+FOLDERS = ("pairs", "episodes", "videos", "assets")
+
+
+def write_atomic(out: Path, path: Path, data: str | bytes) -> None:
+    """``path`` in the site ``out``, whole or absent, never written through a link (:func:`paths.write_inside`)."""
+    paths.write_inside(out, path, data.encode("utf-8") if isinstance(data, str) else data, "the site")
+
+
+def site_file(out: Path, folder: str, episode_id: str, suffix: str) -> Path:
+    """``out/<folder>/<episode id><suffix>``: an id read from a store names a file only if it is one plain name."""
+    return out / folder / f"{paths.check_name('episode id', episode_id)}{suffix}"
 
 
 def episode_digest(record: EpisodeRecord) -> str:
@@ -46,7 +52,7 @@ def episode_digest(record: EpisodeRecord) -> str:
 
 def video_meta(out: Path, episode_id: str) -> dict[str, Any] | None:
     try:
-        return json.loads((out / "videos" / f"{episode_id}.json").read_text())
+        return json.loads(site_file(out, "videos", episode_id, ".json").read_text())
     except (OSError, ValueError):
         return None
 
@@ -56,7 +62,7 @@ def current_meta(out: Path, record: EpisodeRecord) -> dict[str, Any] | None:
     meta = video_meta(out, record.episode_id)
     if not meta or meta.get("episode") != episode_digest(record) or meta.get("frame_every") != FRAME_EVERY:
         return None
-    if not meta.get("error") and not (out / "videos" / f"{record.episode_id}.mp4").is_file():
+    if not meta.get("error") and not site_file(out, "videos", record.episode_id, ".mp4").is_file():
         return None
     return meta
 
@@ -65,12 +71,13 @@ def playable(meta: dict[str, Any] | None) -> bool:
     return bool(meta) and not meta.get("error")
 
 
-def remove_dead_temporaries(folder: Path) -> None:
-    """Half-written files of builds that were killed (``.<name>.<pid>.tmp``, their process gone)."""
-    for path in folder.glob(".*.tmp") if folder.is_dir() else ():
+def remove_dead_temporaries(out: Path, folder: str) -> None:
+    """Half-written files of builds that were killed (``.<name>.<pid>.tmp``, their process gone); a link among them
+    goes itself, never what it names."""
+    for path in (out / folder).glob(".*.tmp") if (out / folder).is_dir() else ():
         pid = path.name.rsplit(".", 2)[-2]
         if pid.isdigit() and not pid_alive(int(pid)):
-            path.unlink(missing_ok=True)
+            paths.unlink_inside(out, path, "the site")
 
 
 def _chunks(store: EpisodeStore, keys: Sequence[tuple[str, str]]) -> Iterator[EpisodeRecord]:
@@ -81,7 +88,7 @@ def _chunks(store: EpisodeStore, keys: Sequence[tuple[str, str]]) -> Iterator[Ep
 def lacking_videos(store: EpisodeStore, out: Path, keys: Sequence[tuple[str, str]]) -> list[tuple[str, str, int]]:
     """(episode id, policy, steps) of those given that have no video showing the episode as stored now, or one
     whose replay failed (tried again), in the order given."""
-    remove_dead_temporaries(out / "videos")
+    remove_dead_temporaries(out, "videos")
     return [(r.episode_id, r.policy, r.steps) for r in _chunks(store, keys) if not playable(current_meta(out, r))]
 
 
@@ -107,7 +114,7 @@ def render_videos(
                 warmup_steps=DEFAULT_WARMUP_STEPS if r.warmup_steps is None else r.warmup_steps,
                 actions=r.actions,
                 eef_pos=r.eef_pos,
-                sink=Mp4Sink(str(out / "videos" / f"{r.episode_id}.mp4"), fps=FPS // FRAME_EVERY),
+                sink=Mp4Sink(str(site_file(out, "videos", r.episode_id, ".mp4")), fps=FPS // FRAME_EVERY),
                 frame_every=FRAME_EVERY,
             )
 
@@ -126,7 +133,7 @@ def render_videos(
                     "bytes": result.bytes,
                     "error": result.error,
                 }
-                write_atomic(out / "videos" / f"{result.episode_id}.json", json.dumps(meta))
+                write_atomic(out, site_file(out, "videos", result.episode_id, ".json"), json.dumps(meta))
                 rendered += result.error is None
                 failed += result.error is not None
                 bar.set_postfix(errors=failed)
