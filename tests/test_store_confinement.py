@@ -3,6 +3,7 @@ write or a delete out of it. Every store here is crafted in tmp_path: real Parqu
 
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -257,3 +258,39 @@ def test_a_video_is_never_written_through_a_link_left_at_its_temporary_name(tmp_
         sink.add(np.zeros((16, 16, 3), dtype=np.uint8))
     assert sink.close() > 0
     assert target.read_text() == "keep" and not (tmp_path / "videos" / "e1.mp4").is_symlink()
+
+
+# -- reports written into a store ----------------------------------------------------------------------------------
+def test_the_report_never_writes_through_a_link_in_the_stores_report_folder(paired, tmp_path, plugins):
+    from conflictbench.report import report_store
+
+    victim = tmp_path / "bashrc"
+    victim.write_text("keep")
+    (paired.root / "report").mkdir()
+    (paired.root / "report" / "report.md").symlink_to(victim)
+    with pytest.raises(UserError, match="is a link"):
+        report_store(paired, plugins, out_dir=paired.root / "report", stream=io.StringIO(), figures=False)
+    assert victim.read_text() == "keep"
+
+
+def test_a_stores_report_folder_that_is_a_link_takes_no_report(paired, tmp_path, plugins):
+    from conflictbench.report import report_store
+
+    (tmp_path / "home").mkdir()
+    (paired.root / "report").symlink_to(tmp_path / "home", target_is_directory=True)
+    with pytest.raises(UserError, match="link inside the store"):
+        report_store(paired, plugins, out_dir=paired.root / "report", stream=io.StringIO(), figures=False)
+    assert list((tmp_path / "home").iterdir()) == []
+
+
+def test_reproduce_never_writes_through_a_link_in_the_report_folder(tmp_path, plugins):
+    from conflictbench.report.reproduce import write_report
+
+    entry = next(iter(plugins.published_results().values()))
+    victim = tmp_path / "bashrc"
+    victim.write_text("keep")
+    (tmp_path / "report").mkdir()
+    (tmp_path / "report" / f"reproduce-{entry.name}.md").symlink_to(victim)
+    with pytest.raises(UserError, match="is a link"):
+        write_report([], entry, tmp_path / "report")
+    assert victim.read_text() == "keep"

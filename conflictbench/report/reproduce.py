@@ -12,6 +12,7 @@ from pathlib import Path
 
 from conflictbench.core import LIBERO_SUITES, EpisodeRecord
 from conflictbench.core.registry import PublishedResult
+from conflictbench.store.paths import writable_folder
 
 Z95 = 1.959964
 DECISIVE_HALF_WIDTH = 0.10
@@ -165,7 +166,7 @@ def render(rows: list[SuiteRow], entry: PublishedResult) -> str:
 
 def write_report(rows: list[SuiteRow], entry: PublishedResult, report_dir: Path) -> tuple[Path, Path]:
     """``reproduce-<entry>.md`` (the table as text) and ``.csv`` (one row per suite) under ``report_dir``."""
-    report_dir.mkdir(parents=True, exist_ok=True)
+    writable_folder(report_dir, "the reproduce report").mkdir(parents=True, exist_ok=True)  # no link followed, #42
     md, table = report_dir / f"reproduce-{entry.name}.md", report_dir / f"reproduce-{entry.name}.csv"
     md.write_text(f"# Reproduce {entry.name}\n\n```\n{render(rows, entry)}```\n", encoding="utf-8")
     buffer = io.StringIO()

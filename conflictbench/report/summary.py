@@ -40,6 +40,7 @@ from conflictbench.metrics import (
     with_model,
 )
 from conflictbench.metrics.measures import metric_ranges, report_measures
+from conflictbench.store.paths import writable_folder
 
 from .differences import render_prompt_differences
 from .marking import paired_marks
@@ -258,7 +259,7 @@ def report_frame(
         "prompt_differences": differences,
     }
     if out_dir is not None:
-        out = Path(out_dir)
+        out = writable_folder(Path(out_dir), "the report")  # never through a link: a store is data (#42)
         out.mkdir(parents=True, exist_ok=True)
         write_files(out, frame, aggregates, specs, couples, differences, metrics, figures=figures, declared=declared,
                     marked=marked)  # fmt: skip

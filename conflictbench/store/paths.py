@@ -139,6 +139,20 @@ def write_inside(root: str | os.PathLike, path: str | os.PathLike, data: bytes, 
         os.close(fd)
 
 
+def writable_folder(folder: Path, what: str) -> Path:
+    """``folder``, about to take files of ``what`` (a report: written, never deleted), refused in one line where a
+    write there would go through a link: an entry that is a link (``report.md -> ~/.bashrc``), or the folder itself
+    when it is a link inside an episode store (the store's data: ``DIR/report`` of a store from elsewhere). A folder
+    the user named that is a link is the user's choice."""
+    if folder.is_symlink() and any((folder.parent / name).is_dir() for name in ("episodes", "replay")):
+        raise UserError(f"{folder} is a link inside the store: {what} is written in a folder of its own only")
+    links = sorted(p for p in folder.iterdir() if p.is_symlink()) if folder.is_dir() else []
+    if links:
+        raise UserError(f"{links[0]} is a link: {what} never writes through one ({counted(len(links), 'link')} in "
+                        f"{folder}/; remove them)")  # fmt: skip
+    return folder
+
+
 def listing(folder: Path, pattern: str) -> tuple[list[Path], set[Path]]:
     """The entries of ``folder`` matching ``pattern`` (a glob), sorted, none reached through a link and none a link
     itself; and the links skipped (a linked folder counted once, however much it holds)."""
