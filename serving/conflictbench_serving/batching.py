@@ -6,6 +6,10 @@ and N simulator workers keep one model busy with batches of up to N. With ``fixe
 padded to exactly ``max_batch`` rows (copies of its last request): float rounding depends on a batch's
 shape, and which requests share a call depends on timing, so only a fixed shape keeps every episode's
 actions reproducible. A failing call fails every request of its batch; nothing else.
+
+The queue is bounded (``max_queued``, the guard's): a request that finds it full is answered at once with
+:class:`ServerBusy`, so a peer that floods the server cannot make it hold requests without end. Our clients keep
+one request in flight per connection, so a queue at least as long as the connections allowed never fills.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
+from .guard import current
+
 logger = logging.getLogger(__name__)
 
 InferBatch = Callable[[list[Any]], list[Any]]
@@ -25,6 +31,10 @@ InferBatch = Callable[[list[Any]], list[Any]]
 
 class ServerStopping(Exception):
     """The server stopped before this request's batch ran."""
+
+
+class ServerBusy(Exception):
+    """The queue is full: this request was not queued (the peer may send it again later)."""
 
 
 @dataclass
@@ -36,12 +46,21 @@ class _Pending:
 class Batcher:
     """Queues requests and runs ``infer_batch`` on batches of them, one call at a time."""
 
-    def __init__(self, infer_batch: InferBatch, max_batch: int, fixed_shape: bool, name: str = "model") -> None:
+    def __init__(
+        self,
+        infer_batch: InferBatch,
+        max_batch: int,
+        fixed_shape: bool,
+        name: str = "model",
+        max_queued: int | None = None,
+    ) -> None:
         if max_batch < 1:
             raise ValueError(f"max_batch must be at least 1, got {max_batch}")
         self.infer_batch = infer_batch
         self.max_batch = max_batch
         self.fixed_shape = fixed_shape
+        # None: the process-wide guard's (read when a request comes); a server sets its own guard's at run
+        self.max_queued = max_queued
         self._queue: asyncio.Queue[_Pending] = asyncio.Queue()
         self._stopped = False
         # One thread: model calls never overlap, and torch sees the same thread every time.
@@ -54,10 +73,14 @@ class Batcher:
 
     async def submit(self, request: Any) -> tuple[Any, dict]:
         """The model's answer to ``request`` and the call's timing (``infer_ms``, ``batch_size``); raises
-        what the call raised, or :class:`ServerStopping` (also for a request that arrives once it has stopped:
-        a connection still closing may deliver one, and nothing would ever answer it)."""
+        what the call raised, :class:`ServerBusy` when ``max_queued`` requests already wait, or
+        :class:`ServerStopping` (also for a request that arrives once it has stopped: a connection still closing
+        may deliver one, and nothing would ever answer it)."""
         if self._stopped:
             raise ServerStopping()
+        limit = self.max_queued if self.max_queued is not None else current().max_queued
+        if self._queue.qsize() >= limit:
+            raise ServerBusy(f"the server is busy: {limit} requests already wait for the model (max_queued)")
         pending = _Pending(request)
         self._queue.put_nowait(pending)
         return await pending.reply

@@ -8,15 +8,23 @@ only once the caller has loaded the model, so a ``/healthz`` answer means ready.
 What a request holds and what a reply says differ per model: the plugin gives an ``answer`` coroutine
 ``answer(frame, session) -> bytes`` that parses the frame, awaits ``batcher.submit(...)`` and packs the
 reply (``session`` is a dict kept per connection). It raises :class:`FatalRequest` for a request the
-connection cannot go on after (openpi answers a malformed request so); any other exception is sent as its
-traceback, as openpi does.
+connection cannot go on after (openpi answers a malformed request so). Any other exception is sent as one line,
+``TypeName: message`` (openpi sends its traceback; ours stays in the server's log: a peer learns nothing of our
+internals), and so is a full queue (``ServerBusy: ...``).
+
+What a peer may do is the :class:`~.guard.Guard`'s (the server's own, else the process-wide one): with a token,
+the upgrade must carry ``Authorization: Api-Key <token>`` (HTTP 401 otherwise; ``/healthz`` answers without it:
+it says nothing); frames over ``max_message_bytes`` close the connection with code 1009 (websockets' own check,
+before the frame is read whole); beyond ``max_connections`` open connections a new one is refused with HTTP 503
+(or, when many arrive at once, closed with code 1013, try again later); the batcher queues at most ``max_queued``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import http
-import traceback
+import logging
 from collections.abc import Awaitable, Callable
 
 import websockets
@@ -24,8 +32,11 @@ import websockets.asyncio.server as ws_server
 from websockets.frames import CloseCode
 
 from . import msgpack_numpy
-from .batching import Batcher, ServerStopping
+from .batching import Batcher, ServerBusy, ServerStopping
+from .guard import AUTHORIZATION, SCHEME, Guard, current
 from .loop import serve_until_stopped
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["FatalRequest", "WebsocketPolicyServer", "batched", "serve_until_stopped"]
 
@@ -50,10 +61,13 @@ def batched(backend, max_batch: int, fixed_shape: bool, name: str) -> tuple[byte
 class WebsocketPolicyServer:
     """Serves ``answer`` to any number of connections, the model behind it batched by ``batcher``."""
 
-    def __init__(self, answer: Answer, metadata_frame: bytes, batcher: Batcher) -> None:
+    def __init__(self, answer: Answer, metadata_frame: bytes, batcher: Batcher, guard: Guard | None = None) -> None:
         self.answer = answer
         self.metadata_frame = metadata_frame
         self.batcher = batcher
+        self.guard = guard  # None: the process-wide guard when the server starts
+        self._serving = current() if guard is None else guard
+        self._connections = 0  # connections being served (their handler runs)
 
     @property
     def queued(self) -> int:
@@ -70,6 +84,9 @@ class WebsocketPolicyServer:
         """Serve on ``host:port`` (``port`` 0: any free one) until ``stop`` is set.
 
         ``on_ready(host, port)`` is called once the socket is bound, with the port actually bound."""
+        guard = self._serving = current() if self.guard is None else self.guard
+        if self.batcher.max_queued is None:
+            self.batcher.max_queued = guard.max_queued
         batcher = asyncio.create_task(self.batcher.run(), name="batcher")
         try:
             async with ws_server.serve(
@@ -77,8 +94,8 @@ class WebsocketPolicyServer:
                 host,
                 port,
                 compression=None,
-                max_size=None,
-                process_request=_health_check,
+                max_size=guard.max_message_bytes,
+                process_request=functools.partial(_admit, guard, lambda: self._connections),
             ) as server:
                 bound_host, bound_port = next(iter(server.sockets)).getsockname()[:2]
                 if on_ready is not None:
@@ -94,6 +111,18 @@ class WebsocketPolicyServer:
             self.batcher.shutdown()
 
     async def _handle(self, connection: ws_server.ServerConnection) -> None:
+        limit = self._serving.max_connections
+        if self._connections >= limit:  # upgrades that passed _admit together: the handler count is exact
+            reason = f"busy: {limit} connections (max_connections)"
+            await connection.close(code=CloseCode.TRY_AGAIN_LATER, reason=reason)
+            return
+        self._connections += 1
+        try:
+            await self._serve_connection(connection)
+        finally:
+            self._connections -= 1
+
+    async def _serve_connection(self, connection: ws_server.ServerConnection) -> None:
         await connection.send(self.metadata_frame)
         session: dict = {}
         while True:
@@ -108,8 +137,13 @@ class WebsocketPolicyServer:
                 return
             except ServerStopping:
                 return
-            except Exception as error:
-                await _fail(connection, "".join(traceback.format_exception(error)), "Internal server error")
+            except ServerBusy as error:
+                logger.warning("refused a request: %s", error)
+                await _fail(connection, f"ServerBusy: {error}", "Server busy")
+                return
+            except Exception as error:  # the traceback stays here; the peer gets one line
+                logger.error("cannot answer a request", exc_info=error)
+                await _fail(connection, _one_line(error), "Internal server error")
                 return
             try:
                 await connection.send(reply)
@@ -126,7 +160,26 @@ async def _fail(connection: ws_server.ServerConnection, text: str, reason: str) 
         pass
 
 
-def _health_check(connection: ws_server.ServerConnection, request: ws_server.Request) -> ws_server.Response | None:
+def _one_line(error: BaseException, limit: int = 500) -> str:
+    text = " ".join(f"{type(error).__name__}: {error}".split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _admit(
+    guard: Guard, connections: Callable[[], int], connection: ws_server.ServerConnection, request: ws_server.Request
+) -> ws_server.Response | None:
+    """At the upgrade: ``/healthz`` answers; a request without the token, or beyond ``max_connections``, is
+    refused with one line; anything else goes on to the websocket."""
     if request.path == "/healthz":
         return connection.respond(http.HTTPStatus.OK, "OK\n")
+    if not guard.admits_header(request.headers.get(AUTHORIZATION)):
+        logger.warning("refused a connection from %s: no valid token", connection.remote_address)
+        return connection.respond(
+            http.HTTPStatus.UNAUTHORIZED, f"Unauthorized: this server needs its token ({AUTHORIZATION}: {SCHEME} ...)\n"
+        )
+    if connections() >= guard.max_connections:
+        return connection.respond(
+            http.HTTPStatus.SERVICE_UNAVAILABLE,
+            f"Busy: this server serves {guard.max_connections} connections at most (max_connections)\n",
+        )
     return None
