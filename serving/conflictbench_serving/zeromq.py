@@ -20,6 +20,12 @@ NVIDIA's does, checks the API token, refuses ``kill`` (the process that started 
 ``conflictbench_metadata`` (what is hosted), which NVIDIA's server answers with its unknown-endpoint error.
 The client half is ``conflictbench.hosting.zeromq``.
 
+What a peer may do is the :class:`~.guard.Guard`'s (the server's own, else the process-wide one): with a token
+(the guard's, or ``api_token``), every request must carry it in ``api_token``, ``ping`` included (compared in
+constant time); a message over ``max_message_bytes`` is dropped by ZeroMQ itself (``MAXMSGSIZE``: the peer is
+disconnected before the message is read whole); at most ``max_queued`` requests are handled at once (more are
+answered ``{"error": "ServerBusy: ..."}`` at once), and errors are one line.
+
 Needs ``pyzmq`` (the ``zeromq`` extra). Imports neither conflictbench nor torch.
 """
 
@@ -38,6 +44,7 @@ import zmq.asyncio
 
 from .arrays import load_npy
 from .batching import Batcher, ServerStopping
+from .guard import Guard, current
 
 logger = logging.getLogger(__name__)
 
@@ -87,10 +94,20 @@ def endpoint_request(endpoint: str, api_token: str | None = None) -> dict:
 class ZmqPolicyServer:
     """Serves one model to any number of REQ clients over a ROUTER socket; subclasses answer ``get_action``."""
 
-    def __init__(self, batcher: Batcher, metadata: dict, api_token: str | None = None) -> None:
+    def __init__(
+        self, batcher: Batcher, metadata: dict, api_token: str | None = None, guard: Guard | None = None
+    ) -> None:
         self.batcher = batcher
         self.metadata = {**metadata, "max_batch": batcher.max_batch, "fixed_shape": batcher.fixed_shape}
-        self.api_token = api_token
+        self.guard = guard  # None: the process-wide guard when the server starts
+        self.api_token = api_token  # NVIDIA's option; else the guard's token
+        self._serving = self._resolve()
+
+    def _resolve(self) -> Guard:
+        guard = current() if self.guard is None else self.guard
+        if self.api_token is not None and self.api_token != guard.token:
+            guard = Guard(self.api_token, guard.max_message_bytes, guard.max_connections, guard.max_queued)
+        return guard
 
     async def get_action(self, data: dict) -> Any:
         """The reply to a ``get_action`` request's ``data`` (raise :class:`InvalidRequest` for a malformed one)."""
@@ -102,7 +119,8 @@ class ZmqPolicyServer:
             request = unpackb(message)
             if not isinstance(request, dict):
                 raise InvalidRequest(f"a request must be a map, got {type(request).__name__}")
-            if self.api_token is not None and request.get("api_token") != self.api_token:
+            presented = request.get("api_token")
+            if not self._serving.admits(presented if isinstance(presented, str) else None):
                 return {ERROR: "Unauthorized: Invalid API token"}
             endpoint, data = request.get("endpoint", GET_ACTION), request.get("data") or {}
             if endpoint == PING:
@@ -119,14 +137,17 @@ class ZmqPolicyServer:
         except ServerStopping:
             raise
         except Exception as error:  # NVIDIA's server answers every failure as {"error": ...} and goes on
-            text = str(error) if isinstance(error, InvalidRequest) else f"{type(error).__name__}: {error}"
-            return {ERROR: text}
+            return {ERROR: _one_line(error)}
 
     async def run(self, host: str, port: int, stop: asyncio.Event, on_ready: Callable[[str, int], None] | None = None):
         """Serve on ``tcp://host:port`` (``port`` 0: any free one) until ``stop`` is set."""
+        guard = self._serving = self._resolve()
+        if self.batcher.max_queued is None:
+            self.batcher.max_queued = guard.max_queued
         context = zmq.asyncio.Context()
         socket = context.socket(zmq.ROUTER)
         socket.setsockopt(zmq.LINGER, 0)
+        socket.setsockopt(zmq.MAXMSGSIZE, guard.max_message_bytes)  # larger: the peer is dropped, nothing is read
         batcher = asyncio.create_task(self.batcher.run(), name="batcher")
         handlers: set[asyncio.Task] = set()
         try:
@@ -148,6 +169,10 @@ class ZmqPolicyServer:
                     break
                 frames = receiving.result()
                 receiving = asyncio.ensure_future(socket.recv_multipart())
+                if len(handlers) >= guard.max_queued:  # a flood: answered at once, never held
+                    busy = f"ServerBusy: {guard.max_queued} requests are being answered (max_queued)"
+                    await socket.send_multipart([*frames[:-1], packb({ERROR: busy})])
+                    continue
                 handler = asyncio.create_task(self._reply(socket, frames))
                 handlers.add(handler)
                 handler.add_done_callback(handlers.discard)
@@ -165,9 +190,16 @@ class ZmqPolicyServer:
         except ServerStopping:
             return
         except Exception as error:  # a reply that cannot be built is still an answer: the client must not wait
-            logger.error("cannot answer a request: %s", error)
-            reply = packb({ERROR: f"{type(error).__name__}: {error}"})
+            logger.error("cannot answer a request", exc_info=error)
+            reply = packb({ERROR: _one_line(error)})
         try:
             await socket.send_multipart([*envelope, reply])
         except zmq.ZMQError as error:  # the socket is closing: the client reconnects and asks again
             logger.warning("cannot send a reply: %s", error)
+
+
+def _one_line(error: BaseException, limit: int = 500) -> str:
+    """An error as the one line a peer gets (an invalid request: its message; else ``TypeName: message``)."""
+    text = str(error) if isinstance(error, InvalidRequest) else f"{type(error).__name__}: {error}"
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
