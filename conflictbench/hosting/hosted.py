@@ -29,6 +29,14 @@ What it owns, the same for every model:
   ``model_stack``), else the name given in ``model.checkpoint`` and "unreported", said once.
 - **The right model.** A server whose metadata names another ``policy_type`` is refused; a checkpoint
   changed while its server was loading it is refused.
+- **The server it started, and no other.** A started server (``served``) binds any free port and says which over
+  its own pipe (``ServerProcess(reports_address=True)``), so no process that took a port first can answer for it;
+  it must say both what it loaded (``checkpoint_fingerprint``) and on what (``model_stack``), so an impostor cannot
+  pass by leaving them out; and once it has exited, nothing at its port is talked to.
+- **A token.** Each started server gets a fresh one (``CONFLICTBENCH_SERVER_TOKEN`` in its environment, never on its
+  command line) that every request carries, so other users of the machine cannot use it; a running server's
+  (``model.server``) is read from ``CONFLICTBENCH_SERVER_TOKEN`` or ``model.token_file``, never stored in the run's
+  config, results or logs.
 - **Clear failures.** A missing model environment is reported when the policy is loaded (before the
   plan is played); a started server that dies turns the next request's error into one naming its exit
   code and log.
@@ -39,6 +47,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import secrets
 import subprocess
 import sys
 from collections.abc import Callable, Mapping
@@ -52,6 +61,7 @@ from ..core.policy import DEFAULT_MAX_STEPS
 from .client import PolicyClient, ServedPolicy, ServingConfig
 from .launch import ServerProcess, free_port, model_environment
 from .transport import Transport
+from .trust import TOKEN_VARIABLE, StartedServerConnection, configured_token, token_argument
 
 #: Set for every model process unless the user set it: bfloat16 kernels beyond AVX512 kill some CPUs' VMs
 #: (SIGILL), and CPU inference of these models never needs them.
@@ -92,6 +102,7 @@ class HostedConfig(ServingConfig):
         "python",
         "device",
         "startup_timeout_s",
+        "token_file",
     )
     #: The least value of each numeric setting; a plugin's config adds its own (``{**HostedConfig.minimums, ...}``).
     minimums: ClassVar[Mapping[str, int]] = {"max_batch": 1, "max_steps": 0}
@@ -114,6 +125,9 @@ class HostedConfig(ServingConfig):
     episode's identity; a call costs as much as ``max_batch`` requests on a CPU, about one on a GPU."""
     startup_timeout_s: float = 900.0
     """Limit for the started server to load the checkpoint and answer."""
+    token_file: str = ""
+    """With ``server``: a file holding that server's token (default: ``$CONFLICTBENCH_SERVER_TOKEN``, else none). A
+    server the run starts gets a fresh token of its own."""
 
 
 def _valid_device(device: str) -> bool:
@@ -140,6 +154,10 @@ class HostedPolicy(ServedPolicy):
     checkpoint_errors: ClassVar[tuple[type[Exception], ...]] = ()
     """What the plugin's checkpoint checks raise for a folder that cannot be served (its message one line):
     a user mistake, reported as :class:`UserError`."""
+    sends_token: ClassVar[bool | None] = None
+    """Whether every request of this client carries ``self.token``; None: where the transport takes a ``token``
+    or ``api_token`` argument and ``make_transport`` is not overridden. A server started for a client that does not
+    is given no token (its pipe still proves it is the one started)."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -152,6 +170,8 @@ class HostedPolicy(ServedPolicy):
 
     def __init__(self, name: str, cfg: HostedConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.name, self.cfg, self.checkpoint, self.python = name, cfg, checkpoint, python
+        self.token: str | None = None
+        """What every request carries: a started server's fresh token, or the running server's (``model.server``)."""
         self.max_steps = {suite: cfg.max_steps or steps for suite, steps in self.default_max_steps.items()}
         self.server: ServerProcess | None = None
         self.client: PolicyClient | None = None
@@ -162,6 +182,7 @@ class HostedPolicy(ServedPolicy):
             fingerprint, stack = self.fingerprint(checkpoint), self._environment_stack(python)
             self.identity = {"checkpoint": fingerprint, "max_batch": cfg.max_batch, "model_stack": stack}
         else:
+            self.token = self.configured_token(cfg)
             self.metadata = self._connect(cfg)
             hosted = self.metadata.get("checkpoint_fingerprint") or cfg.checkpoint
             stack = self.metadata.get("model_stack") or UNREPORTED
@@ -200,12 +221,29 @@ class HostedPolicy(ServedPolicy):
         raise NotImplementedError
 
     def make_transport(self, url: str) -> Transport:
-        """One connection's transport (override to pass settings, e.g. an API token)."""
-        return type(self).transport(url)
+        """One connection's transport, carrying ``self.token`` where there is one (override to pass settings)."""
+        argument = token_argument(type(self).transport)
+        if self.token is None or argument is None:
+            return type(self).transport(url)
+        return type(self).transport(url, **{argument: self.token})
 
     def ready_check(self, url: str) -> Callable[[], bool] | None:
-        """How to tell that a started server at ``url`` answers; None: its ``/healthz`` over HTTP."""
+        """How to tell that a server at ``url`` answers; None: its ``/healthz`` over HTTP. A server of ``served``
+        says so itself once it listens (its ready pipe), and the first connection, with the token, proves it; this
+        check serves a plugin's own ``server_module``."""
         return None
+
+    @classmethod
+    def configured_token(cls, cfg: HostedConfig) -> str | None:
+        """The token of a running server (``model.server``): ``model.token_file``'s, else
+        ``$CONFLICTBENCH_SERVER_TOKEN``, else none."""
+        return configured_token(cfg.token_file)
+
+    @classmethod
+    def _sends_token(cls) -> bool:
+        if cls.sends_token is not None:
+            return cls.sends_token
+        return cls.make_transport is HostedPolicy.make_transport and token_argument(cls.transport) is not None
 
     # The shared lifecycle --------------------------------------------------------------------------------
 
@@ -307,34 +345,58 @@ class HostedPolicy(ServedPolicy):
                 f"the {self.name} server started for this run runs on another stack than its environment's files "
                 f"said ({_stack_difference(counted, reported)}): its episodes would be stored under the wrong identity"
             )
+        if self.served is not None and self._reads_metadata:  # conflictbench-serve says both: an impostor could not
+            for field, what in (("checkpoint_fingerprint", "which checkpoint"), ("model_stack", "what model stack")):
+                if self.metadata.get(field) is None:
+                    self.close()
+                    raise UserError(
+                        f"the {self.name} server started for this run does not say {what} it loaded (no {field} "
+                        f"in its metadata; conflictbench-serve says it): its answers cannot be counted as "
+                        f"{self.checkpoint}'s"
+                    )
 
     def _start_server(self, python: Path) -> tuple[ServerProcess, str]:
-        port = free_port()
-        url = f"{self.url_scheme}://127.0.0.1:{port}"
+        reports = self.served is not None  # conflictbench-serve says where it listens; a former server_module not
+        port = 0 if reports else free_port()
         argv = [str(python), *self.server_command(), "--checkpoint", str(self.checkpoint)]
         argv += ["--host", "127.0.0.1", "--port", str(port), "--device", self.device]
         argv += ["--max-batch", str(self.cfg.max_batch)]
-        env = {key: value for key, value in MODEL_PROCESS_ENV.items() if key not in os.environ}
+        env: dict[str, str | None] = {key: value for key, value in MODEL_PROCESS_ENV.items() if key not in os.environ}
+        # Never the user's token for another server: a fresh one for this server, where every request carries it.
+        self.token = secrets.token_urlsafe(32) if reports and self._sends_token() else None
+        env[TOKEN_VARIABLE] = self.token
         server = ServerProcess(
             argv,
             name=self.model_environment_name(),
-            health_url=f"http://127.0.0.1:{port}/healthz",
-            ready=self.ready_check(url),
+            health_url="" if reports else f"http://127.0.0.1:{port}/healthz",
+            ready=None if reports else self.ready_check(f"{self.url_scheme}://127.0.0.1:{port}"),
             env=env,
             startup_timeout_s=self.cfg.startup_timeout_s,
+            reports_address=reports,
         )
         print(
             f"conflictbench: starting the {self.name} server for {self.checkpoint} (log: {server.log_path})",
             file=sys.stderr,
         )
+        if not reports:
+            print(
+                f"conflictbench: warning: the {self.name} server is started the former way (server_module, until "
+                "0.4.0): the run cannot prove that what answers on its port is that server; declare served "
+                "(conflictbench-serve reports the port it bound)",
+                file=sys.stderr,
+            )
         server.start()
-        return server, url
+        if reports:
+            port = server.address[1]
+        return server, f"{self.url_scheme}://127.0.0.1:{port}"
 
     def _connect(self, cfg: HostedConfig) -> dict[str, Any]:
         """Connect to ``cfg.server`` and return what it says about itself (its metadata, maybe empty)."""
-        client = PolicyClient.from_config(cfg, transport=self.make_transport)
+        client = PolicyClient.from_config(cfg, transport=self._transport)
         try:
-            metadata = dict(getattr(client.open(), "metadata", None) or {})
+            transport = client.open()
+            self._reads_metadata = hasattr(transport, "metadata")  # a protocol without a way to say (plain JSON): none
+            metadata = dict(getattr(transport, "metadata", None) or {})
             hosted, wanted = metadata.get("policy_type"), self.policy_types.get(self.name)
             if hosted is not None and wanted is not None and hosted != wanted:
                 raise UserError(f"the server at {cfg.server} hosts a {hosted} policy, not {self.name}")
@@ -343,6 +405,12 @@ class HostedPolicy(ServedPolicy):
             raise
         self.client = client
         return metadata
+
+    def _transport(self, url: str) -> Transport:
+        """A connection's transport; to a started server, one that ends with it: once it has exited, another
+        process may hold its port."""
+        transport = self.make_transport(url)
+        return StartedServerConnection(transport, self.server) if self.server is not None else transport
 
     def act_batch(self, observations):
         if self.client is None:

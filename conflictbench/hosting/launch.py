@@ -93,7 +93,7 @@ class ServerProcess:
         name: str,
         health_url: str = "",
         ready: Callable[[], bool] | None = None,
-        env: Mapping[str, str] | None = None,
+        env: Mapping[str, str | None] | None = None,
         startup_timeout_s: float = 600.0,
         log_dir: Path | None = None,
         reports_address: bool = False,
@@ -105,7 +105,8 @@ class ServerProcess:
         self.address: tuple[str, int] | None = None
         """``(host, port)`` the started process said it listens on (``reports_address``)."""
         self._ready = ready  # a protocol's own readiness check (a ZeroMQ ping); else GET health_url
-        self.env = {**os.environ, **(env or {})}
+        merged = {**os.environ, **(env or {})}
+        self.env = {key: value for key, value in merged.items() if value is not None}  # None: left out
         self.startup_timeout_s = startup_timeout_s
         default = os.environ.get(SERVER_LOG_DIR_VARIABLE) or Path(tempfile.gettempdir()) / "conflictbench-servers"
         folder = Path(log_dir) if log_dir is not None else Path(default)

@@ -47,7 +47,9 @@ class Gr00tConfig(HostedConfig):
     max_steps: int = 0
     """Policy steps per episode; 0: GR00T's LIBERO budget, 720 in every suite (``--max_episode_steps=720``)."""
     api_token: str = ""
-    """The server's API token, if it was started with one."""
+    """The running server's API token (``model.server``), if it was started with one; default: ``model.token_file``'s,
+    else ``$CONFLICTBENCH_SERVER_TOKEN``. Better there than here: a value here is saved with the run's config. A
+    server the run starts gets a fresh token of its own."""
 
 
 class Gr00tPolicy(HostedPolicy):
@@ -60,16 +62,21 @@ class Gr00tPolicy(HostedPolicy):
     policy_types = {"gr00t": POLICY_TYPE}
     default_max_steps = {suite: MAX_EPISODE_STEPS for suite in LIBERO_SUITES}
     fingerprint = staticmethod(fingerprint)
+    sends_token = True  # its ping, metadata and get_action requests all carry self.token
 
     def __init__(self, name: str, cfg: Gr00tConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.action_steps = cfg.action_steps
         super().__init__(name, cfg, checkpoint, python)
 
+    @classmethod
+    def configured_token(cls, cfg: Gr00tConfig) -> str | None:
+        return cfg.api_token or super().configured_token(cfg)
+
     def make_transport(self, url: str) -> ZmqTransport:
-        return ZmqTransport(url, api_token=self.cfg.api_token or None)  # its ping carries the token too
+        return ZmqTransport(url, api_token=self.token)  # its ping carries the token too
 
     def ready_check(self, url: str):
-        return lambda: answers_ping(url)  # ZeroMQ has no HTTP health endpoint: a started server answers a ping
+        return lambda: answers_ping(url, self.token)  # ZeroMQ has no HTTP health endpoint: a server answers a ping
 
     def encode(self, observation: Observation) -> dict[str, Any]:
         if observation.agentview_image is None or observation.wrist_image is None:
@@ -78,7 +85,7 @@ class Gr00tPolicy(HostedPolicy):
             observation.agentview_image, observation.wrist_image, observation.state, observation.instruction
         )
         seed = sampling_seed(observation) % NOISE_SEED_LIMIT
-        return get_action_request(request, seed=seed, api_token=self.cfg.api_token or None)
+        return get_action_request(request, seed=seed, api_token=self.token)
 
     def decode(self, reply: Any, observation: Observation) -> np.ndarray:
         if not isinstance(reply, (list, tuple)) or len(reply) != 2 or not isinstance(reply[0], dict):
