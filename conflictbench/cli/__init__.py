@@ -31,7 +31,14 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from conflictbench.core import PluginError, PolicyStalled, ServerUnavailable, SimulatorUnavailable, UserError
+from conflictbench.core import (
+    PluginError,
+    PolicyStalled,
+    ServerUnavailable,
+    SimulatorUnavailable,
+    StoreFull,
+    UserError,
+)
 
 VERBS = {
     "list": "listing",
@@ -116,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         plugins = conflictbench.plugins()
         module, rest = (VERBS[argv[0]], argv[1:]) if argv[:1] and argv[0] in VERBS else ("run", argv)
         return importlib.import_module(f"{__name__}.{module}").command(rest, plugins)
-    except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled) as exc:
+    except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled, StoreFull) as exc:
         print(f"conflictbench: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # output piped into `head` and the like

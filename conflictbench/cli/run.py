@@ -19,6 +19,7 @@ from conflictbench.core import (
     PolicyStalled,
     ServerUnavailable,
     SimulatorUnavailable,
+    StoreFull,
     UserError,
 )
 from conflictbench.core.plugins import Plugins
@@ -220,7 +221,7 @@ def play(argv: list[str], plugins: Plugins, *, declared: str | None = None, fini
         try:
             model = HydraConfig.get().runtime.choices["model"]
             return run_job(cfg, here.get(), model, declared=declared, finish=finish)
-        except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled) as exc:
+        except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled, StoreFull) as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             hydra_config, job = HydraConfig.get(), sweep_job()
             if job is not None:  # the sweep goes on; its end says which jobs failed (and takes the record back)

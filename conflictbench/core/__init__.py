@@ -16,6 +16,7 @@ from .errors import (
     PolicyStalled,
     ServerUnavailable,
     SimulatorUnavailable,
+    StoreFull,
     UserError,
 )
 from .hookspecs import hookimpl, hookspec
@@ -80,6 +81,7 @@ __all__ = [
     "SceneGeometry",
     "ServerUnavailable",
     "SimulatorUnavailable",
+    "StoreFull",
     "SiteInfo",
     "UserError",
     "as_action_chunk",

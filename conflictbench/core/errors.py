@@ -2,7 +2,8 @@
 
 The command line turns every error with an ``exit_code`` into one line on stderr and that exit
 code: a :class:`UserError` or :class:`PluginError` 2, a :class:`SimulatorUnavailable`,
-:class:`ServerUnavailable` or :class:`PolicyStalled` 3; anything else is a bug and keeps its traceback.
+:class:`ServerUnavailable`, :class:`PolicyStalled` or :class:`StoreFull` 3; anything else is a bug and keeps its
+traceback.
 """
 
 from __future__ import annotations
@@ -77,6 +78,32 @@ class ServerUnavailable(ConflictbenchError):
         return (
             f"the policy server at {self.url} cannot be reached{why}; check that it is running and "
             f"that the URL is right, then run the same command again to resume"
+        )
+
+
+class StoreFull(ConflictbenchError):
+    """The episode store's file system took no more (full, a quota, a file size limit): the run stops with this
+    message. The episode being written is not stored and no temporary is left; every episode stored before is whole;
+    once space is freed, the same command resumes. ``stored``: how many episodes this run had stored, where known."""
+
+    exit_code = 3
+
+    def __init__(self, root: str, reason: str, stored: int | None = None):
+        super().__init__(root, reason, stored)  # all in args, so the error pickles and compares whole
+        self.root, self.reason, self.stored = root, reason, stored
+
+    def after(self, stored: int) -> StoreFull:
+        """The same error, saying how many episodes the run had stored."""
+        return StoreFull(self.root, self.reason, stored)
+
+    def __str__(self) -> str:
+        done = "every episode stored before is whole"
+        if self.stored is not None:
+            done = f"this run stored {self.stored} episode(s) before it, each whole"
+        return (
+            f"no room left in the episode store {self.root} ({self.reason}); {done}; free space on its disk "
+            f"(`conflictbench prune {self.root} --delete` removes superseded episodes) or choose another run.out, "
+            "then run the same command again to resume"
         )
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from conflictbench.hosting.hosted import version_changes
 from conflictbench.store import EpisodeStore
+from conflictbench.store.episodes import stops_when_full
 
 from .stack import SIMULATOR_COLUMNS, extra_stack
 
@@ -31,10 +32,11 @@ def keep_manifests(root: Path, manifests: Mapping[str, Mapping[str, str]]) -> No
     for pin, hashes in manifests.items():
         path = _manifest_path(root, pin)
         if not path.exists():
-            path.parent.mkdir(parents=True, exist_ok=True)
             temporary = path.with_suffix(".tmp")
-            temporary.write_text(json.dumps(dict(hashes), indent=0, sort_keys=True))
-            temporary.replace(path)
+            with stops_when_full(root, temporary):  # a full disk: one line, no half-written manifest left
+                path.parent.mkdir(parents=True, exist_ok=True)
+                temporary.write_text(json.dumps(dict(hashes), indent=0, sort_keys=True))
+                temporary.replace(path)
 
 
 def _by_name(pins) -> dict[str, str]:

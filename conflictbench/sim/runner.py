@@ -24,6 +24,7 @@ from conflictbench.core import (
     PolicyTraits,
     ServerUnavailable,
     SimulatorUnavailable,
+    StoreFull,
     UserError,
 )
 from conflictbench.core.plugins import Plugins
@@ -161,6 +162,8 @@ class Runner:
         except (ServerUnavailable, PolicyStalled):
             self._end_in_flight(result)
             raise
+        except StoreFull as exc:  # nothing more can be stored: the episodes in flight are played by the next run
+            raise exc.after(result.played) from None
         finally:
             for slot in pool.slots:
                 if slot.item is not None:

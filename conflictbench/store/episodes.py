@@ -13,6 +13,8 @@ once stored, removes it. Planning reads only file names, never file contents.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import fcntl
 import os
 import shutil
@@ -20,14 +22,14 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from conflictbench.core import EpisodeRecord, UserError
+from conflictbench.core import EpisodeRecord, StoreFull, UserError
 
 from . import paths
 from .check import footer_damage, read_intact, set_aside
@@ -42,6 +44,37 @@ REPEATED_SUFFIX = ".failed-twice"
 REMOTE_CLAIM_TTL_S = 10 * 60
 #: How often a running job refreshes the claims of the episodes it is playing (well inside the TTL).
 CLAIM_REFRESH_S = 60.0
+
+
+#: What a file system says when it takes no more: full, over a quota, past a file size limit.
+NO_ROOM = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+
+
+@contextlib.contextmanager
+def stops_when_full(root: Path, temporary: Path | None = None) -> Iterator[None]:
+    """Around a write into the store: where it fails (an interrupt too), its ``temporary`` is removed, so no later
+    run meets half a file; where the file system takes no more, the failure is :class:`StoreFull`, one line."""
+    try:
+        yield
+    except BaseException as exc:
+        if temporary is not None:
+            with contextlib.suppress(OSError):
+                temporary.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.errno in NO_ROOM:
+            raise StoreFull(str(root), os.strerror(exc.errno)) from None
+        raise
+
+
+def sync_folder(folder: Path) -> None:
+    """Flush a folder's entries: a file renamed into it survives a power loss only once its folder is synced."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    except OSError as exc:
+        if exc.errno not in (errno.EINVAL, errno.ENOTSUP):  # a file system that cannot sync a folder has no need
+            raise
+    finally:
+        os.close(fd)
 
 
 def pid_alive(pid: int) -> bool:
@@ -82,13 +115,17 @@ class EpisodeStore:
         return paths.confined(self.root, path)
 
     def _land(self, final: Path, write: Callable[[Path], object]) -> None:
-        """``write(temporary)`` beside ``final``, flushed to disk, then renamed into place: whole or absent."""
-        final.parent.mkdir(parents=True, exist_ok=True)
+        """``write(temporary)`` beside ``final``, flushed to disk, then renamed into place, and the folder synced:
+        whole or absent, and once returned, there after a power loss. A failed write leaves no temporary; a full
+        disk is :class:`StoreFull`."""
         tmp = final.with_name(f".{final.name}.{self._temporary_tag}.tmp")  # clean_stale_temporaries knows it
-        write(tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, final)
+        with stops_when_full(self.root, tmp):
+            final.parent.mkdir(parents=True, exist_ok=True)
+            write(tmp)
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.replace(tmp, final)
+        sync_folder(final.parent)
 
     def copy_in(self, source: Path, policy: str, episode_id: str) -> None:
         """Store an episode file from another store as it is (``conflictbench merge``), atomically."""
@@ -236,21 +273,22 @@ class EpisodeStore:
         A claim appears whole (written aside, then hard-linked into place, which fails if one exists),
         so no process ever reads a half-written claim as a dead one. Taking over a dead process's
         claim happens under a lock, one process at a time."""
-        self.claims_dir.mkdir(parents=True, exist_ok=True)
         path = self._claim_path(episode_id)
         mine = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
-        mine.write_text(self._claim_text())
-        try:
-            if _link(mine, path):
-                return True
-            with open(self.claims_dir / ".takeover.lock", "a") as lock:
-                fcntl.flock(lock, fcntl.LOCK_EX)
-                if self._claimed_by_other(path):
-                    return False
-                path.unlink(missing_ok=True)  # ours, or its owner died (e.g. SIGKILL): take it over
-                return _link(mine, path)  # fails if a fresh claim landed meanwhile
-        finally:
-            mine.unlink(missing_ok=True)
+        with stops_when_full(self.root, mine):
+            self.claims_dir.mkdir(parents=True, exist_ok=True)
+            try:
+                mine.write_text(self._claim_text())
+                if _link(mine, path):
+                    return True
+                with open(self.claims_dir / ".takeover.lock", "a") as lock:
+                    fcntl.flock(lock, fcntl.LOCK_EX)
+                    if self._claimed_by_other(path):
+                        return False
+                    path.unlink(missing_ok=True)  # ours, or its owner died (e.g. SIGKILL): take it over
+                    return _link(mine, path)  # fails if a fresh claim landed meanwhile
+            finally:
+                mine.unlink(missing_ok=True)
 
     def _claim_text(self) -> str:
         """``host pid token``: a new token at every renewal is what tells another machine the owner is alive."""
@@ -279,8 +317,9 @@ class EpisodeStore:
                     lost.add(episode_id)
                     continue
                 fresh = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
-                fresh.write_text(self._claim_text())
-                os.replace(fresh, path)
+                with stops_when_full(self.root, fresh):
+                    fresh.write_text(self._claim_text())
+                    os.replace(fresh, path)
         return lost
 
     def release(self, episode_id: str) -> None:
@@ -358,8 +397,8 @@ class ClaimKeeper:
         while not self._stop.wait(self.store.claim_refresh_s):
             try:
                 self.refresh()
-            except OSError:  # a network store's hiccup: the next round tries again, well inside the TTL
-                pass
+            except (OSError, StoreFull):  # a network store's hiccup, a full disk: the next round tries again
+                pass  # (a disk that stays full stops the run at its next write of an episode)
 
 
 def _link(source: Path, target: Path) -> bool:
