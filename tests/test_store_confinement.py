@@ -294,3 +294,14 @@ def test_reproduce_never_writes_through_a_link_in_the_report_folder(tmp_path, pl
     with pytest.raises(UserError, match="is a link"):
         write_report([], entry, tmp_path / "report")
     assert victim.read_text() == "keep"
+
+
+def test_prune_deletes_a_file_only_on_what_that_file_itself_holds(tmp_path):
+    store = EpisodeStore(tmp_path / "store")
+    store.write(episode("cur", 1, config_hash="h2", created_at="2026-11-02T10:00:00+00:00"))  # the current identity
+    store.write(episode("old", 1, config_hash="h1"))
+    # a file that claims to be "cur", played under an older identity: its row must not condemn the real "cur"
+    crafted(store.episodes_dir / "pi0" / "fake.parquet", episode("cur", 1, config_hash="h0", created_at="2026-10"))
+    assert [s.episode_id for s in superseded(store)] == ["old"]
+    assert main(["prune", str(store.root), "--delete"]) == 0
+    assert store.stored_ids() == {"cur", "fake"}

@@ -11,7 +11,7 @@ episode waiting to be played again (``replay/``) is superseded the same way.
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,11 +43,17 @@ def superseded(store: EpisodeStore) -> list[Superseded]:
     for row in rows:
         groups[tuple("" if row[c] is None else row[c] for c in CHOSEN)].append(row)
     _join_older_rows(groups)
+    # A file is condemned only by its own row: the one row naming its id, of the policy its folder names. A file
+    # whose contents name another episode (renamed, crafted) must not get that episode's file deleted (#42).
+    named = Counter(row["episode_id"] for row in rows)
     out = []
     for group in groups.values():
         current = max(group, key=lambda r: r["created_at"] or "")["config_hash"]
         for row in group:
-            if row["config_hash"] != current and (path := files.get(row["episode_id"])) is not None:
+            path = files.get(row["episode_id"])
+            if row["config_hash"] == current or path is None or named[row["episode_id"]] != 1:
+                continue
+            if path.parent.name == row["policy"]:
                 out.append(Superseded(row["policy"], row["episode_id"], path, path.stat().st_size))
     return sorted(out, key=lambda s: (s.policy, s.episode_id))
 
