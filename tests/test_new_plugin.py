@@ -161,8 +161,8 @@ def test_the_rest_server_half_refuses_a_json_numpy_array_it_cannot_read_in_one_l
     env = {**os.environ, "PYTHONPATH": str(plugin)}
     done = subprocess.run([sys.executable, "-c", probe, *bodies], capture_output=True, text=True, env=env)
     assert done.returncode == 0 and done.stdout.splitlines() == [
-        "a json-numpy array that cannot be read (KeyError: 'dtype')",
-        "a json-numpy array that cannot be read (TypeError: data type '<zz' not understood)",
+        "a json-numpy array that cannot be read (a json-numpy array without its 'dtype')",
+        "a json-numpy array that cannot be read (not a dtype: '<zz' (data type '<zz' not understood))",
     ], done.stdout + done.stderr
 
 

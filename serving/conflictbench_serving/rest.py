@@ -10,6 +10,12 @@ client reads to name what it plays; the requests of every connection queued into
 :class:`~.batching.Batcher`, fixed shape); and a failure's message: ``{"error": message}`` with HTTP 500 where
 ``deploy.py`` answers ``"error"`` with HTTP 200 (both are errors to every client; ours says why).
 
+What a peer may do is the :class:`~.guard.Guard`'s (the app's own, else the process-wide one): with a token, every
+request but ``GET /healthz`` must carry ``Authorization: Api-Key <token>`` (HTTP 401 otherwise); a body over
+``max_message_bytes`` is refused with HTTP 413 before it is read whole (its ``Content-Length``, else as it streams);
+uvicorn answers HTTP 503 beyond ``max_connections`` connections (``limit_concurrency``); the batcher queues at most
+``max_queued`` requests (HTTP 503, busy, beyond). Every error is ``{"error": one line}``.
+
 Needs ``fastapi``, ``uvicorn`` and ``json-numpy`` (the ``rest`` extra). Imports neither conflictbench nor torch.
 """
 
@@ -22,7 +28,10 @@ from typing import Any, Protocol
 
 import json_numpy
 
-from .batching import Batcher, ServerStopping
+from .batching import Batcher, ServerBusy, ServerStopping
+from .guard import AUTHORIZATION, SCHEME, Guard, current
+
+HEALTH_ROUTE = "/healthz"  # answers without the token: it says nothing but "up"
 
 
 class Backend(Protocol):
@@ -41,13 +50,15 @@ class InvalidRequest(ValueError):
 ParseRequest = Callable[[bytes], tuple[Any, bool]]
 
 
-def build_app(backend: Backend, max_batch: int, parse: ParseRequest, name: str):
-    """The FastAPI app; its lifespan runs the batcher. ``parse`` reads a body (raise :class:`InvalidRequest`);
-    the backend's answers go out as json-numpy."""
+def build_app(backend: Backend, max_batch: int, parse: ParseRequest, name: str, guard: Guard | None = None):
+    """The app (FastAPI, inside the guard's checks); its lifespan runs the batcher. ``parse`` reads a body (raise
+    :class:`InvalidRequest`); the backend's answers go out as json-numpy. ``guard`` None: the process-wide one."""
     from fastapi import FastAPI, Request
     from fastapi.responses import JSONResponse, Response
 
-    batcher = Batcher(backend.infer_batch, max_batch, fixed_shape=True, name=name)
+    guard = current() if guard is None else guard
+    limit = guard.max_message_bytes
+    batcher = Batcher(backend.infer_batch, max_batch, fixed_shape=True, name=name, max_queued=guard.max_queued)
     metadata = {**backend.metadata, "max_batch": max_batch, "fixed_shape": True}
 
     @contextlib.asynccontextmanager
@@ -66,20 +77,27 @@ def build_app(backend: Backend, max_batch: int, parse: ParseRequest, name: str):
 
     @app.post("/act")
     async def act(request: Request) -> Any:
+        body = bytearray()
+        async for chunk in request.stream():  # a body sent without Content-Length: counted as it comes
+            body += chunk
+            if len(body) > limit:
+                return error(_too_large(limit), 413)
         try:
-            row, encoded = parse(await request.body())
+            row, encoded = parse(bytes(body))
         except InvalidRequest as problem:
-            return error(f"invalid request: {problem}", 400)
+            return error(_one_line(f"invalid request: {problem}"), 400)
         try:
             answer, _timing = await batcher.submit(row)
         except ServerStopping:
             return error("the server is stopping", 503)
+        except ServerBusy as problem:
+            return error(f"ServerBusy: {problem}", 503)
         except Exception as problem:  # the model call failed: this request's answer, the server goes on
-            return error(f"{type(problem).__name__}: {problem}")
+            return error(_one_line(f"{type(problem).__name__}: {problem}"))
         text = json_numpy.dumps(answer)
         return Response(json.dumps(text) if encoded else text, media_type="application/json")
 
-    @app.get("/healthz")
+    @app.get(HEALTH_ROUTE)
     async def healthz() -> dict:
         return {"status": "ok"}
 
@@ -87,7 +105,46 @@ def build_app(backend: Backend, max_batch: int, parse: ParseRequest, name: str):
     async def describe() -> dict:
         return metadata
 
-    return app
+    return _Guarded(app, guard)
+
+
+class _Guarded:
+    """The ASGI app inside the guard's checks, made before FastAPI reads anything: the token on every route but
+    ``/healthz``, and a declared ``Content-Length`` over the limit (a streamed body is counted in ``/act``)."""
+
+    def __init__(self, app, guard: Guard) -> None:
+        self.app, self.guard = app, guard
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] == "http":
+            headers = dict(scope["headers"])
+            authorization = headers.get(AUTHORIZATION.lower().encode(), b"").decode("latin-1")
+            if scope["path"] != HEALTH_ROUTE and not self.guard.admits_header(authorization):
+                message = f"Unauthorized: this server needs its token ({AUTHORIZATION}: {SCHEME} ...)"
+                return await _send_error(send, 401, message)
+            length = headers.get(b"content-length", b"0").decode("latin-1").strip()
+            if not length.isdigit() or int(length) > self.guard.max_message_bytes:
+                return await _send_error(send, 413, _too_large(self.guard.max_message_bytes))
+        await self.app(scope, receive, send)
+
+    def __getattr__(self, name: str):  # the FastAPI app's routes, state and so on, for tests and tools
+        return getattr(self.app, name)
+
+
+async def _send_error(send, status: int, message: str) -> None:
+    body = json.dumps({"error": message}).encode()
+    headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
+    await send({"type": "http.response.start", "status": status, "headers": headers})
+    await send({"type": "http.response.body", "body": body})
+
+
+def _too_large(limit: int) -> str:
+    return f"the body is over this server's limit of {limit} bytes (max_message_bytes)"
+
+
+def _one_line(text: str, limit: int = 500) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def serve(
@@ -98,16 +155,18 @@ def serve(
     on_ready: Callable[[str, int], None],
     parse: ParseRequest,
     name: str,
+    guard: Guard | None = None,
 ) -> None:
     """Serve until SIGINT / SIGTERM (uvicorn's own handling: a clean exit). A port that cannot be bound raises
     OSError before anything is served."""
     import uvicorn
 
+    guard = current() if guard is None else guard
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind((host, port))
-    app = build_app(backend, max_batch, parse, name)
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False))
+    app = build_app(backend, max_batch, parse, name, guard)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False, **limits(guard)))
 
     async def run() -> None:
         serving = asyncio.create_task(server.serve(sockets=[sock]))
@@ -118,3 +177,9 @@ def serve(
         await serving
 
     asyncio.run(run())
+
+
+def limits(guard: Guard) -> dict:
+    """uvicorn's settings for ``guard``: HTTP 503 beyond ``max_connections`` (uvicorn counts the connection asking,
+    so one more; an idle keep-alive connection is closed after uvicorn's 5 s)."""
+    return {"limit_concurrency": guard.max_connections + 1}
