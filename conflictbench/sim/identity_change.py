@@ -12,7 +12,7 @@ from pathlib import Path
 
 from conflictbench.hosting.hosted import version_changes
 from conflictbench.store import EpisodeStore
-from conflictbench.store.episodes import stops_when_full
+from conflictbench.store.durable import stops_when_full
 
 from .stack import SIMULATOR_COLUMNS, extra_stack
 

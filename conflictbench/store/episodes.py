@@ -13,8 +13,6 @@ once stored, removes it. Planning reads only file names, never file contents.
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import fcntl
 import os
 import shutil
@@ -22,7 +20,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import pyarrow as pa
@@ -33,6 +31,8 @@ from conflictbench.core import EpisodeRecord, StoreFull, UserError
 
 from . import paths
 from .check import footer_damage, read_intact, set_aside
+from .claims import pid_alive, pid_place, process_nonce, read_claim
+from .durable import stops_when_full, sync_folder
 from .schema import SCHEMA, records_to_table, table_to_records
 
 SUFFIX = ".parquet"
@@ -44,47 +44,6 @@ REPEATED_SUFFIX = ".failed-twice"
 REMOTE_CLAIM_TTL_S = 10 * 60
 #: How often a running job refreshes the claims of the episodes it is playing (well inside the TTL).
 CLAIM_REFRESH_S = 60.0
-
-
-#: What a file system says when it takes no more: full, over a quota, past a file size limit.
-NO_ROOM = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
-
-
-@contextlib.contextmanager
-def stops_when_full(root: Path, temporary: Path | None = None) -> Iterator[None]:
-    """Around a write into the store: where it fails (an interrupt too), its ``temporary`` is removed, so no later
-    run meets half a file; where the file system takes no more, the failure is :class:`StoreFull`, one line."""
-    try:
-        yield
-    except BaseException as exc:
-        if temporary is not None:
-            with contextlib.suppress(OSError):
-                temporary.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and exc.errno in NO_ROOM:
-            raise StoreFull(str(root), os.strerror(exc.errno)) from None
-        raise
-
-
-def sync_folder(folder: Path) -> None:
-    """Flush a folder's entries: a file renamed into it survives a power loss only once its folder is synced."""
-    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    except OSError as exc:
-        if exc.errno not in (errno.EINVAL, errno.ENOTSUP):  # a file system that cannot sync a folder has no need
-            raise
-    finally:
-        os.close(fd)
-
-
-def pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by someone else
-        return True
-    return True
 
 
 class EpisodeStore:
@@ -252,19 +211,22 @@ class EpisodeStore:
 
     def _claimed_by_other(self, path: Path) -> bool:
         """Whether a live process other than this one holds the claim at ``path``."""
-        try:
-            host, pid, token = path.read_text().split()
-        except (OSError, ValueError):
+        claim = read_claim(path)
+        if claim is None:
             return False
-        if host != self._host:
-            # Another machine's process cannot be checked: its claim holds while its owner renews it (each
-            # renewal writes a new token), and for the TTL after this process sees it stop changing.
-            text, now = f"{host} {pid} {token}", time.monotonic()
+        host, pid, token, nonce, place = claim
+        if host != self._host or (place is not None and place != pid_place()):
+            # Another machine's process, or another container's (the same host name, its own process ids), cannot
+            # be checked from here: its claim holds while its owner renews it (each renewal writes a new token),
+            # and for the TTL after this process sees it stop changing.
+            text, now = " ".join(p or "" for p in claim), time.monotonic()
             seen = self._seen.get(path.name)
             if seen is None or seen[0] != text:
                 self._seen[path.name] = (text, now)
                 return True
             return now - seen[1] < self.remote_claim_ttl_s
+        # This place: a claim with this process's id is this process's, or (another nonce) an earlier process's
+        # that had the id, gone since; another id is checked.
         return int(pid) != os.getpid() and pid_alive(int(pid))
 
     def claim(self, episode_id: str) -> bool:
@@ -291,15 +253,17 @@ class EpisodeStore:
                 mine.unlink(missing_ok=True)
 
     def _claim_text(self) -> str:
-        """``host pid token``: a new token at every renewal is what tells another machine the owner is alive."""
-        return f"{self._host} {os.getpid()} {uuid.uuid4().hex}\n"
+        """``host pid token/nonce/place``: a new token at every renewal is what tells another machine the owner is
+        alive; the nonce and place tell this process from another container's with the same host name and pid
+        (:func:`process_nonce`, :func:`pid_place`). Three fields, as before: an older reader still parses it."""
+        return f"{self._host} {os.getpid()} {uuid.uuid4().hex}/{process_nonce()}/{pid_place()}\n"
 
     def _owns(self, path: Path) -> bool:
-        try:
-            host, pid, _ = path.read_text().split()
-        except (OSError, ValueError):
+        claim = read_claim(path)
+        if claim is None:
             return False
-        return host == self._host and pid == str(os.getpid())
+        host, pid, _, nonce, place = claim
+        return (host, pid, nonce, place) == (self._host, str(os.getpid()), process_nonce(), pid_place())
 
     def refresh_claims(self, episode_ids: Iterable[str]) -> set[str]:
         """Renew the time on this process's claims (another machine reads an old one as its owner gone); returns
@@ -337,7 +301,8 @@ class EpisodeStore:
 
     def clean_stale_temporaries(self) -> int:
         """Remove half-written files left by processes of this machine that died mid-write (another
-        machine's, on a shared store, cannot be checked from here and are left alone)."""
+        machine's, on a shared store, cannot be checked from here and are left alone; so are another container's
+        with this host name, by the place in their tag)."""
         removed = 0
         for pattern, folder in (
             ("*/.*.tmp", self.episodes_dir),
@@ -345,17 +310,27 @@ class EpisodeStore:
             (".*.tmp", self.claims_dir),
         ):
             for tmp in folder.glob(pattern) if folder.is_dir() else ():
-                rest, _, host = tmp.name[: -len(".tmp")].rpartition("@")
-                pid = rest.rpartition(".")[2]
-                if host == self._host and pid.isdigit() and not pid_alive(int(pid)):
+                if self._stale(tmp.name[: -len(".tmp")]):
                     tmp.unlink(missing_ok=True)
                     removed += 1
         return removed
 
+    def _stale(self, name: str) -> bool:
+        """Whether the temporary ``name`` (less ``.tmp``) was left by a process of this place now gone: its tag is
+        ``<pid>-<nonce>@<host>~<place>``, or ``<pid>@<host>`` as written before nonces."""
+        rest, _, where = name.rpartition("@")
+        host, marked, place = where.partition("~")
+        pid, _, nonce = rest.rpartition(".")[2].partition("-")
+        if host != self._host or not pid.isdigit() or (marked and place != pid_place()):
+            return False
+        if int(pid) == os.getpid():  # this process's while being written; another nonce: an earlier one's, gone
+            return not marked or nonce != process_nonce()
+        return not pid_alive(int(pid))
+
     @property
     def _temporary_tag(self) -> str:
-        """Names this process's temporary files: ``<pid>@<host>``."""
-        return f"{os.getpid()}@{self._host}"
+        """Names this process's temporary files: ``<pid>-<nonce>@<host>~<place>``."""
+        return f"{os.getpid()}-{process_nonce()}@{self._host}~{pid_place()}"
 
 
 class ClaimKeeper:
