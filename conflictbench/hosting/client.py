@@ -15,7 +15,9 @@ request, reply to actions). The core owns the rest, the same for every model:
   of the measures, and played again by the next run.
 
 Transports signal a broken or refused connection with :class:`OSError` (``ConnectionError``,
-``TimeoutError``, socket errors) and a server's error reply with :class:`InfrastructureError`.
+``TimeoutError``, socket errors) and a server's error reply with :class:`InfrastructureError`; a server that
+refuses the token sent (or its absence: HTTP 401, GR00T's "Unauthorized") with :class:`PermissionError`, which is
+never retried: the run stops at once with one line saying where the token comes from.
 :class:`HttpJsonTransport` (HTTP POST with a JSON body, stdlib only) is the one built in; a
 dialect overrides its ``dumps``/``loads`` (the OpenVLA family's ``POST /act`` needs json-numpy arrays:
 :class:`~.rest.JsonNumpyTransport`, ``conflictbench[rest]``).
@@ -68,6 +70,11 @@ from ..core.errors import ClientError, InfrastructureError, PolicyError, ServerU
 from ..core.records import Observation
 from .transport import HttpJsonTransport, Transport, one_line
 
+#: What a run says of a token a server refused (the run never shows the token itself).
+TOKEN_HINT = (
+    "the server refused this run's token or its absence: set CONFLICTBENCH_SERVER_TOKEN, or model.token_file=PATH, "
+    "to the token the server was started with"
+)
 #: Threads that carry concurrent requests (created on demand; one per stream in flight).
 MAX_CONCURRENT_REQUESTS = 256
 
@@ -219,6 +226,9 @@ class _Stream:
                 self.transport.connect(client.connect_timeout_s)
                 self.connected = True
                 return
+            except PermissionError as exc:  # asking again with the same token cannot help
+                self.transport.close()
+                raise ServerUnavailable(client.url, f"{one_line(str(exc))}; {TOKEN_HINT}") from None
             except OSError as exc:
                 self.transport.close()
                 reason = _describe(exc, client.connect_timeout_s)

@@ -156,7 +156,8 @@ class HostedPolicy(ServedPolicy):
     a user mistake, reported as :class:`UserError`."""
     sends_token: ClassVar[bool | None] = None
     """Whether every request of this client carries ``self.token``; None: where the transport takes a ``token``
-    or ``api_token`` argument and ``make_transport`` is not overridden. A server started for a client that does not
+    argument and ``make_transport`` is not overridden (ZeroMQ's ``api_token`` is in each request: say True where
+    ``encode`` puts it there). A server started for a client that does not
     is given no token (its pipe still proves it is the one started)."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -243,7 +244,8 @@ class HostedPolicy(ServedPolicy):
     def _sends_token(cls) -> bool:
         if cls.sends_token is not None:
             return cls.sends_token
-        return cls.make_transport is HostedPolicy.make_transport and token_argument(cls.transport) is not None
+        # ZeroMQ's api_token is a field of each request the plugin builds (its encode): that plugin says so itself.
+        return cls.make_transport is HostedPolicy.make_transport and token_argument(cls.transport) == "token"
 
     # The shared lifecycle --------------------------------------------------------------------------------
 
