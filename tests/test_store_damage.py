@@ -422,3 +422,21 @@ def test_a_run_on_a_disk_that_fills_ends_in_one_line_and_the_same_command_resume
         assert f"{6 - len(stored)} played, {len(stored)} already stored" in second.stderr
     finally:
         subprocess.run(["umount", "-l", str(small)], check=False)
+
+
+def test_a_file_this_version_cannot_cast_is_not_set_aside(tmp_path):
+    """Not damage: a column of another type (a newer writer's, say) fails the cast to this version's schema. Reads
+    stop as before, and the file stays where it is (a newer conflictbench reads it)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from conflictbench.store.schema import records_to_table
+
+    store = stored_pairs(tmp_path / "store")
+    path = store.path_for("noop", "ref2")
+    table = records_to_table([episode("ref2", state=2)])
+    index = table.schema.get_field_index("eef_pos")
+    pq.write_table(table.set_column(index, "eef_pos", pa.array(["a newer encoding"])), path)
+    with pytest.raises(pa.ArrowNotImplementedError):
+        store.read_table()
+    assert path.exists() and not (store.root / "damaged").exists()

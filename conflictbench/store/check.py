@@ -76,11 +76,11 @@ def read_files(files: Sequence[Path], columns: Iterable[str] | None = None, chec
 
 
 def _unreadable(exc: BaseException) -> bool:
-    """Whether a failed read says the file's content is bad (Arrow's errors, and the OSError without an errno it
-    raises for a footer it cannot parse), not that the system failed (a permission, a vanished file, a full disk)."""
-    if isinstance(exc, pa.ArrowException) and not isinstance(exc, OSError):
-        return True
-    return isinstance(exc, OSError) and exc.errno is None
+    """Whether a failed read says the file's content is bad (Arrow's ``ArrowInvalid``, and the OSError without an
+    errno it raises for a footer or a page it cannot parse), not that the system failed (a permission, a vanished
+    file, a full disk) nor that this version cannot read a newer one's columns (``ArrowNotImplementedError``: never
+    set aside, a newer conflictbench reads it)."""
+    return isinstance(exc, pa.ArrowInvalid) or (isinstance(exc, OSError) and exc.errno is None)
 
 
 def _reason(exc: BaseException, path: Path) -> str:
@@ -125,9 +125,7 @@ def check_file(path: Path) -> str | None:
         table = read_files([path], checksums=True)
     except FileNotFoundError:
         return None
-    except (pa.ArrowException, OSError) as exc:
-        if not _unreadable(exc):
-            raise
+    except (pa.ArrowException, OSError) as exc:  # here, whatever the reason: the check says what it could not read
         return _reason(exc, path)
     if table.num_rows != 1:
         return f"{table.num_rows} rows, not one episode"
