@@ -305,3 +305,11 @@ def test_prune_deletes_a_file_only_on_what_that_file_itself_holds(tmp_path):
     assert [s.episode_id for s in superseded(store)] == ["old"]
     assert main(["prune", str(store.root), "--delete"]) == 0
     assert store.stored_ids() == {"cur", "fake"}
+
+
+def test_only_regular_files_are_episodes(tmp_path):
+    store = EpisodeStore(tmp_path / "store")
+    store.write(episode("e1", 1))
+    os.mkfifo(store.episodes_dir / "pi0" / "fifo.parquet")  # reading it would wait for a writer for ever
+    (store.episodes_dir / "pi0" / "folder.parquet").mkdir()
+    assert [p.name for p in store.files()] == ["e1.parquet"] and store.stored_ids() == {"e1"}
