@@ -19,7 +19,7 @@ import urllib.parse
 from typing import Any
 
 from ..core.errors import InfrastructureError
-from .transport import HttpJsonTransport, extra_missing
+from .transport import HttpJsonTransport, extra_missing, refused_token
 
 try:
     import json_numpy
@@ -37,14 +37,15 @@ class JsonNumpyTransport(HttpJsonTransport):
     """HTTP POST of json-numpy bodies to ``/act`` (a URL without a path gets it); ``"error"`` replies raise.
 
     On connecting it asks ``GET /metadata`` (beside ``/act``): our server says what it hosts there; upstream's
-    ``deploy.py`` has no such route (404), and ``metadata`` stays empty.
+    ``deploy.py`` has no such route (404), and ``metadata`` stays empty. ``token`` goes on every request, that one
+    included (a server that refuses it stops the run at once).
     """
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, token: str | None = None, max_message_bytes: int | None = None):
         parts = urllib.parse.urlsplit(url)
         if parts.path in ("", "/"):
             parts = parts._replace(path=ROUTE)
-        super().__init__(urllib.parse.urlunsplit(parts))
+        super().__init__(urllib.parse.urlunsplit(parts), token, max_message_bytes)
         self._metadata_path = parts.path.rsplit("/", 1)[0] + METADATA_ROUTE
         self.metadata: dict[str, Any] = {}
 
@@ -52,11 +53,14 @@ class JsonNumpyTransport(HttpJsonTransport):
         super().connect(timeout)
         self.metadata = {}
         try:
-            self._conn.request("GET", self._metadata_path)
+            self._conn.request("GET", self._metadata_path, headers=self._headers)
             response = self._conn.getresponse()
-            data = response.read()
+            data = self.read_reply(response)
         except http.client.HTTPException as exc:
             raise ConnectionError(f"{type(exc).__name__}: {exc}") from exc
+        if response.status == 401:
+            self.close()
+            raise refused_token(self.url, f"HTTP 401 {data.decode(errors='replace')}")
         if response.status == 200:
             try:
                 metadata = json.loads(data)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import os
 import socket
 import urllib.parse
 from abc import ABC, abstractmethod
@@ -16,7 +17,52 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import InfrastructureError, UserError
+from ..core.errors import InfrastructureError, ServerUnavailable, UserError
+
+#: The largest reply a client reads, and request it sends: conflictbench_serving.guard's bound (12 MiB: four rows of
+#: three 512 x 512 RGB cameras, base64'd), set for servers and clients alike by the same variable. Restated here:
+#: the built-in transport needs nothing but the standard library (a test keeps the two equal).
+MESSAGE_LIMIT_VARIABLE = "CONFLICTBENCH_MAX_MESSAGE_BYTES"
+DEFAULT_MAX_MESSAGE_BYTES = 12 * 2**20
+#: How a request carries the server's token on websockets and HTTP, as openpi-client sends its API key.
+AUTHORIZATION, SCHEME = "Authorization", "Api-Key"
+
+
+def message_limit(given: int | None = None) -> int:
+    """``given``, else ``$CONFLICTBENCH_MAX_MESSAGE_BYTES``, else the default; :class:`UserError` for a bad value."""
+    if given is not None:
+        value, text = given, str(given)
+    else:
+        text = os.environ.get(MESSAGE_LIMIT_VARIABLE, "").strip()
+        if not text:
+            return DEFAULT_MAX_MESSAGE_BYTES
+        value = int(text) if text.isdigit() else 0
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        setting = f"{MESSAGE_LIMIT_VARIABLE} (max_message_bytes)"
+        raise UserError(f"{setting} must be a positive number of bytes, got {text[:40]!r}")
+    return value
+
+
+def authorization(token: str | None) -> dict[str, str]:
+    """The header that carries ``token`` (none without one)."""
+    return {AUTHORIZATION: f"{SCHEME} {token}"} if token else {}
+
+
+def over_limit(url: str, what: str, size: int | str, limit: int) -> InfrastructureError:
+    """The one line for a message over the bound: which, how large, the bound and the setting that moves it."""
+    return InfrastructureError(
+        f"{url}: {what} of {size} bytes is over the limit of {limit} bytes (max_message_bytes; raise it with "
+        f"{MESSAGE_LIMIT_VARIABLE} for the run and the server alike)"
+    )
+
+
+def refused_token(url: str, detail: str) -> ServerUnavailable:
+    """A server that refused our token (or its lack): the run stops at once, no retry can change it."""
+    return ServerUnavailable(
+        url,
+        f"it refused our token: {one_line(detail)}; a server started with a token needs the run to send the "
+        "same one (model.token_file or CONFLICTBENCH_SERVER_TOKEN)",
+    )
 
 
 class Transport(ABC):
@@ -46,12 +92,16 @@ class HttpJsonTransport(Transport):
 
     numpy arrays and scalars in the request are sent as (nested) lists and numbers. A reply with a
     status of 400 or more, or a JSON object whose only key is ``error``, raises
-    :class:`InfrastructureError`. A protocol with another JSON dialect (json-numpy's arrays) overrides
-    :meth:`dumps` and :meth:`loads`.
+    :class:`InfrastructureError`; so does a reply over ``max_message_bytes`` (read no further) and a request over
+    it (not sent). ``token``: sent on every request (``Authorization: Api-Key <token>``); a server that answers
+    HTTP 401 stops the run (:class:`ServerUnavailable`). A protocol with another JSON dialect (json-numpy's arrays)
+    overrides :meth:`dumps` and :meth:`loads`.
     """
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, token: str | None = None, max_message_bytes: int | None = None):
         super().__init__(url)
+        self.max_message_bytes = message_limit(max_message_bytes)
+        self._headers = authorization(token)
         parts = urllib.parse.urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
             raise UserError(f"not an http:// or https:// URL: {url!r}")
@@ -78,6 +128,8 @@ class HttpJsonTransport(Transport):
 
     def exchange(self, request: Any, timeout: float) -> Any:
         body = self.dumps(request).encode()
+        if len(body) > self.max_message_bytes:
+            raise over_limit(self.url, "a request", len(body), self.max_message_bytes)
         conn = self._conn
         if conn is None:
             raise ConnectionError("not connected")
@@ -89,11 +141,13 @@ class HttpJsonTransport(Transport):
             conn = self._conn
         conn.sock.settimeout(timeout)
         try:
-            conn.request("POST", self._path, body, {"Content-Type": "application/json"})
+            conn.request("POST", self._path, body, {"Content-Type": "application/json", **self._headers})
             response = conn.getresponse()
-            data = response.read()
+            data = self.read_reply(response)
         except http.client.HTTPException as exc:  # a cut or garbled reply: this connection is done
             raise ConnectionError(f"{type(exc).__name__}: {exc}") from exc
+        if response.status == 401:
+            raise refused_token(self.url, f"HTTP 401 {data.decode(errors='replace')}")
         if response.status >= 400:
             raise InfrastructureError(
                 f"{self.url} answered HTTP {response.status} {response.reason}: "
@@ -108,6 +162,20 @@ class HttpJsonTransport(Transport):
         if isinstance(reply, dict) and list(reply) == ["error"]:
             raise InfrastructureError(f"{self.url} answered an error: {one_line(str(reply['error']))}")
         return reply
+
+    def read_reply(self, response: http.client.HTTPResponse) -> bytes:
+        """The reply's body, read no further than ``max_message_bytes`` (its ``Content-Length`` checked first)."""
+        limit = self.max_message_bytes
+        declared = response.getheader("Content-Length", "")
+        if declared.strip().isdigit() and int(declared) > limit:
+            self.close()  # the rest of that reply is never read: this connection is done
+            raise over_limit(self.url, "a reply", int(declared), limit)
+        data = response.read(limit + 1)
+        if len(data) > limit:
+            self.close()
+            raise over_limit(self.url, "a reply", f"more than {limit}", limit)
+        response.read()  # the end of a chunked reply (nothing more: the bound was not reached)
+        return data
 
     def close(self) -> None:
         if self._conn is not None:

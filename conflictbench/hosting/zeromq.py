@@ -9,7 +9,11 @@ is there with a ``ping`` and then asks for our metadata endpoint (NVIDIA's serve
 ``metadata`` stays empty), and a request that times out closes the socket (the next request reconnects). ZeroMQ
 hides a dropped TCP connection, so a socket monitor watches for it: a server that dies while a request waits is a
 lost connection (the client reconnects and sends it again, or stops the run), not a slow model. ``{"error":
-...}`` replies are the server's errors: :class:`InfrastructureError`.
+...}`` replies are the server's errors: :class:`InfrastructureError`; a server that refuses our ``api_token``
+(``Unauthorized``, NVIDIA's answer and ours) stops the run at once. Messages are bounded both ways by
+``max_message_bytes`` (default: ``$CONFLICTBENCH_MAX_MESSAGE_BYTES``, else 12 MiB): a larger request is not sent
+(:class:`InfrastructureError` naming the bound); a larger reply is dropped by ZeroMQ (``MAXMSGSIZE``) before it is
+read, which the monitor sees as a dropped connection.
 """
 
 from __future__ import annotations
@@ -19,8 +23,8 @@ import time
 import urllib.parse
 from typing import Any
 
-from ..core.errors import InfrastructureError, UserError
-from .transport import Transport, extra_missing, one_line
+from ..core.errors import InfrastructureError, ServerUnavailable, UserError
+from .transport import Transport, extra_missing, message_limit, one_line, over_limit, refused_token
 
 try:
     import zmq
@@ -34,12 +38,13 @@ except ModuleNotFoundError as missing:
 class ZmqTransport(Transport):
     """GR00T's ZeroMQ protocol on one REQ socket; ``metadata`` is what our server says it hosts ({} otherwise)."""
 
-    def __init__(self, url: str, api_token: str | None = None):
+    def __init__(self, url: str, api_token: str | None = None, max_message_bytes: int | None = None):
         super().__init__(url)
         parts = urllib.parse.urlsplit(url)
         if parts.scheme != "tcp" or not parts.hostname or parts.port is None:
             raise UserError(f"not a tcp://HOST:PORT URL: {url!r} (a GR00T server, e.g. tcp://gpu-box:5555)")
         self.api_token = api_token
+        self.max_message_bytes = message_limit(max_message_bytes)
         self.metadata: dict[str, Any] = {}
         self._context = zmq.Context.instance()
         self._socket: zmq.Socket | None = None
@@ -53,6 +58,7 @@ class ZmqTransport(Transport):
         net.create_connection((parts.hostname, parts.port), timeout=timeout).close()
         socket = self._context.socket(zmq.REQ)
         socket.setsockopt(zmq.LINGER, 0)
+        socket.setsockopt(zmq.MAXMSGSIZE, self.max_message_bytes)  # a larger reply: dropped before it is read
         self._monitor = socket.get_monitor_socket(zmq.EVENT_DISCONNECTED)
         socket.connect(self.url)
         self._socket = socket
@@ -63,6 +69,8 @@ class ZmqTransport(Transport):
             raise TimeoutError(f"no GR00T server answered a ping within {timeout:g} s") from None
         except InfrastructureError as exc:
             self.close()
+            if "Unauthorized" in str(exc):  # NVIDIA's server and ours: no retry can change it
+                raise refused_token(self.url, str(exc)) from None
             raise ConnectionError(f"the server at {self.url} refused a ping: {exc}") from None
         try:
             metadata = self._call(endpoint_request(METADATA, self.api_token), timeout)
@@ -80,6 +88,8 @@ class ZmqTransport(Transport):
         assert socket is not None
         milliseconds = max(1, int(timeout * 1000))
         payload = packb(request)
+        if len(payload) > self.max_message_bytes:
+            raise over_limit(self.url, "a request", len(payload), self.max_message_bytes)
         try:
             # A REQ socket with no server behind it blocks on send (nothing was sent: safe to send again once
             # reconnected); one that sent must receive before it can send again: either way the socket ends.
@@ -113,7 +123,10 @@ class ZmqTransport(Transport):
                 return self._socket.recv()
             if self._monitor in ready and recv_monitor_message(self._monitor)["event"] == zmq.EVENT_DISCONNECTED:
                 self.close()
-                raise ConnectionError("the server closed the connection before it answered")
+                raise ConnectionError(  # ZeroMQ drops a reply over MAXMSGSIZE the same way, unread
+                    "the server closed the connection before it answered (or its reply was over this run's "
+                    f"max_message_bytes, {self.max_message_bytes} bytes: CONFLICTBENCH_MAX_MESSAGE_BYTES)"
+                )
         self.close()
         raise TimeoutError(f"no answer within {timeout:g} s")
 
@@ -133,7 +146,7 @@ def answers_ping(url: str, api_token: str | None = None, timeout: float = 1.0) -
     try:
         transport.connect(timeout=timeout)
         return transport.exchange(endpoint_request(PING, api_token), timeout=timeout).get("status") == "ok"
-    except (OSError, InfrastructureError):
+    except (OSError, InfrastructureError, ServerUnavailable):  # a server that refuses the token does not answer
         return False
     finally:
         transport.close()
