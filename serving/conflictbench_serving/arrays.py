@@ -110,7 +110,10 @@ def load_npy(data: Any) -> np.ndarray:
 def json_numpy_loads(text: str | bytes) -> Any:
     """``json_numpy.loads``, each ``{"__numpy__": base64, "dtype": ..., "shape": [...]}`` checked before it is built
     (an empty shape gives the scalar, as json-numpy does). Raises ValueError for what is not json-numpy."""
-    return json.loads(text, object_hook=_json_numpy_object)
+    try:
+        return json.loads(text, object_hook=_json_numpy_object)
+    except RecursionError:  # a body of nothing but brackets: a bad request, not a server error
+        raise ValueError("JSON nested too deeply") from None
 
 
 def _json_numpy_object(obj: dict) -> Any:

@@ -107,3 +107,11 @@ def test_every_codec_still_reads_what_the_protocols_carry():
             assert decoded[key].dtype == value.dtype
             np.testing.assert_array_equal(decoded[key], value)
     assert through_zmq["image"].flags.writeable  # GR00T's arrays come back writable, as np.load gives them
+
+
+def test_deep_nesting_is_a_bad_message_in_every_codec():
+    with pytest.raises(ValueError, match="nested too deeply"):
+        arrays.json_numpy_loads("[" * 100_000 + "]" * 100_000)
+    for unpackb in (msgpack_numpy.unpackb, zeromq.unpackb):
+        with pytest.raises(ValueError):
+            unpackb(b"\x91" * 100_000 + b"\xc0")
