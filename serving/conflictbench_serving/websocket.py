@@ -15,8 +15,9 @@ internals), and so is a full queue (``ServerBusy: ...``).
 What a peer may do is the :class:`~.guard.Guard`'s (the server's own, else the process-wide one): with a token,
 the upgrade must carry ``Authorization: Api-Key <token>`` (HTTP 401 otherwise; ``/healthz`` answers without it:
 it says nothing); frames over ``max_message_bytes`` close the connection with code 1009 (websockets' own check,
-before the frame is read whole); beyond ``max_connections`` open connections a new one is refused with HTTP 503
-(or, when many arrive at once, closed with code 1013, try again later); the batcher queues at most ``max_queued``.
+before the frame is read whole), and at most :data:`MAX_QUEUED_FRAMES` are read ahead of the one being answered;
+beyond ``max_connections`` open connections a new one is refused with HTTP 503 (or, when many arrive at once,
+closed with code 1013, try again later); the batcher queues at most ``max_queued``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,10 @@ from .guard import AUTHORIZATION, SCHEME, Guard, current
 from .loop import serve_until_stopped
 
 logger = logging.getLogger(__name__)
+
+#: Frames read ahead on one connection (websockets' default is 16, each up to max_message_bytes): our clients send
+#: one request and wait for its reply, so a peer that sends more is held back by TCP, not buffered here.
+MAX_QUEUED_FRAMES = 2
 
 __all__ = ["FatalRequest", "WebsocketPolicyServer", "batched", "serve_until_stopped"]
 
@@ -95,6 +100,7 @@ class WebsocketPolicyServer:
                 port,
                 compression=None,
                 max_size=guard.max_message_bytes,
+                max_queue=MAX_QUEUED_FRAMES,
                 process_request=functools.partial(_admit, guard, lambda: self._connections),
             ) as server:
                 bound_host, bound_port = next(iter(server.sockets)).getsockname()[:2]

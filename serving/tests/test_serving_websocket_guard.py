@@ -137,3 +137,35 @@ def test_a_server_given_no_guard_uses_the_process_wide_one():
             connect(f"ws://127.0.0.1:{port}", proxy=None, open_timeout=TIMEOUT_S)
     finally:
         guards._current = before
+
+
+def test_a_peer_that_sends_without_reading_is_held_back_not_buffered():
+    """Frames sent while the model holds the first are not read ahead without bound (websockets buffers 16 by
+    default: 16 x max_message_bytes per connection); TCP holds the sender back instead."""
+    release = threading.Event()
+
+    def held(rows):
+        release.wait(TIMEOUT_S)
+        return rows
+
+    async def answer(frame, session):
+        length, _ = await server.batcher.submit(len(frame))
+        return packb({"length": length})
+
+    server = WebsocketPolicyServer(answer, packb({}), Batcher(held, 1, False))
+    sent = []
+    with running(server) as port, connect(f"ws://127.0.0.1:{port}", proxy=None, max_size=None) as client:
+        client.recv(timeout=TIMEOUT_S)
+
+        def flood():
+            for _ in range(12):
+                client.send(b"x" * 6 * 2**20)
+                sent.append(1)
+
+        sender = threading.Thread(target=flood, daemon=True)
+        sender.start()
+        sender.join(2)
+        in_flight = len(sent)
+        release.set()
+        sender.join(TIMEOUT_S)
+    assert in_flight <= 8, f"{in_flight} frames of 6 MiB were taken while the model held the first"
