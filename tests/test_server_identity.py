@@ -235,6 +235,11 @@ def test_each_started_server_gets_a_fresh_token_in_its_environment_never_on_its_
             assert token not in Path(f"/proc/{pid}/cmdline").read_text()
             np.testing.assert_array_equal(policy.act(observation()), standin_actions(observation()))
             tokens.append(token)
+            from conflictbench.hosting.openpi import OpenpiTransport
+
+            stranger = OpenpiTransport(f"ws://127.0.0.1:{policy.server.address[1]}")  # another user of this machine
+            with pytest.raises((ServerUnavailable, OSError), match="401"):
+                stranger.connect(timeout=5)
         finally:
             policy.close()
         assert token not in policy.server.log_path.read_text()  # never logged

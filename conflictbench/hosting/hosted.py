@@ -8,7 +8,8 @@ and ``decode``) and a few declarations:
   the model environment ``scripts/setup.sh --models NAME`` builds (its Python runs the server), the fast
   check, without the model stack, that a folder holds the policy's checkpoint (its message a :class:`UserError`
   here), and what ``conflictbench-serve POLICY`` hosts (``python -m conflictbench_serving POLICY --checkpoint DIR
-  --host H --port N --device D --max-batch B``, found through the plugin's ``conflictbench_serving`` entry point);
+  --host 127.0.0.1 --port 0 --device D --max-batch B --ready-fd N``, found through the plugin's
+  ``conflictbench_serving`` entry point);
 - ``transport`` (the protocol's :class:`~.transport.Transport`) and ``url_scheme`` (``ws``, ``tcp``, ...);
 - ``fingerprint(folder)``: a digest of the checkpoint's content;
 - ``HostedConfig.minimums``: the least value of each numeric setting (a plugin's config adds its own).
