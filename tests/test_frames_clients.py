@@ -1,6 +1,6 @@
-"""The run's transports against real servers on 127.0.0.1: they send the server's token (and stop the run in one
-line when it is refused), bound what they send and read by max_message_bytes, and still read the traceback frames
-openpi's own servers send."""
+"""The run's transports against real servers on 127.0.0.1: they send the server's token (a refused one is a
+PermissionError, which the client never retries: the run stops in one line), bound what they send and read by
+max_message_bytes, and still read the traceback frames openpi's own servers send."""
 
 from __future__ import annotations
 
@@ -8,11 +8,12 @@ import asyncio
 import http.server
 import socket
 import threading
+import time
 from contextlib import contextmanager
 
 import pytest
 
-from conflictbench import InfrastructureError, ServerUnavailable
+from conflictbench import InfrastructureError, PolicyClient, ServerUnavailable
 from conflictbench.hosting import transport as transports
 
 serving = pytest.importorskip("conflictbench_serving")
@@ -73,9 +74,14 @@ def test_openpi_sends_the_token_and_a_refused_one_stops_the_run_in_one_line():
         assert good.metadata == {"hosted": "blobs"} and len(good.exchange({"size": 3}, TIMEOUT_S)["blob"]) == 3
         good.close()
         for token in (None, "wrong"):
-            with pytest.raises(ServerUnavailable, match="refused our token: HTTP 401 Unauthorized") as refused:
+            with pytest.raises(PermissionError, match="refused this run's token: HTTP 401 Unauthorized") as refused:
                 OpenpiTransport(url, token=token).connect(TIMEOUT_S)
             assert "\n" not in str(refused.value) and "s3cret" not in str(refused.value)
+        client = PolicyClient(url, lambda url: OpenpiTransport(url, token="wrong"), connect_retries=5)
+        started = time.monotonic()
+        with pytest.raises(ServerUnavailable, match="refused this run's token: HTTP 401 .*CONFLICTBENCH_SERVER_TOKEN"):
+            client.open()  # at once: asking again with the same token cannot help
+        assert time.monotonic() - started < 2
 
 
 def test_openpi_bounds_what_it_reads_and_sends_and_says_so():
@@ -165,7 +171,7 @@ def test_json_numpy_sends_the_token_on_every_request_and_a_refused_one_stops_the
         assert good.exchange("hello", TIMEOUT_S) == '"hello"'  # POST /act, with the token
         good.close()
         for token in (None, "wrong"):
-            with pytest.raises(ServerUnavailable, match="refused our token: HTTP 401") as refused:
+            with pytest.raises(PermissionError, match="refused this run's token: HTTP 401") as refused:
                 JsonNumpyTransport(url, token=token).connect(TIMEOUT_S)
             assert "\n" not in str(refused.value) and "s3cret" not in str(refused.value)
 
@@ -244,7 +250,7 @@ def test_zeromq_stops_at_once_on_a_refused_token_and_bounds_what_it_sends():
 
     with running(Echo(Batcher(lambda r: r, 1, False), {}, guard=Guard(token="s3cret"))) as port:
         url = f"tcp://127.0.0.1:{port}"
-        with pytest.raises(ServerUnavailable, match="refused our token: .*Unauthorized: Invalid API token"):
+        with pytest.raises(PermissionError, match="refused this run's token: .*Unauthorized: Invalid API token"):
             ZmqTransport(url, api_token="wrong").connect(TIMEOUT_S)
         small = ZmqTransport(url, api_token="s3cret", max_message_bytes=1000)
         small.connect(TIMEOUT_S)

@@ -8,10 +8,10 @@ text frame in reply is the server's error (openpi sends the traceback, then clos
 is the model's (its plugin's ``protocol``).
 
 ``token`` travels on the upgrade as openpi-client sends its API key (``Authorization: Api-Key <token>``; a server
-that refuses it, HTTP 401, stops the run at once). Frames are bounded both ways by ``max_message_bytes`` (default:
-``$CONFLICTBENCH_MAX_MESSAGE_BYTES``, else 12 MiB): a larger request is not sent, a larger reply not read (either
-is an :class:`InfrastructureError` naming the bound), and a request the server finds too large (close code 1009)
-says so too.
+that refuses it, HTTP 401, raises :class:`PermissionError`: the client stops the run at once). Frames are bounded
+both ways by ``max_message_bytes`` (default: ``$CONFLICTBENCH_MAX_MESSAGE_BYTES``, else 12 MiB): a larger request is
+not sent, a larger reply not read (either is an :class:`InfrastructureError` naming the bound), and a request the
+server finds too large (close code 1009) says so too.
 
 The shared client (:class:`~.client.PolicyClient`) makes one per simulator worker and owns retries and
 reconnection. Needs the ``openpi`` extra, ``conflictbench[openpi]``: ``websockets`` and ``conflictbench-serving``

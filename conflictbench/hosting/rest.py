@@ -38,7 +38,7 @@ class JsonNumpyTransport(HttpJsonTransport):
 
     On connecting it asks ``GET /metadata`` (beside ``/act``): our server says what it hosts there; upstream's
     ``deploy.py`` has no such route (404), and ``metadata`` stays empty. ``token`` goes on every request, that one
-    included (a server that refuses it stops the run at once).
+    included (a server that refuses it: :class:`PermissionError`, and the client stops the run at once).
     """
 
     def __init__(self, url: str, token: str | None = None, max_message_bytes: int | None = None):

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import InfrastructureError, ServerUnavailable, UserError
+from ..core.errors import InfrastructureError, UserError
 
 #: The largest reply a client reads, and request it sends: conflictbench_serving.guard's bound (12 MiB: four rows of
 #: three 512 x 512 RGB cameras, base64'd), set for servers and clients alike by the same variable. Restated here:
@@ -56,13 +56,10 @@ def over_limit(url: str, what: str, size: int | str, limit: int) -> Infrastructu
     )
 
 
-def refused_token(url: str, detail: str) -> ServerUnavailable:
-    """A server that refused our token (or its lack): the run stops at once, no retry can change it."""
-    return ServerUnavailable(
-        url,
-        f"it refused our token: {one_line(detail)}; a server started with a token needs the run to send the "
-        "same one (model.token_file or CONFLICTBENCH_SERVER_TOKEN)",
-    )
+def refused_token(url: str, detail: str) -> PermissionError:
+    """What a transport raises when the server refused our token or its absence (HTTP 401, ``Unauthorized``): the
+    client never asks again with the same token, it stops the run in one line (:mod:`.client`)."""
+    return PermissionError(f"{url} refused this run's token: {one_line(detail)}")
 
 
 class Transport(ABC):
@@ -94,8 +91,8 @@ class HttpJsonTransport(Transport):
     status of 400 or more, or a JSON object whose only key is ``error``, raises
     :class:`InfrastructureError`; so does a reply over ``max_message_bytes`` (read no further) and a request over
     it (not sent). ``token``: sent on every request (``Authorization: Api-Key <token>``); a server that answers
-    HTTP 401 stops the run (:class:`ServerUnavailable`). A protocol with another JSON dialect (json-numpy's arrays)
-    overrides :meth:`dumps` and :meth:`loads`.
+    HTTP 401 raises :class:`PermissionError` (the client stops the run at once). A protocol with another JSON
+    dialect (json-numpy's arrays) overrides :meth:`dumps` and :meth:`loads`.
     """
 
     def __init__(self, url: str, token: str | None = None, max_message_bytes: int | None = None):

@@ -10,10 +10,10 @@ is there with a ``ping`` and then asks for our metadata endpoint (NVIDIA's serve
 hides a dropped TCP connection, so a socket monitor watches for it: a server that dies while a request waits is a
 lost connection (the client reconnects and sends it again, or stops the run), not a slow model. ``{"error":
 ...}`` replies are the server's errors: :class:`InfrastructureError`; a server that refuses our ``api_token``
-(``Unauthorized``, NVIDIA's answer and ours) stops the run at once. Messages are bounded both ways by
-``max_message_bytes`` (default: ``$CONFLICTBENCH_MAX_MESSAGE_BYTES``, else 12 MiB): a larger request is not sent
-(:class:`InfrastructureError` naming the bound); a larger reply is dropped by ZeroMQ (``MAXMSGSIZE``) before it is
-read, which the monitor sees as a dropped connection.
+(``Unauthorized``, NVIDIA's answer and ours) raises :class:`PermissionError`: the client stops the run at once.
+Messages are bounded both ways by ``max_message_bytes`` (default: ``$CONFLICTBENCH_MAX_MESSAGE_BYTES``, else 12 MiB):
+a larger request is not sent (:class:`InfrastructureError` naming the bound); a larger reply is dropped by ZeroMQ
+(``MAXMSGSIZE``) before it is read, which the monitor sees as a dropped connection.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import time
 import urllib.parse
 from typing import Any
 
-from ..core.errors import InfrastructureError, ServerUnavailable, UserError
+from ..core.errors import InfrastructureError, UserError
 from .transport import Transport, extra_missing, message_limit, one_line, over_limit, refused_token
 
 try:
@@ -146,7 +146,7 @@ def answers_ping(url: str, api_token: str | None = None, timeout: float = 1.0) -
     try:
         transport.connect(timeout=timeout)
         return transport.exchange(endpoint_request(PING, api_token), timeout=timeout).get("status") == "ok"
-    except (OSError, InfrastructureError, ServerUnavailable):  # a server that refuses the token does not answer
+    except (OSError, InfrastructureError):  # a refused token (PermissionError) is no answer either
         return False
     finally:
         transport.close()
