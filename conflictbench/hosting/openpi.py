@@ -109,7 +109,7 @@ class OpenpiTransport(Transport):
             if server_first and exc.rcvd is not None and exc.rcvd.code == _MESSAGE_TOO_BIG:  # it refused our request
                 raise InfrastructureError(
                     f"{self.url} refused a request of {len(frame)} bytes as too big ({one_line(exc.rcvd.reason)}): "
-                    "the server's max_message_bytes is lower than this run's"
+                    "the server's limit (conflictbench-serve --max-message-mib) is lower than this run's"
                 ) from None
             if not server_first and exc.sent is not None and exc.sent.code == _MESSAGE_TOO_BIG:  # we refused its reply
                 raise over_limit(self.url, "a reply", f"more than {limit}", limit) from None

@@ -52,7 +52,7 @@ def over_limit(url: str, what: str, size: int | str, limit: int) -> Infrastructu
     """The one line for a message over the bound: which, how large, the bound and the setting that moves it."""
     return InfrastructureError(
         f"{url}: {what} of {size} bytes is over the limit of {limit} bytes (max_message_bytes; raise it with "
-        f"{MESSAGE_LIMIT_VARIABLE} for the run and the server alike)"
+        f"{MESSAGE_LIMIT_VARIABLE} for the run, and conflictbench-serve --max-message-mib for the server)"
     )
 
 

@@ -139,7 +139,7 @@ async def _send_error(send, status: int, message: str) -> None:
 
 
 def _too_large(limit: int) -> str:
-    return f"the body is over this server's limit of {limit} bytes (max_message_bytes)"
+    return f"the body is over this server's limit of {limit} bytes (conflictbench-serve --max-message-mib)"
 
 
 def _one_line(text: str, limit: int = 500) -> str:

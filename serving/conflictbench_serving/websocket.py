@@ -119,7 +119,7 @@ class WebsocketPolicyServer:
     async def _handle(self, connection: ws_server.ServerConnection) -> None:
         limit = self._serving.max_connections
         if self._connections >= limit:  # upgrades that passed _admit together: the handler count is exact
-            reason = f"busy: {limit} connections (max_connections)"
+            reason = f"busy: {limit} connections (--max-connections)"
             await connection.close(code=CloseCode.TRY_AGAIN_LATER, reason=reason)
             return
         self._connections += 1
@@ -186,6 +186,6 @@ def _admit(
     if connections() >= guard.max_connections:
         return connection.respond(
             http.HTTPStatus.SERVICE_UNAVAILABLE,
-            f"Busy: this server serves {guard.max_connections} connections at most (max_connections)\n",
+            f"Busy: this server serves {guard.max_connections} connections at most (--max-connections)\n",
         )
     return None
