@@ -213,13 +213,6 @@ def _environ(pid: int) -> dict[str, str]:
     return dict(item.decode(errors="replace").partition("=")[::2] for item in raw if item)
 
 
-@pytest.mark.skipif(
-    "token"
-    not in __import__("inspect")
-    .signature(__import__("conflictbench.hosting.openpi").hosting.openpi.OpenpiTransport)
-    .parameters,
-    reason="OpenpiTransport takes no token yet: the run gives a started server none its client cannot send",
-)
 def test_each_started_server_gets_a_fresh_token_in_its_environment_never_on_its_command_line(
     standin, tmp_path, monkeypatch
 ):
