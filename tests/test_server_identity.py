@@ -13,6 +13,7 @@ know.
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 import textwrap
@@ -206,6 +207,23 @@ def test_a_started_server_that_leaves_out_what_it_hosts_is_refused_in_one_line(s
     message = str(refused.value)
     assert "\n" not in message and unsaid.split("_")[-1] in message and "started for this run" in message, message
     assert policy.server is None or not policy.server.running  # stopped, not left behind
+
+
+def test_once_the_started_server_has_exited_nothing_is_sent_to_whoever_takes_its_port(standin, tmp_path):
+    policy = load(standin, checkpoint(tmp_path / "ckpt"), connect_retries=1, backoff_s=0.1)
+    policy.start()
+    try:
+        port = policy.server.address[1]
+        policy.server.process.kill()
+        policy.server.process.wait(10)
+        with socket.create_server(("127.0.0.1", port)) as taken:  # the port is free: anyone may listen there now
+            taken.settimeout(0.1)
+            with pytest.raises(ServerUnavailable, match="started for this run exited with code -9"):
+                policy.act(observation())
+            with pytest.raises(TimeoutError):
+                taken.accept()  # no connection came
+    finally:
+        policy.close()
 
 
 def _environ(pid: int) -> dict[str, str]:
