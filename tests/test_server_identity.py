@@ -33,7 +33,7 @@ NAME = "idprobe"
 PACKAGE = f"conflictbench_{NAME}"
 TOKEN_VARIABLE = "CONFLICTBENCH_SERVER_TOKEN"
 #: How long the stand-in takes to load its "model": long enough for the squatter to move first.
-LOAD_S = 3.0
+LOAD_S = 1.0
 #: What the model environment needs besides the plugin: conflictbench-serving and what it imports to serve openpi.
 SERVER_HALF = ("numpy", "numpy.libs", "msgpack", "websockets")
 
