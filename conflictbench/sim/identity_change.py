@@ -13,6 +13,7 @@ from pathlib import Path
 from conflictbench.hosting.hosted import version_changes
 from conflictbench.store import EpisodeStore
 from conflictbench.store.durable import stops_when_full
+from conflictbench.store.paths import write_inside
 
 from .stack import SIMULATOR_COLUMNS, extra_stack
 
@@ -32,11 +33,8 @@ def keep_manifests(root: Path, manifests: Mapping[str, Mapping[str, str]]) -> No
     for pin, hashes in manifests.items():
         path = _manifest_path(root, pin)
         if not path.exists():
-            temporary = path.with_suffix(".tmp")
-            with stops_when_full(root, temporary):  # a full disk: one line, no half-written manifest left
-                path.parent.mkdir(parents=True, exist_ok=True)
-                temporary.write_text(json.dumps(dict(hashes), indent=0, sort_keys=True))
-                temporary.replace(path)
+            with stops_when_full(root):  # a full disk: one line, no half-written manifest left; never through a link
+                write_inside(root, path, json.dumps(dict(hashes), indent=0, sort_keys=True).encode(), "the store")
 
 
 def _by_name(pins) -> dict[str, str]:

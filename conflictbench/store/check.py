@@ -19,6 +19,7 @@ was wrong, where it was, when), where no read of the store looks; nothing is eve
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import struct
@@ -31,6 +32,9 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.dataset as ds
 
+from conflictbench.core import UserError
+
+from . import paths
 from .schema import SCHEMA
 
 DAMAGED = "damaged"
@@ -142,37 +146,56 @@ def _store_root(path: Path) -> Path:
 
 def set_aside(path: Path, reason: str, *, say: bool = True, then: str = "the next run plays it again") -> Path | None:
     """Move a damaged episode file to ``<store>/damaged/`` (same place below it) with a note why; one line on stderr
-    names it. Returns where it went, or None where it could not be moved (it stays; reads skip it again)."""
+    names it. Returns where it went, or None where it could not be moved (it stays; reads skip it again). Both
+    folders are reached from the store's root without following a link, and the note is made whole, never through
+    a link at its name: a link in ``damaged/`` takes nothing out of the store (#42)."""
     root = _store_root(path)
     where = path.relative_to(root)
-    target = root / DAMAGED / where
+    source = target = None
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        number = 1
-        while target.exists():  # set aside before (the same episode damaged again): keep both
+        source = paths.open_folder(root, where.parts[:-1], "a damaged file")
+        if source is None:
+            return None  # its folder is gone: so is the file
+        target = paths.open_folder(root, (DAMAGED, *where.parts[:-1]), "a damaged file", make=True)
+        name, number = path.name, 1
+        while _exists(name, target):  # set aside before (the same episode damaged again): keep both
             number += 1
-            target = target.with_name(f"{path.stem}.{number}{path.suffix}")
-        os.rename(path, target)  # the same file system: a rename, atomic (a link is moved as a link)
+            name = f"{path.stem}.{number}{path.suffix}"
+        # the same file system: a rename, atomic (a link is moved as a link); never over an entry of damaged/
+        os.rename(path.name, name, src_dir_fd=source, dst_dir_fd=target)
+        note = (
+            f"{reason}\nwas {where}\nset aside {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} by "
+            f"{socket.gethostname()} pid {os.getpid()}\n"
+        )
+        with contextlib.suppress(OSError):  # (a full disk) the file is set aside all the same; the note says why
+            paths.write_at(target, name + NOTE_SUFFIX, note.encode())
     except FileNotFoundError:
         if not os.path.lexists(path):
             return None  # another process set it aside first
         return _not_moved(where, reason, "a folder is missing", say)
+    except UserError as exc:  # a folder on the way is a link (or a file): never followed
+        return _not_moved(where, reason, str(exc), say)
     except OSError as exc:
         return _not_moved(where, reason, exc.strerror or str(exc), say)
-    note = (
-        f"{reason}\nwas {where}\nset aside {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} by "
-        f"{socket.gethostname()} pid {os.getpid()}\n"
-    )
-    try:
-        target.with_name(target.name + NOTE_SUFFIX).write_text(note)
-    except OSError:  # (a full disk) the file is set aside all the same; the note only says why
-        pass
+    finally:
+        for fd in (source, target):
+            if fd is not None:
+                os.close(fd)
+    moved = root / DAMAGED / where.parent / name
     if say:
         print(
-            f"conflictbench: damaged episode file {where} ({reason}): set aside as {target.relative_to(root)}; {then}",
+            f"conflictbench: damaged episode file {where} ({reason}): set aside as {moved.relative_to(root)}; {then}",
             file=sys.stderr,
         )
-    return target
+    return moved
+
+
+def _exists(name: str, folder: int) -> bool:
+    try:
+        os.stat(name, dir_fd=folder, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    return True
 
 
 def _not_moved(where: Path, reason: str, why: str, say: bool) -> None:

@@ -11,11 +11,24 @@ machine's does). Claims of the older ``host pid token`` form are still read; an 
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import functools
 import hashlib
 import os
+import time
 import uuid
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+
+from conflictbench.core import UserError
+
+from . import paths
+from .durable import stops_when_full
+
+#: The lock under which claims are taken over (``claims/.takeover.lock``).
+LOCK = ".takeover.lock"
 
 _nonce: tuple[int, str] | None = None
 
@@ -45,8 +58,9 @@ def pid_place() -> str:
 def read_claim(path: Path) -> tuple[str, str, str, str | None, str | None] | None:
     """(host, pid, renewal token, nonce, place) of a claim; the older ``host pid token`` form has no nonce or place
     (both None). None where there is no claim or it cannot be read."""
-    try:
-        host, pid, token = path.read_text().split()
+    try:  # never through a link at the claim's name (its text would come from anywhere)
+        with os.fdopen(os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)) as fh:
+            host, pid, token = fh.read().split()
     except (OSError, ValueError):
         return None
     if not pid.isdigit():
@@ -63,4 +77,146 @@ def pid_alive(pid: int) -> bool:
         return False
     except PermissionError:  # exists, owned by someone else
         return True
+    return True
+
+
+class Claims:
+    """The claims of an :class:`~conflictbench.store.episodes.EpisodeStore` (its ``claims/`` folder): taken, renewed,
+    released and checked. Every write and delete there goes through the folder's descriptor, reached from the
+    store's root without following a link (a ``claims`` that is a link is refused in one line), and makes its
+    files exclusively, never through a link: a claim, its temporary and the takeover lock stay in the store (#42)."""
+
+    root: Path
+    claims_dir: Path
+    remote_claim_ttl_s: float
+    _host: str
+    _seen: dict[str, tuple[str, float]]
+    _temporary_tag: str
+
+    @contextlib.contextmanager
+    def _claims_folder(self, make: bool = True) -> Iterator[int | None]:
+        fd = paths.open_folder(self.root, (self.claims_dir.name,), "a claim", make=make)
+        try:
+            yield fd
+        finally:
+            if fd is not None:
+                os.close(fd)
+
+    @contextlib.contextmanager
+    def _takeover_lock(self, folder: int) -> Iterator[None]:
+        """The lock under which claims are taken over, renewed and released, one process at a time."""
+        try:
+            lock = os.open(LOCK, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644,
+                           dir_fd=folder)  # fmt: skip
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                where = self.claims_dir / LOCK
+                raise UserError(f"{where} is a link: claims never lock through one (remove it)") from None
+            raise
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            yield
+        finally:
+            os.close(lock)
+
+    def _claim_path(self, episode_id: str) -> Path:
+        return self.claims_dir / f"{episode_id}.claim"
+
+    def _claimed_by_other(self, path: Path) -> bool:
+        """Whether a live process other than this one holds the claim at ``path``."""
+        claim = read_claim(path)
+        if claim is None:
+            return False
+        host, pid, token, nonce, place = claim
+        if host != self._host or (place is not None and place != pid_place()):
+            # Another machine's process, or another container's (the same host name, its own process ids), cannot
+            # be checked from here: its claim holds while its owner renews it (each renewal writes a new token),
+            # and for the TTL after this process sees it stop changing.
+            text, now = " ".join(p or "" for p in claim), time.monotonic()
+            seen = self._seen.get(path.name)
+            if seen is None or seen[0] != text:
+                self._seen[path.name] = (text, now)
+                return True
+            return now - seen[1] < self.remote_claim_ttl_s
+        # This place: a claim with this process's id is this process's, or (another nonce) an earlier process's
+        # that had the id, gone since; another id is checked.
+        return int(pid) != os.getpid() and pid_alive(int(pid))
+
+    def claim(self, episode_id: str) -> bool:
+        """Mark an episode as being played by this process; False if another live process holds it.
+
+        A claim appears whole (written aside, then hard-linked into place, which fails if one exists),
+        so no process ever reads a half-written claim as a dead one. Taking over a dead process's
+        claim happens under a lock, one process at a time."""
+        path = self._claim_path(episode_id)
+        mine = f".{episode_id}.{self._temporary_tag}.tmp"
+        with stops_when_full(self.root), self._claims_folder() as folder:
+            assert folder is not None
+            try:
+                with os.fdopen(paths.create_at(folder, mine), "w") as fh:
+                    fh.write(self._claim_text())
+                if _link(folder, mine, path.name):
+                    return True
+                with self._takeover_lock(folder):
+                    if self._claimed_by_other(path):
+                        return False
+                    with contextlib.suppress(FileNotFoundError):  # ours, or its owner died (SIGKILL): take it over
+                        os.unlink(path.name, dir_fd=folder)
+                    return _link(folder, mine, path.name)  # fails if a fresh claim landed meanwhile
+            finally:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(mine, dir_fd=folder)
+
+    def _claim_text(self) -> str:
+        """``host pid token/nonce/place``: a new token at every renewal is what tells another machine the owner is
+        alive; the nonce and place tell this process from another container's with the same host name and pid
+        (:func:`process_nonce`, :func:`pid_place`). Three fields, as before: an older reader still parses it."""
+        return f"{self._host} {os.getpid()} {uuid.uuid4().hex}/{process_nonce()}/{pid_place()}\n"
+
+    def _owns(self, path: Path) -> bool:
+        claim = read_claim(path)
+        if claim is None:
+            return False
+        host, pid, _, nonce, place = claim
+        return (host, pid, nonce, place) == (self._host, str(os.getpid()), process_nonce(), pid_place())
+
+    def refresh_claims(self, episode_ids: Iterable[str]) -> set[str]:
+        """Renew the time on this process's claims (another machine reads an old one as its owner gone); returns
+        those it no longer holds (taken over after this process looked dead: another job plays them now). Under
+        the takeover lock, so a claim taken over meanwhile is never overwritten."""
+        ids, lost = list(episode_ids), set()
+        if not ids:
+            return lost
+        with stops_when_full(self.root), self._claims_folder() as folder, self._takeover_lock(folder):
+            for episode_id in ids:
+                path = self._claim_path(episode_id)
+                if not self._owns(path):
+                    lost.add(episode_id)
+                    continue
+                paths.write_at(folder, path.name, self._claim_text().encode(), tag=self._temporary_tag)
+        return lost
+
+    def release(self, episode_id: str) -> None:
+        """Give up this process's claim (one another process took over stays theirs)."""
+        path = self._claim_path(episode_id)
+        if not path.exists():
+            return
+        with self._claims_folder(make=False) as folder:
+            if folder is None:
+                return
+            with self._takeover_lock(folder):
+                if self._owns(path):
+                    with contextlib.suppress(FileNotFoundError):
+                        os.unlink(path.name, dir_fd=folder)
+
+    def held_by_others(self, episode_ids: Iterable[str]) -> set[str]:
+        return {e for e in episode_ids if self._claimed_by_other(self._claim_path(e))}
+
+
+def _link(folder: int, source: str, target: str) -> bool:
+    """Create ``target`` as a hard link to ``source`` (both in ``folder``), atomically; False if ``target`` exists."""
+    try:
+        os.link(source, target, src_dir_fd=folder, dst_dir_fd=folder, follow_symlinks=False)
+    except FileExistsError:
+        return False
     return True

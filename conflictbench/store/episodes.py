@@ -13,15 +13,13 @@ once stored, removes it. Planning reads only file names, never file contents.
 
 from __future__ import annotations
 
-import fcntl
 import os
 import shutil
 import socket
 import threading
-import time
-import uuid
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import BinaryIO
 
 import pyarrow as pa
 import pyarrow.dataset as ds
@@ -31,8 +29,8 @@ from conflictbench.core import EpisodeRecord, StoreFull, UserError
 
 from . import paths
 from .check import footer_damage, read_intact, set_aside
-from .claims import pid_alive, pid_place, process_nonce, read_claim
-from .durable import stops_when_full, sync_folder
+from .claims import Claims, pid_alive, pid_place, process_nonce
+from .durable import land
 from .schema import SCHEMA, records_to_table, table_to_records
 
 SUFFIX = ".parquet"
@@ -46,7 +44,7 @@ REMOTE_CLAIM_TTL_S = 10 * 60
 CLAIM_REFRESH_S = 60.0
 
 
-class EpisodeStore:
+class EpisodeStore(Claims):
     claim_refresh_s = CLAIM_REFRESH_S
     remote_claim_ttl_s = REMOTE_CLAIM_TTL_S
 
@@ -73,23 +71,16 @@ class EpisodeStore:
         path = folder / paths.check_name("policy", policy) / f"{paths.check_name('episode id', episode_id)}{SUFFIX}"
         return paths.confined(self.root, path)
 
-    def _land(self, final: Path, write: Callable[[Path], object]) -> None:
-        """``write(temporary)`` beside ``final``, flushed to disk, then renamed into place, and the folder synced:
-        whole or absent, and once returned, there after a power loss. A failed write leaves no temporary; a full
-        disk is :class:`StoreFull`."""
-        tmp = final.with_name(f".{final.name}.{self._temporary_tag}.tmp")  # clean_stale_temporaries knows it
-        with stops_when_full(self.root, tmp):
-            final.parent.mkdir(parents=True, exist_ok=True)
-            write(tmp)
-            with open(tmp, "rb") as fh:
-                os.fsync(fh.fileno())
-            os.replace(tmp, final)
-        sync_folder(final.parent)
+    def _land(self, final: Path, write: Callable[[BinaryIO], object]) -> None:
+        """``write(file)`` beside ``final``, flushed, renamed into place, the folder synced (``durable.land``): whole
+        or absent, never through a link below the root; a full disk is :class:`StoreFull`."""
+        land(self.root, final, self._temporary_tag, write)  # clean_stale_temporaries knows the temporary's name
 
     def copy_in(self, source: Path, policy: str, episode_id: str) -> None:
         """Store an episode file from another store as it is (``conflictbench merge``), atomically."""
-        self._land(self.path_for(policy, episode_id), lambda tmp: shutil.copyfile(source, tmp))
-        self.replay_path_for(policy, episode_id).unlink(missing_ok=True)  # played after all
+        with open(os.open(source, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC), "rb") as src:  # a listed file
+            self._land(self.path_for(policy, episode_id), lambda out: shutil.copyfileobj(src, out, 1 << 20))
+        paths.unlink_inside(self.root, self.replay_path_for(policy, episode_id))  # played after all
 
     def write(self, record: EpisodeRecord) -> Path:
         """Write one episode atomically (temporary file in the same directory, then rename).
@@ -101,14 +92,14 @@ class EpisodeStore:
         final = (self.replay_path_for if replay else self.path_for)(record.policy, record.episode_id)
         repeated = replay and self._last_failure(final) == (record.failure_kind, record.error)
         # Page checksums: a byte flipped on disk later is found by a full read (`conflictbench store check`).
-        self._land(final, lambda tmp: pq.write_table(records_to_table([record]), tmp, write_page_checksum=True))
+        self._land(final, lambda out: pq.write_table(records_to_table([record]), out, write_page_checksum=True))
         marker = self.replay_path_for(record.policy, record.episode_id).with_suffix(REPEATED_SUFFIX)
-        if repeated:
-            marker.touch()
+        if repeated:  # made whole, never through a link at its name (as every write below the root, #42)
+            paths.write_inside(self.root, marker, b"", "the store")
         else:
-            marker.unlink(missing_ok=True)
+            paths.unlink_inside(self.root, marker)
         if not replay:  # the replay of an episode the infrastructure ended: drop the failed attempt
-            self.replay_path_for(record.policy, record.episode_id).unlink(missing_ok=True)
+            paths.unlink_inside(self.root, self.replay_path_for(record.policy, record.episode_id))
         return final
 
     @staticmethod
@@ -205,100 +196,7 @@ class EpisodeStore:
     def records(self, episode_ids: Iterable[str] | None = None) -> list[EpisodeRecord]:
         return table_to_records(self.read_table(episode_ids=episode_ids))
 
-    # -- claims ----------------------------------------------------------------------------
-    def _claim_path(self, episode_id: str) -> Path:
-        return self.claims_dir / f"{episode_id}.claim"
-
-    def _claimed_by_other(self, path: Path) -> bool:
-        """Whether a live process other than this one holds the claim at ``path``."""
-        claim = read_claim(path)
-        if claim is None:
-            return False
-        host, pid, token, nonce, place = claim
-        if host != self._host or (place is not None and place != pid_place()):
-            # Another machine's process, or another container's (the same host name, its own process ids), cannot
-            # be checked from here: its claim holds while its owner renews it (each renewal writes a new token),
-            # and for the TTL after this process sees it stop changing.
-            text, now = " ".join(p or "" for p in claim), time.monotonic()
-            seen = self._seen.get(path.name)
-            if seen is None or seen[0] != text:
-                self._seen[path.name] = (text, now)
-                return True
-            return now - seen[1] < self.remote_claim_ttl_s
-        # This place: a claim with this process's id is this process's, or (another nonce) an earlier process's
-        # that had the id, gone since; another id is checked.
-        return int(pid) != os.getpid() and pid_alive(int(pid))
-
-    def claim(self, episode_id: str) -> bool:
-        """Mark an episode as being played by this process; False if another live process holds it.
-
-        A claim appears whole (written aside, then hard-linked into place, which fails if one exists),
-        so no process ever reads a half-written claim as a dead one. Taking over a dead process's
-        claim happens under a lock, one process at a time."""
-        path = self._claim_path(episode_id)
-        mine = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
-        with stops_when_full(self.root, mine):
-            self.claims_dir.mkdir(parents=True, exist_ok=True)
-            try:
-                mine.write_text(self._claim_text())
-                if _link(mine, path):
-                    return True
-                with open(self.claims_dir / ".takeover.lock", "a") as lock:
-                    fcntl.flock(lock, fcntl.LOCK_EX)
-                    if self._claimed_by_other(path):
-                        return False
-                    path.unlink(missing_ok=True)  # ours, or its owner died (e.g. SIGKILL): take it over
-                    return _link(mine, path)  # fails if a fresh claim landed meanwhile
-            finally:
-                mine.unlink(missing_ok=True)
-
-    def _claim_text(self) -> str:
-        """``host pid token/nonce/place``: a new token at every renewal is what tells another machine the owner is
-        alive; the nonce and place tell this process from another container's with the same host name and pid
-        (:func:`process_nonce`, :func:`pid_place`). Three fields, as before: an older reader still parses it."""
-        return f"{self._host} {os.getpid()} {uuid.uuid4().hex}/{process_nonce()}/{pid_place()}\n"
-
-    def _owns(self, path: Path) -> bool:
-        claim = read_claim(path)
-        if claim is None:
-            return False
-        host, pid, _, nonce, place = claim
-        return (host, pid, nonce, place) == (self._host, str(os.getpid()), process_nonce(), pid_place())
-
-    def refresh_claims(self, episode_ids: Iterable[str]) -> set[str]:
-        """Renew the time on this process's claims (another machine reads an old one as its owner gone); returns
-        those it no longer holds (taken over after this process looked dead: another job plays them now). Under
-        the takeover lock, so a claim taken over meanwhile is never overwritten."""
-        ids, lost = list(episode_ids), set()
-        if not ids:
-            return lost
-        self.claims_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.claims_dir / ".takeover.lock", "a") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            for episode_id in ids:
-                path = self._claim_path(episode_id)
-                if not self._owns(path):
-                    lost.add(episode_id)
-                    continue
-                fresh = self.claims_dir / f".{episode_id}.{self._temporary_tag}.tmp"
-                with stops_when_full(self.root, fresh):
-                    fresh.write_text(self._claim_text())
-                    os.replace(fresh, path)
-        return lost
-
-    def release(self, episode_id: str) -> None:
-        """Give up this process's claim (one another process took over stays theirs)."""
-        path = self._claim_path(episode_id)
-        if not path.exists():
-            return
-        with open(self.claims_dir / ".takeover.lock", "a") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            if self._owns(path):
-                path.unlink(missing_ok=True)
-
-    def held_by_others(self, episode_ids: Iterable[str]) -> set[str]:
-        return {e for e in episode_ids if self._claimed_by_other(self._claim_path(e))}
-
+    # -- temporaries -----------------------------------------------------------------------
     def clean_stale_temporaries(self) -> int:
         """Remove half-written files left by processes of this machine that died mid-write (another
         machine's, on a shared store, cannot be checked from here and are left alone; so are another container's
@@ -309,10 +207,10 @@ class EpisodeStore:
             ("*/.*.tmp", self.replay_dir),
             (".*.tmp", self.claims_dir),
         ):
-            for tmp in folder.glob(pattern) if folder.is_dir() else ():
+            found, _ = paths.listing(folder, pattern)  # never into a linked folder; a link itself is left alone
+            for tmp in found:
                 if self._stale(tmp.name[: -len(".tmp")]):
-                    tmp.unlink(missing_ok=True)
-                    removed += 1
+                    removed += paths.unlink_inside(self.root, tmp)
         return removed
 
     def _stale(self, name: str) -> bool:
@@ -374,12 +272,3 @@ class ClaimKeeper:
                 self.refresh()
             except (OSError, StoreFull):  # a network store's hiccup, a full disk: the next round tries again
                 pass  # (a disk that stays full stops the run at its next write of an episode)
-
-
-def _link(source: Path, target: Path) -> bool:
-    """Create ``target`` as a hard link to ``source``, atomically; False if ``target`` exists."""
-    try:
-        os.link(source, target)
-    except FileExistsError:
-        return False
-    return True

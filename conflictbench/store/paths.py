@@ -14,13 +14,15 @@ a network file system, a site folder. So
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fnmatch
 import os
 import re
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import BinaryIO
 
 from conflictbench.core import UserError
 from conflictbench.core.words import counted
@@ -68,9 +70,11 @@ def _relative(root: Path, path: Path, what: str) -> tuple[str, ...]:
     return parts
 
 
-def _open_folder(root: Path, parts: Iterable[str], what: str, make: bool = False) -> int | None:
+def open_folder(root: Path, parts: Iterable[str], what: str, make: bool = False) -> int | None:
     """A descriptor of the folder ``root/parts``, reached without following any link below ``root`` (each part made
     first where ``make``); None where a part is missing. A part that is a link (or not a folder) is refused."""
+    if make:
+        Path(root).mkdir(parents=True, exist_ok=True)  # the root is the user's choice, a link included
     fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
     here = Path(root)
     try:
@@ -103,7 +107,7 @@ def unlink_inside(root: str | os.PathLike, path: str | os.PathLike, what: str = 
     one line, and a link at ``path`` is removed itself, never what it names. False where it was not there."""
     root, path = Path(root), Path(path)
     *folders, name = _relative(root, path, what)
-    fd = _open_folder(root, folders, what)
+    fd = open_folder(root, folders, what)
     if fd is None:
         return False
     try:
@@ -121,23 +125,43 @@ def write_inside(root: str | os.PathLike, path: str | os.PathLike, data: bytes, 
     never written through."""
     root, path = Path(root), Path(path)
     *folders, name = _relative(root, path, what)
-    fd = _open_folder(root, folders, what, make=True)
+    fd = open_folder(root, folders, what, make=True)
     if fd is None:
         raise UserError(f"{path.parent} vanished while {what} was written")
-    temporary = f".{name}.{os.getpid()}.tmp"
     try:
-        out = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644, dir_fd=fd)
-        with os.fdopen(out, "wb") as fh:
-            fh.write(data)
-        os.replace(temporary, name, src_dir_fd=fd, dst_dir_fd=fd)
-    except BaseException:
-        try:
-            os.unlink(temporary, dir_fd=fd)
-        except FileNotFoundError:
-            pass
-        raise
+        write_at(fd, name, data)
     finally:
         os.close(fd)
+
+
+def create_at(folder: int, name: str) -> int:
+    """A new file ``name`` in the folder ``folder`` (a descriptor), open for writing: whatever sat at that name
+    before (a link someone left at a guessable temporary's name, a file of a dead writer) is removed first, and the
+    file is created exclusively and never through a link (``O_EXCL | O_NOFOLLOW``)."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(name, dir_fd=folder)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+    return os.open(name, flags, 0o644, dir_fd=folder)
+
+
+def write_at(
+    folder: int, name: str, data: bytes | Callable[[BinaryIO], object], *, tag: str | None = None, sync: bool = False
+) -> None:
+    """Write ``name`` in the folder ``folder`` (a descriptor) whole: ``data`` (or what ``data(file)`` writes) goes
+    to ``.<name>.<tag>.tmp`` (:func:`create_at`), flushed to disk where ``sync``, then renamed over ``name`` (a link
+    there is replaced, never followed). A failed write removes its temporary."""
+    temporary = f".{name}.{tag or os.getpid()}.tmp"
+    try:
+        with os.fdopen(create_at(folder, temporary), "wb") as fh:
+            data(fh) if callable(data) else fh.write(data)
+            if sync:
+                fh.flush()
+                os.fsync(fh.fileno())
+        os.replace(temporary, name, src_dir_fd=folder, dst_dir_fd=folder)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary, dir_fd=folder)
+        raise
 
 
 def writable_folder(folder: Path, what: str) -> Path:
