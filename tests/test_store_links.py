@@ -6,6 +6,7 @@ the store whose contents must be unchanged after."""
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -181,3 +182,34 @@ def test_a_linked_code_folder_takes_no_manifest(tmp_path):
     with pytest.raises(UserError, match="code.*link"):
         keep_manifests(root, {"pkg==1.0 files=abc": {"a.py": "0"}})
     assert untouched(elsewhere)  # today: elsewhere/pkg-1.0-abc.json
+
+
+# -- 3. the run's server logs ----------------------------------------------------------------------------------------
+
+
+def test_a_servers_log_is_never_written_through_a_link(tmp_path):
+    from conflictbench.hosting import ServerProcess
+
+    elsewhere = outside(tmp_path)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    server = ServerProcess([sys.executable, "-c", "print('hello from the server')"], name="t", ready=lambda: True,
+                           startup_timeout_s=10, log_dir=logs)  # fmt: skip
+    server.log_path.symlink_to(elsewhere / "keep.txt")
+    try:
+        with pytest.raises(UserError, match="link"):
+            server.start()
+    finally:
+        server.stop()
+    assert untouched(elsewhere)  # today: keep.txt got the server's output appended
+
+
+def test_the_stores_server_log_folder_is_refused_where_it_leads_out(tmp_path):
+    elsewhere = outside(tmp_path)
+    store = EpisodeStore(tmp_path / "store")
+    store.root.mkdir()
+    (store.root / "logs").symlink_to(elsewhere, target_is_directory=True)
+    with pytest.raises(UserError, match="logs.*leads out"):
+        store.server_log_dir()
+    (store.root / "logs").unlink()
+    assert store.server_log_dir() == store.root / "logs" / "servers"

@@ -109,7 +109,7 @@ def run_job(
     store = EpisodeStore(options.out)
     from conflictbench.hosting.launch import SERVER_LOG_DIR_VARIABLE
 
-    os.environ[SERVER_LOG_DIR_VARIABLE] = os.path.abspath(store.root / "logs" / "servers")  # beside the episodes
+    os.environ[SERVER_LOG_DIR_VARIABLE] = os.path.abspath(store.server_log_dir())  # beside the episodes
     conflicts = sum(e.case is not None for e in plan)
     print(
         f"conflictbench: model={model} suite={'+'.join(families)} level={'+'.join(levels)} "

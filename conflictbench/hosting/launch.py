@@ -119,7 +119,8 @@ class ServerProcess:
         reading, writing = os.pipe() if self.reports_address else (-1, -1)
         argv = [*self.argv, "--ready-fd", str(writing)] if self.reports_address else self.argv
         try:
-            with open(self.log_path, "ab") as log:
+            flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC  # never through a link (#42)
+            with open(os.open(self.log_path, flags, 0o644), "ab") as log:
                 self.process = subprocess.Popen(
                     argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=self.env,
                     start_new_session=True,  # Ctrl-C reaches the run, which then stops the server itself

@@ -119,6 +119,11 @@ class EpisodeStore(Claims):
         waiting = self.replay_ids()
         return {p.name[: -len(REPEATED_SUFFIX)] for p in self.replay_dir.glob(f"*/*{REPEATED_SUFFIX}")} & waiting
 
+    def server_log_dir(self) -> Path:
+        """Where the servers a run starts log (``logs/servers``): refused in one line where a link takes it out of
+        the store, as every other write into it (#42)."""
+        return paths.confined(self.root, self.root / "logs" / "servers")
+
     # -- what is there ---------------------------------------------------------------------
     @staticmethod
     def _parquet_files(folder: Path) -> list[Path]:
