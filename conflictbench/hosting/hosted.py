@@ -46,10 +46,8 @@ What it owns, the same for every model:
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import secrets
-import subprocess
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -60,34 +58,10 @@ from ..core.deprecation import deprecated
 from ..core.errors import ServerUnavailable, UserError
 from ..core.policy import DEFAULT_MAX_STEPS
 from .client import PolicyClient, ServedPolicy, ServingConfig
+from .environments import MODEL_PROCESS_ENV, UNREPORTED, probe_environment, probed_stack, stack_difference
 from .launch import ServerProcess, free_port, model_environment
 from .transport import Transport
 from .trust import TOKEN_VARIABLE, StartedServerConnection, configured_token, token_argument
-
-#: Set for every model process unless the user set it: bfloat16 kernels beyond AVX512 kill some CPUs' VMs
-#: (SIGILL), and CPU inference of these models never needs them.
-MODEL_PROCESS_ENV: Mapping[str, str] = {"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_BF16"}
-#: What a model environment's probe prints last (JSON): its distributions' versions, read from their files, and the
-#: device the server will run on, ``auto`` decided as the server decides it (torch's word), so both are known before
-#: the run plans.
-_STACK_PROBE = """
-import json, sys
-try:
-    from conflictbench_serving.stack import installed_versions
-except ImportError:  # a plugin's own server, without the serving half: its stack is not known
-    installed_versions = dict
-device = sys.argv[1]
-if device == "auto":
-    try:
-        import torch
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    except ImportError:
-        device = "cpu"
-print(json.dumps({"versions": installed_versions(), "device": device}))
-"""
-#: What the last probe of each model environment said, by interpreter and device setting.
-_ENVIRONMENT_STACKS: dict[tuple[str, str], dict[str, Any]] = {}
-UNREPORTED = "unreported"
 
 
 @dataclass
@@ -306,28 +280,16 @@ class HostedPolicy(ServedPolicy):
             probe = f"from conflictbench_serving.command import served_model; served_model({name!r})"
         else:
             probe = f"import {cls.server_module}"
-        done = subprocess.run([str(python), "-c", probe + _STACK_PROBE, cfg.device], capture_output=True, text=True)
-        if done.returncode != 0:
-            last = (done.stderr.strip().splitlines() or ["?"])[-1]
-            raise UserError(f"{python} cannot run the {environment} server ({last}): build it with {setup}")
-        try:
-            _ENVIRONMENT_STACKS[(str(python), cfg.device)] = json.loads(done.stdout.strip().splitlines()[-1])
-        except (IndexError, ValueError):  # something in the environment printed over it: the stack is not known
-            _ENVIRONMENT_STACKS.pop((str(python), cfg.device), None)
+        probe_environment(python, probe, cfg.device, f"the {environment} server", setup)
         return python
 
     def _environment_stack(self, python: Path | None) -> dict[str, Any] | str:
         """The model stack of the environment the server will run in, as its probe said it (``model_python``): the
         device kind and every distribution's version; ``unreported`` where not known."""
-        said = _ENVIRONMENT_STACKS.get((str(python), self.cfg.device)) if python is not None else None
-        if not said or not said.get("versions"):
-            return UNREPORTED
-        try:
-            from conflictbench_serving.stack import model_stack
-        except ImportError:  # a plugin's own client without the serving half here
-            return UNREPORTED
-        self.device = said["device"]
-        return model_stack(self.device, said["versions"])
+        stack, device = probed_stack(python, self.cfg.device)
+        if device is not None:
+            self.device = device
+        return stack
 
     def start(self) -> None:
         if self.checkpoint is None or self.client is not None:
@@ -346,7 +308,7 @@ class HostedPolicy(ServedPolicy):
             self.close()
             raise UserError(
                 f"the {self.name} server started for this run runs on another stack than its environment's files "
-                f"said ({_stack_difference(counted, reported)}): its episodes would be stored under the wrong identity"
+                f"said ({stack_difference(counted, reported)}): its episodes would be stored under the wrong identity"
             )
         if self.served is not None and self._reads_metadata:  # conflictbench-serve says both: an impostor could not
             for field, what in (("checkpoint_fingerprint", "which checkpoint"), ("model_stack", "what model stack")):
@@ -437,26 +399,3 @@ class HostedPolicy(ServedPolicy):
         finally:
             if self.server is not None:
                 self.server.stop()
-
-
-def version_changes(old: Mapping[str, str], new: Mapping[str, str]) -> list[str]:
-    """Each name whose value differs, in words: ``name a -> b``, ``name added``, ``name removed`` (``device`` first,
-    then by name). What a run says of two stacks, the model's or the simulator's."""
-    words = []
-    for name in sorted(old.keys() | new.keys(), key=lambda n: (n != "device", n)):
-        if name not in new:
-            words.append(f"{name} removed")
-        elif name not in old:
-            words.append(f"{name} added")
-        elif old[name] != new[name]:
-            words.append(f"{name} {old[name]} -> {new[name]}")
-    return words
-
-
-def _stack_difference(counted: Mapping[str, Any], reported: Mapping[str, Any]) -> str:
-    """The first few ways two model stacks differ, in words."""
-    words = version_changes(
-        {"device": counted.get("device"), **(counted.get("packages") or {})},
-        {"device": reported.get("device"), **(reported.get("packages") or {})},
-    )
-    return ", ".join(words[:3]) + (f" and {len(words) - 3} more" if len(words) > 3 else "")

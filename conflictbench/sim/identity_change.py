@@ -10,7 +10,7 @@ import json
 from collections.abc import Mapping
 from pathlib import Path
 
-from conflictbench.hosting.hosted import version_changes
+from conflictbench.hosting.environments import version_changes
 from conflictbench.store import EpisodeStore
 from conflictbench.store.durable import stops_when_full
 from conflictbench.store.paths import write_inside
