@@ -17,6 +17,7 @@ from conflictbench.core import EpisodeRecord, MetricSpec, Pair
 from conflictbench.core.plugins import Plugins
 from conflictbench.metrics import evaluate_pairs, with_model
 from conflictbench.store import EpisodeStore
+from conflictbench.store.check import going_on
 from conflictbench.store.schema import ARRAY_COLUMNS, SCHEMA, normalize_scalars
 
 from .paper import declared_paper_models
@@ -70,7 +71,20 @@ def store_frame(
     models: Iterable[str] | None = None,
 ) -> tuple[pd.DataFrame, list[str]]:
     """The per-pair frame (with ``model``) of the store's pairs, only those of ``models`` (labels as the report
-    gives them) where named, and every model label the store has (of ``suite``, as :func:`report_store`)."""
+    gives them) where named, and every model label the store has (of ``suite``, as :func:`report_store`). An
+    episode met damaged by its arrays is set aside and the frame made again without it (``check.going_on``)."""
+    suite_cases, models = _again(suite_cases), _again(models)  # read on every try
+    return going_on(lambda: _store_frame(store, plugins, metrics, suite, suite_cases, models))
+
+
+def _store_frame(
+    store: EpisodeStore,
+    plugins: Plugins,
+    metrics: Sequence[MetricSpec],
+    suite: str | None,
+    suite_cases: Iterable[str] | None,
+    models: Iterable[str] | None,
+) -> tuple[pd.DataFrame, list[str]]:
     pairs, _ = pair_up(light_records(store), suite, suite_cases)
     keys = pd.DataFrame(
         {
@@ -102,7 +116,17 @@ def report_store(
 ) -> dict[str, pd.DataFrame]:
     """:func:`~conflictbench.report.summary.report_records` for the episodes of a store (or some of them); with
     ``suite`` (``name version``) only that suite's conflict episodes, the others counted in one line (and with
-    ``suite_cases``, the ids that suite plays, the others' cases it no longer has named)."""
+    ``suite_cases``, the ids that suite plays, the others' cases it no longer has named). An episode met damaged
+    by its arrays is set aside, named in one line, and the report made again without it (``check.going_on``)."""
+    episode_ids, suite_cases = _again(episode_ids), _again(suite_cases)  # read on every try
+    return going_on(lambda: _report_store(store, plugins, episode_ids, metrics, chunk, suite, suite_cases, options))
+
+
+def _again(values: Iterable[str] | None) -> list[str] | None:
+    return None if values is None else list(values)
+
+
+def _report_store(store, plugins, episode_ids, metrics, chunk, suite, suite_cases, options) -> dict[str, pd.DataFrame]:
     chosen = select_metrics(plugins, metrics)
     pairs, counts = pair_up(light_records(store, episode_ids), suite, suite_cases)
     options.setdefault("paper", paper_beside(store, plugins))

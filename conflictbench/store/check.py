@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import pyarrow as pa
 import pyarrow.dataset as ds
@@ -36,6 +37,8 @@ from conflictbench.core import UserError
 
 from . import paths
 from .schema import SCHEMA
+
+T = TypeVar("T")
 
 DAMAGED = "damaged"
 """The quarantine folder of a store: ``<store>/damaged/``."""
@@ -203,6 +206,31 @@ def _not_moved(where: Path, reason: str, why: str, say: bool) -> None:
         print(f"conflictbench: damaged episode file {where} ({reason}) left out; cannot set it aside: {why}",
               file=sys.stderr)  # fmt: skip
     return None
+
+
+class ChosenDamaged(UserError):
+    """Episodes a caller chose by their keys turned out damaged where their arrays were read
+    (``EpisodeStore.load``): set aside (or left out by that store from then on). A caller that chose them calls
+    again (:func:`going_on`); one that does not ends in this one line."""
+
+    def __init__(self, message: str, files: Sequence[Path]):
+        super().__init__(message)
+        self.files = frozenset(files)
+
+
+def going_on(call: Callable[[], T]) -> T:
+    """``call()``, which chooses episodes by their keys and then reads their arrays; where it meets damage only
+    there (:class:`ChosenDamaged`: the file was set aside and named in one line), called again, choosing without
+    it as the next command would: the same call goes on. Each try leaves out at least one more file, so this ends;
+    a try that meets only files met before ends in the line."""
+    met: frozenset[Path] = frozenset()
+    while True:
+        try:
+            return call()
+        except ChosenDamaged as exc:
+            if exc.files <= met:
+                raise
+            met |= exc.files
 
 
 def left_out(path: Path, reason: str) -> None:

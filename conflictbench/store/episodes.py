@@ -25,10 +25,10 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from conflictbench.core import EpisodeRecord, StoreFull, UserError
+from conflictbench.core import EpisodeRecord, StoreFull
 
 from . import paths
-from .check import footer_damage, read_intact, set_aside
+from .check import ChosenDamaged, footer_damage, read_intact, set_aside
 from .claims import Claims, pid_alive, pid_place, process_nonce
 from .durable import land
 from .schema import SCHEMA, records_to_table, table_to_records
@@ -56,6 +56,8 @@ class EpisodeStore(Claims):
         self.replay_dir = self.root / "replay"
         self.claims_dir = self.root / "claims"
         self._host = socket.gethostname()
+        self._left_out: set[Path] = set()
+        """Damaged files met by :meth:`load` that could not be set aside: left out of every later reading here."""
 
     # -- writing ---------------------------------------------------------------------------
     def path_for(self, policy: str, episode_id: str) -> Path:
@@ -125,12 +127,11 @@ class EpisodeStore(Claims):
         return paths.confined(self.root, self.root / "logs" / "servers")
 
     # -- what is there ---------------------------------------------------------------------
-    @staticmethod
-    def _parquet_files(folder: Path) -> list[Path]:
+    def _parquet_files(self, folder: Path) -> list[Path]:
         """The episode files of ``folder``; linked files and folders are skipped and said once (#42)."""
         found, links = paths.listing(folder, f"*/*{SUFFIX}")
         paths.say_skipped(folder, links)
-        return [p for p in found if not p.name.startswith(".")]
+        return [p for p in found if not p.name.startswith(".") and p not in self._left_out]
 
     def kept_files(self) -> list[Path]:
         """The episodes stored for good (not those waiting to be played again)."""
@@ -172,18 +173,24 @@ class EpisodeStore(Claims):
         return pa.concat_tables(tables) if tables else empty
 
     def load(self, keys: Iterable[tuple[str, str]]) -> list[EpisodeRecord]:
-        """The episodes named by (episode_id, policy), read straight from their files. One found damaged here
-        (its keys read, its arrays not) is set aside, and the command ends in one line: its caller chose it from
-        the keys, so the next call, which no longer sees it, goes on without it."""
-        paths = [self.path_for(policy, eid) for eid, policy in keys]
+        """The episodes named by (episode_id, policy), read straight from their files. One found damaged here (its
+        keys read, its arrays not) is set aside (or, where it cannot be moved, left out of this store's readings
+        from now on), named in one line, and :class:`~conflictbench.store.check.ChosenDamaged` raised: its caller
+        chose it from the keys, and goes on by choosing again without it (``check.going_on``)."""
+        files = [self.path_for(policy, eid) for eid, policy in keys]
         damaged: list[tuple[Path, str, Path | None]] = []
-        tables = read_intact(paths, on_damage=lambda path, why: damaged.append((path, why, set_aside(path, why))))
+
+        def aside(path: Path, why: str) -> None:
+            self._left_out.add(path)
+            damaged.append((path, why, set_aside(path, why, then="left out here; the next run plays it again")))
+
+        tables = read_intact(files, on_damage=aside)
         if damaged:
             path, why, moved = damaged[0]
             more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
-            aside = f"set aside as {moved.relative_to(self.root)}" if moved is not None else "left in place"
-            raise UserError(f"episode {path.stem} of {path.parent.name} is damaged ({why}){more}: {aside}; "
-                            "run the same command again: it goes on without it")  # fmt: skip
+            where = f"set aside as {moved.relative_to(self.root)}" if moved is not None else "left in place"
+            message = f"episode {path.stem} of {path.parent.name} is damaged ({why}){more}: {where}"
+            raise ChosenDamaged(f"{message}; run the same command again: it goes on", [d[0] for d in damaged])
         return table_to_records(pa.concat_tables(tables)) if tables else []
 
     def set_aside_damaged(self, episode_ids: Iterable[str]) -> set[str]:

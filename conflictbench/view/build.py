@@ -16,6 +16,7 @@ from conflictbench.core.plugins import Plugins
 from conflictbench.core.words import counted
 from conflictbench.sim.progress import duration
 from conflictbench.store import EpisodeStore
+from conflictbench.store.check import going_on
 from conflictbench.store.paths import check_name
 
 from .episodes import reference_episodes
@@ -115,12 +116,32 @@ def build_site(
 ) -> Built:
     """Write the site for the pairs chosen. Videos go to the first ``videos`` pairs in the index's order (None:
     all) and to the pairs named in ``video_pairs`` (conflict episode ids); a page without one says to run
-    ``command`` (the one that built the site) with ``--pair``."""
+    ``command`` (the one that built the site) with ``--pair``. An episode met damaged by its arrays is set aside,
+    named in one line, and the site built again without it (``check.going_on``)."""
     from conflictbench.tasks.suite.file import load_suite
 
     started = time.perf_counter()
     store = EpisodeStore(store_dir)
     cases = {case.case_id: case for case in load_suite(suite_file).cases}
+    options = dict(videos=videos, video_pairs=video_pairs, workers=workers, progress=progress, command=command)
+    return going_on(lambda: _build(store, store_dir, out, plugins, selection, cases, started, **options))
+
+
+def _build(
+    store: EpisodeStore,
+    store_dir: Path,
+    out: Path,
+    plugins: Plugins,
+    selection: Selection,
+    cases: dict,
+    started: float,
+    *,
+    videos: int | None,
+    video_pairs: frozenset[str] | set[str],
+    workers: int,
+    progress: bool,
+    command: Sequence[str] | None,
+) -> Built:
     pairs, rows = choose(store, selection, allow_none=True)
     references = reference_episodes(store, selection)
     if not pairs and not references:
