@@ -6,9 +6,16 @@ structured or void dtype can hide one, and a shape that does not match the bytes
 zero-byte array of 10**18 elements. So, before an array exists:
 
 - its dtype must be a plain one: booleans, numbers, bytes, text, dates (kinds :data:`SAFE_KINDS`), named by a
-  string, with no fields and no sub-array, and not empty (itemsize 0);
+  string, with no fields and no sub-array, and elements of some size (numpy 1.26 wraps a huge itemsize such as
+  ``'U1000000000'`` to a negative one);
 - its shape must be a list of non-negative integers, at most :data:`MAX_DIMENSIONS` of them;
-- the bytes must be exactly shape x itemsize.
+- the bytes must be exactly shape x itemsize;
+- text (kind ``U``) must hold code points numpy can read back: none past U+10FFFF, no surrogate (numpy builds such
+  an array, and reading it then raises SystemError).
+
+A numpy scalar (msgpack-numpy's ``__npgeneric__``) must be of its dtype's kind and fit its itemsize: a number for
+a numeric dtype, bytes or text no longer than the itemsize for ``S`` and ``U`` (``np.bytes_(10**9)`` would be a
+gigabyte of zeros from a 39-byte frame).
 
 Anything else raises :class:`UnsafeArray` (a ``ValueError``), which each server answers as an invalid request and
 each client as a broken reply. The same rule reads msgpack-numpy (openpi), ``.npy`` bytes (GR00T's ZeroMQ) and
@@ -53,9 +60,19 @@ def checked_dtype(spec: Any) -> np.dtype:
 def _plain(dtype: np.dtype) -> np.dtype:
     if dtype.hasobject or dtype.kind not in SAFE_KINDS or dtype.fields is not None or dtype.subdtype is not None:
         raise UnsafeArray(f"arrays of dtype {dtype.str!r} are refused (objects, structured and void types hide data)")
-    if dtype.itemsize == 0:
+    if dtype.itemsize <= 0:  # 0, or negative where numpy 1.26 wrapped a huge one
         raise UnsafeArray(f"arrays of dtype {dtype.str!r} are refused (elements of no size)")
     return dtype
+
+
+def _readable(array: np.ndarray) -> np.ndarray:
+    """``array``, if its text (kind ``U``) holds only code points numpy can read back; :class:`UnsafeArray` else.
+    Looked at as the 32-bit numbers numpy stores, never as text."""
+    if array.dtype.kind == "U" and array.size:
+        points = array.view(array.dtype.byteorder.replace("|", "=") + "u4")
+        if int(points.max()) > 0x10FFFF or bool(((points >= 0xD800) & (points <= 0xDFFF)).any()):
+            raise UnsafeArray(f"an array of dtype {array.dtype.str!r} holds code points that are not text")
+    return array
 
 
 def checked_shape(shape: Any, dtype: np.dtype, nbytes: int) -> tuple[int, ...]:
@@ -77,18 +94,32 @@ def from_buffer(data: Any, dtype_spec: Any, shape: Any) -> np.ndarray:
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise UnsafeArray(f"an array's data must be bytes, got {type(data).__name__}")
     dtype = checked_dtype(dtype_spec)
-    return np.ndarray(buffer=data, dtype=dtype, shape=checked_shape(shape, dtype, len(data)))
+    return _readable(np.ndarray(buffer=data, dtype=dtype, shape=checked_shape(shape, dtype, len(data))))
 
 
 def scalar(item: Any, dtype_spec: Any) -> np.generic:
-    """A numpy scalar of a plain dtype (msgpack-numpy's ``__npgeneric__``) from a msgpack number, text or bytes."""
+    """A numpy scalar of a plain dtype (msgpack-numpy's ``__npgeneric__``) from a msgpack number (numeric kinds),
+    bytes (``S``) or text (``U``), never larger than the dtype's itemsize."""
     dtype = checked_dtype(dtype_spec)
-    if not isinstance(item, (bool, int, float, str, bytes)):
-        raise UnsafeArray(f"a numpy scalar's data must be a number, text or bytes, got {type(item).__name__}")
+    if dtype.kind == "S":
+        fits = isinstance(item, bytes) and len(item) <= dtype.itemsize
+    elif dtype.kind == "U":
+        fits = isinstance(item, str) and len(item) <= dtype.itemsize // 4
+    else:  # a number, of a fixed size whatever its value: never a text that numpy would parse
+        fits = isinstance(item, (bool, int, float))
+    if not fits:
+        raise UnsafeArray(f"a {dtype.str!r} scalar cannot hold a {type(item).__name__} ({_preview(item)})")
     try:
-        return dtype.type(item)
+        # built as an array of the declared dtype: a ``dtype.type(item)`` of bytes or text ignores the itemsize
+        return np.array(item, dtype=dtype)[()] if dtype.kind in "SUmM" else dtype.type(item)
     except (TypeError, ValueError, OverflowError) as error:
         raise UnsafeArray(f"not a {dtype.str!r} scalar: {error}") from None
+
+
+def _preview(item: Any) -> str:
+    if isinstance(item, (bytes, str)):
+        return f"{len(item)} long"
+    return repr(item)[:40]
 
 
 def load_npy(data: Any) -> np.ndarray:
@@ -104,7 +135,7 @@ def load_npy(data: Any) -> np.ndarray:
         raise UnsafeArray(f"not .npy data: {error}") from None
     dtype = _plain(dtype)
     checked_shape(list(shape), dtype, len(data) - stream.tell())
-    return np.load(io.BytesIO(data), allow_pickle=False)
+    return _readable(np.load(io.BytesIO(data), allow_pickle=False))
 
 
 def json_numpy_loads(text: str | bytes) -> Any:
@@ -130,5 +161,5 @@ def _json_numpy_object(obj: dict) -> Any:
         raise UnsafeArray(f"a json-numpy array's data is not base64: {error}") from None
     dtype = checked_dtype(obj["dtype"])
     shape = checked_shape(obj["shape"], dtype, len(data))
-    array = np.frombuffer(data, dtype).reshape(shape)
+    array = _readable(np.frombuffer(data, dtype).reshape(shape))
     return array if shape else array[()]
