@@ -29,6 +29,15 @@ logger = logging.getLogger(__name__)
 InferBatch = Callable[[list[Any]], list[Any]]
 
 
+#: Set on a model call's error once the batcher has logged its traceback, so a server logs it no second time.
+_LOGGED = "_conflictbench_logged"
+
+
+def logged(error: BaseException) -> bool:
+    """Whether ``error`` is a failed model call whose traceback the batcher has already logged."""
+    return bool(getattr(error, _LOGGED, False))
+
+
 class ServerStopping(Exception):
     """The server stopped before this request's batch ran."""
 
@@ -103,7 +112,9 @@ class Batcher:
                     if len(answers) != len(requests):
                         raise RuntimeError(f"infer_batch returned {len(answers)} answers for {len(requests)} requests")
                 except Exception as error:
-                    logger.error("inference failed for a batch of %d: %s", len(batch), error)
+                    # the traceback stays here, once per batch; each request's peer gets one line
+                    logger.error("inference failed for a batch of %d: %s", len(batch), error, exc_info=error)
+                    setattr(error, _LOGGED, True)
                     for pending in batch:
                         _settle(pending, error=error)
                 else:

@@ -26,8 +26,13 @@ TOKEN_VARIABLE = "CONFLICTBENCH_SERVER_TOKEN"  # env var a server reads its toke
 #: How the token travels on websockets and REST, as openpi-client sends its API key: ``Authorization: Api-Key <token>``
 #: (on the websocket upgrade, on every HTTP request). GR00T's ZeroMQ requests carry it as their ``api_token`` field.
 AUTHORIZATION, SCHEME = "Authorization", "Api-Key"
+#: What our websocket and REST servers answer a request without the token (ZeroMQ answers NVIDIA's own words,
+#: ``Unauthorized: Invalid API token``, which GR00T's clients know).
+UNAUTHORIZED = f"Unauthorized: this server needs its token ({AUTHORIZATION}: {SCHEME} ...)"
 #: env var that sets ``max_message_bytes`` for servers and clients alike (a run and its servers must agree)
 MESSAGE_LIMIT_VARIABLE = "CONFLICTBENCH_MAX_MESSAGE_BYTES"
+#: The longest one-line error a server sends back.
+ERROR_LINE_LIMIT = 500
 
 CAMERAS = 3  # LIBERO's agent view, wrist and one more
 IMAGE_SIDE = 512  # the largest render any plugin asks for (most use 224 or 256)
@@ -122,6 +127,19 @@ def current() -> Guard:
 def authorization(token: str | None) -> dict[str, str]:
     """The header a client sends with ``token`` (none without one)."""
     return {AUTHORIZATION: f"{SCHEME} {token}"} if token else {}
+
+
+def one_line(text: str, limit: int = ERROR_LINE_LIMIT) -> str:
+    """``text`` on one line, cut to ``limit`` characters: how every server of ours answers an error (a peer learns
+    nothing of our internals; the traceback stays in the server's log)."""
+    flat = " ".join(text.split())
+    return flat if len(flat) <= limit else flat[: limit - 3] + "..."
+
+
+def error_line(error: BaseException, bare: tuple[type[BaseException], ...] = ()) -> str:
+    """``error`` as the one line a peer gets: ``TypeName: message``, or the message alone for the ``bare`` types
+    (a protocol's invalid request, whose message is the answer)."""
+    return one_line(str(error) if isinstance(error, bare) else f"{type(error).__name__}: {error}")
 
 
 def token_from_environment() -> str | None:

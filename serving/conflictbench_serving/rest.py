@@ -13,8 +13,11 @@ client reads to name what it plays; the requests of every connection queued into
 What a peer may do is the :class:`~.guard.Guard`'s (the app's own, else the process-wide one): with a token, every
 request but ``GET /healthz`` must carry ``Authorization: Api-Key <token>`` (HTTP 401 otherwise); a body over
 ``max_message_bytes`` is refused with HTTP 413 before it is read whole (its ``Content-Length``, else as it streams);
-uvicorn answers HTTP 503 beyond ``max_connections`` connections (``limit_concurrency``); the batcher queues at most
-``max_queued`` requests (HTTP 503, busy, beyond). Every error is ``{"error": one line}``.
+uvicorn answers HTTP 503 beyond ``max_connections`` connections (``limit_concurrency``, which counts connections
+before any token is seen): so a connection that has not sent a whole request's headers within
+:data:`FIRST_REQUEST_S` is closed (uvicorn itself would hold it open for ever), and one idle after a reply is
+closed after uvicorn's keep-alive timeout; the batcher queues at most ``max_queued`` requests (HTTP 503, busy,
+beyond). Every error is ``{"error": one line}``; a failed model call's traceback stays in the server's log.
 
 Needs ``fastapi``, ``uvicorn`` and ``json-numpy`` (the ``rest`` extra). Imports neither conflictbench nor torch.
 """
@@ -29,9 +32,12 @@ from typing import Any, Protocol
 import json_numpy
 
 from .batching import Batcher, ServerBusy, ServerStopping
-from .guard import AUTHORIZATION, SCHEME, Guard, current
+from .guard import AUTHORIZATION, UNAUTHORIZED, Guard, current, error_line, one_line
 
 HEALTH_ROUTE = "/healthz"  # answers without the token: it says nothing but "up"
+#: Seconds a new connection has to send a whole request's headers (our clients send theirs at once); then it is
+#: closed, so connections that never ask cannot hold every one of the ``max_connections``.
+FIRST_REQUEST_S = 5.0
 
 
 class Backend(Protocol):
@@ -85,7 +91,7 @@ def build_app(backend: Backend, max_batch: int, parse: ParseRequest, name: str, 
         try:
             row, encoded = parse(bytes(body))
         except InvalidRequest as problem:
-            return error(_one_line(f"invalid request: {problem}"), 400)
+            return error(one_line(f"invalid request: {problem}"), 400)
         try:
             answer, _timing = await batcher.submit(row)
         except ServerStopping:
@@ -93,7 +99,7 @@ def build_app(backend: Backend, max_batch: int, parse: ParseRequest, name: str, 
         except ServerBusy as problem:
             return error(f"ServerBusy: {problem}", 503)
         except Exception as problem:  # the model call failed: this request's answer, the server goes on
-            return error(_one_line(f"{type(problem).__name__}: {problem}"))
+            return error(error_line(problem))  # the batcher logged its traceback
         text = json_numpy.dumps(answer)
         return Response(json.dumps(text) if encoded else text, media_type="application/json")
 
@@ -120,8 +126,7 @@ class _Guarded:
             headers = dict(scope["headers"])
             authorization = headers.get(AUTHORIZATION.lower().encode(), b"").decode("latin-1")
             if scope["path"] != HEALTH_ROUTE and not self.guard.admits_header(authorization):
-                message = f"Unauthorized: this server needs its token ({AUTHORIZATION}: {SCHEME} ...)"
-                return await _send_error(send, 401, message)
+                return await _send_error(send, 401, UNAUTHORIZED)
             length = headers.get(b"content-length", b"0").decode("latin-1").strip()
             if not length.isdigit() or int(length) > self.guard.max_message_bytes:
                 return await _send_error(send, 413, _too_large(self.guard.max_message_bytes))
@@ -140,11 +145,6 @@ async def _send_error(send, status: int, message: str) -> None:
 
 def _too_large(limit: int) -> str:
     return f"the body is over this server's limit of {limit} bytes (conflictbench-serve --max-message-mib)"
-
-
-def _one_line(text: str, limit: int = 500) -> str:
-    text = " ".join(text.split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def serve(
@@ -179,7 +179,34 @@ def serve(
     asyncio.run(run())
 
 
-def limits(guard: Guard) -> dict:
+def limits(guard: Guard, first_request_s: float = FIRST_REQUEST_S) -> dict:
     """uvicorn's settings for ``guard``: HTTP 503 beyond ``max_connections`` (uvicorn counts the connection asking,
-    so one more; an idle keep-alive connection is closed after uvicorn's 5 s)."""
-    return {"limit_concurrency": guard.max_connections + 1}
+    so one more; an idle keep-alive connection is closed after uvicorn's 5 s), and its HTTP protocol closing a
+    connection that sends no whole request within ``first_request_s``."""
+    from uvicorn.protocols.http.auto import AutoHTTPProtocol
+
+    return {
+        "limit_concurrency": guard.max_connections + 1,
+        "http": _with_request_deadline(AutoHTTPProtocol, first_request_s),
+    }
+
+
+def _with_request_deadline(protocol: type, seconds: float) -> type:
+    """uvicorn's HTTP ``protocol``, closing a connection whose first request's headers are not all in within
+    ``seconds`` (uvicorn starts no timer before a first request: an idle stranger would hold a connection slot for
+    ever, and ``limit_concurrency`` counts it before any token is checked)."""
+
+    class FirstRequestDeadline(protocol):
+        def connection_made(self, transport) -> None:
+            super().connection_made(transport)
+            self._deadline = asyncio.get_running_loop().call_later(seconds, self._no_request)
+
+        def _no_request(self) -> None:
+            if self.cycle is None and not self.transport.is_closing():  # uvicorn makes a cycle per whole header
+                self.transport.close()
+
+        def connection_lost(self, exc) -> None:
+            self._deadline.cancel()
+            super().connection_lost(exc)
+
+    return FirstRequestDeadline

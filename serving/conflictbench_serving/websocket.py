@@ -33,8 +33,8 @@ import websockets.asyncio.server as ws_server
 from websockets.frames import CloseCode
 
 from . import msgpack_numpy
-from .batching import Batcher, ServerBusy, ServerStopping
-from .guard import AUTHORIZATION, SCHEME, Guard, current
+from .batching import Batcher, ServerBusy, ServerStopping, logged
+from .guard import AUTHORIZATION, UNAUTHORIZED, Guard, current, error_line
 from .loop import serve_until_stopped
 
 logger = logging.getLogger(__name__)
@@ -147,9 +147,10 @@ class WebsocketPolicyServer:
                 logger.warning("refused a request: %s", error)
                 await _fail(connection, f"ServerBusy: {error}", "Server busy")
                 return
-            except Exception as error:  # the traceback stays here; the peer gets one line
-                logger.error("cannot answer a request", exc_info=error)
-                await _fail(connection, _one_line(error), "Internal server error")
+            except Exception as error:  # the traceback stays here (once: a failed batch's, the batcher logged it)
+                line = error_line(error)
+                logger.error("cannot answer a request: %s", line, exc_info=None if logged(error) else error)
+                await _fail(connection, line, "Internal server error")
                 return
             try:
                 await connection.send(reply)
@@ -166,11 +167,6 @@ async def _fail(connection: ws_server.ServerConnection, text: str, reason: str) 
         pass
 
 
-def _one_line(error: BaseException, limit: int = 500) -> str:
-    text = " ".join(f"{type(error).__name__}: {error}".split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def _admit(
     guard: Guard, connections: Callable[[], int], connection: ws_server.ServerConnection, request: ws_server.Request
 ) -> ws_server.Response | None:
@@ -180,9 +176,7 @@ def _admit(
         return connection.respond(http.HTTPStatus.OK, "OK\n")
     if not guard.admits_header(request.headers.get(AUTHORIZATION)):
         logger.warning("refused a connection from %s: no valid token", connection.remote_address)
-        return connection.respond(
-            http.HTTPStatus.UNAUTHORIZED, f"Unauthorized: this server needs its token ({AUTHORIZATION}: {SCHEME} ...)\n"
-        )
+        return connection.respond(http.HTTPStatus.UNAUTHORIZED, f"{UNAUTHORIZED}\n")
     if connections() >= guard.max_connections:
         return connection.respond(
             http.HTTPStatus.SERVICE_UNAVAILABLE,

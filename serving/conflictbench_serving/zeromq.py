@@ -22,9 +22,12 @@ The client half is ``conflictbench.hosting.zeromq``.
 
 What a peer may do is the :class:`~.guard.Guard`'s (the server's own, else the process-wide one): with a token
 (the guard's, or ``api_token``), every request must carry it in ``api_token``, ``ping`` included (compared in
-constant time); a message over ``max_message_bytes`` is dropped by ZeroMQ itself (``MAXMSGSIZE``: the peer is
-disconnected before the message is read whole); at most ``max_queued`` requests are handled at once (more are
-answered ``{"error": "ServerBusy: ..."}`` at once), and errors are one line.
+constant time) and is checked before any array in it is decoded; a frame over ``max_message_bytes`` is dropped by
+ZeroMQ itself (``MAXMSGSIZE``: the peer is disconnected before the frame is read whole). ``MAXMSGSIZE`` bounds
+each frame, not a message: messages are read frame by frame, and one with more frames than a REQ client's
+(identity, empty delimiter, request) or more bytes in all than the bound is dropped, kept no further than the
+frame being read and never answered (its frames would be the reply's envelope). At most ``max_queued`` requests
+are handled at once (more are answered ``{"error": "ServerBusy: ..."}`` at once), and errors are one line.
 
 Needs ``pyzmq`` (the ``zeromq`` extra). Imports neither conflictbench nor torch.
 """
@@ -44,7 +47,7 @@ import zmq.asyncio
 
 from .arrays import load_npy
 from .batching import Batcher, ServerStopping
-from .guard import Guard, current
+from .guard import Guard, current, error_line
 
 logger = logging.getLogger(__name__)
 
@@ -52,6 +55,8 @@ GET_ACTION, PING, METADATA = "get_action", "ping", "conflictbench_metadata"
 ERROR = "error"
 
 _ARRAY_TAG = "__ndarray_class__"
+#: A REQ client's message as a ROUTER reads it: the client's identity, the empty delimiter, the request.
+REQUEST_FRAMES = 3
 
 
 class InvalidRequest(ValueError):
@@ -116,12 +121,15 @@ class ZmqPolicyServer:
     async def answer(self, message: bytes) -> Any:
         """The reply to one message (never raises for a client's mistake or a failed model call)."""
         try:
+            # The token first, from the message read without its arrays: a stranger's arrays are never decoded.
+            if self._serving.token is not None:
+                outer = msgpack.unpackb(message)
+                presented = outer.get("api_token") if isinstance(outer, dict) else None
+                if not self._serving.admits(presented if isinstance(presented, str) else None):
+                    return {ERROR: "Unauthorized: Invalid API token"}
             request = unpackb(message)
             if not isinstance(request, dict):
                 raise InvalidRequest(f"a request must be a map, got {type(request).__name__}")
-            presented = request.get("api_token")
-            if not self._serving.admits(presented if isinstance(presented, str) else None):
-                return {ERROR: "Unauthorized: Invalid API token"}
             endpoint, data = request.get("endpoint", GET_ACTION), request.get("data") or {}
             if endpoint == PING:
                 return {"status": "ok", "message": "Server is running"}
@@ -137,7 +145,7 @@ class ZmqPolicyServer:
         except ServerStopping:
             raise
         except Exception as error:  # NVIDIA's server answers every failure as {"error": ...} and goes on
-            return {ERROR: _one_line(error)}
+            return {ERROR: error_line(error, bare=(InvalidRequest,))}
 
     async def run(self, host: str, port: int, stop: asyncio.Event, on_ready: Callable[[str, int], None] | None = None):
         """Serve on ``tcp://host:port`` (``port`` 0: any free one) until ``stop`` is set."""
@@ -160,7 +168,7 @@ class ZmqPolicyServer:
                 raise OSError(error.errno, error.strerror) from None
             if on_ready is not None:
                 on_ready(host, port)
-            receiving = asyncio.ensure_future(socket.recv_multipart())
+            receiving = asyncio.ensure_future(_receive(socket, guard.max_message_bytes))
             stopping = asyncio.ensure_future(stop.wait())
             while True:
                 await asyncio.wait({receiving, stopping}, return_when=asyncio.FIRST_COMPLETED)
@@ -168,7 +176,9 @@ class ZmqPolicyServer:
                     receiving.cancel()
                     break
                 frames = receiving.result()
-                receiving = asyncio.ensure_future(socket.recv_multipart())
+                receiving = asyncio.ensure_future(_receive(socket, guard.max_message_bytes))
+                if frames is None:  # not a REQ client's request: dropped, never answered
+                    continue
                 if len(handlers) >= guard.max_queued:  # a flood: answered at once, never held
                     busy = f"ServerBusy: {guard.max_queued} requests are being answered (max_queued)"
                     await socket.send_multipart([*frames[:-1], packb({ERROR: busy})])
@@ -191,15 +201,27 @@ class ZmqPolicyServer:
             return
         except Exception as error:  # a reply that cannot be built is still an answer: the client must not wait
             logger.error("cannot answer a request", exc_info=error)
-            reply = packb({ERROR: _one_line(error)})
+            reply = packb({ERROR: error_line(error, bare=(InvalidRequest,))})
         try:
             await socket.send_multipart([*envelope, reply])
         except zmq.ZMQError as error:  # the socket is closing: the client reconnects and asks again
             logger.warning("cannot send a reply: %s", error)
 
 
-def _one_line(error: BaseException, limit: int = 500) -> str:
-    """An error as the one line a peer gets (an invalid request: its message; else ``TypeName: message``)."""
-    text = str(error) if isinstance(error, InvalidRequest) else f"{type(error).__name__}: {error}"
-    text = " ".join(text.split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+async def _receive(socket: zmq.asyncio.Socket, limit: int) -> list[bytes] | None:
+    """The next message's frames, read one at a time; None (the rest read and let go, frame by frame) for one that
+    is not a REQ client's request: more than :data:`REQUEST_FRAMES` frames, no empty delimiter before the last, or
+    more than ``limit`` bytes in all (``MAXMSGSIZE`` has bounded each frame)."""
+    frames: list[bytes] | None = [await socket.recv()]
+    total = len(frames[0])
+    while socket.getsockopt(zmq.RCVMORE):
+        frame = await socket.recv()
+        total += len(frame)
+        if frames is not None and (len(frames) >= REQUEST_FRAMES or total > limit):
+            frames = None
+        if frames is not None:
+            frames.append(frame)
+    if frames is None or len(frames) != REQUEST_FRAMES or frames[1] != b"":
+        logger.debug("dropped a message that is not a request (%d bytes)", total)  # a stranger must not fill the log
+        return None
+    return frames

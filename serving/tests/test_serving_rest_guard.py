@@ -43,12 +43,12 @@ def parse(body: bytes):
 
 
 @contextmanager
-def serving(guard: Guard | None = None, fail: bool = False):
+def serving(guard: Guard | None = None, fail: bool = False, **settings):
     """``rest.serve``'s app and uvicorn settings on a free port, in a thread (uvicorn leaves signals alone there)."""
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))
     app = rest.build_app(Doubler(fail), 1, parse, "doubler", guard)
-    limits = rest.limits(guards.current() if guard is None else guard)
+    limits = rest.limits(guards.current() if guard is None else guard, **settings)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False, **limits))
     thread = threading.Thread(target=asyncio.run, args=(server.serve(sockets=[sock]),), daemon=True)
     thread.start()
@@ -126,3 +126,25 @@ def test_errors_are_one_line():
         )
         status, answer = request(port, "POST", "/act", b'{"m":\n 1}')
         assert status == 400 and "\n" not in answer["error"]
+
+
+def test_connections_that_send_no_request_are_closed_so_they_cannot_hold_every_slot():
+    deadline = 0.5  # rest.FIRST_REQUEST_S (5 s) in a real server
+    right = {"Authorization": "Api-Key s3cret"}
+    with serving(Guard(token="s3cret", max_connections=4, max_queued=4), first_request_s=deadline) as port:
+        strangers = [socket.create_connection(("127.0.0.1", port), timeout=TIMEOUT_S) for _ in range(5)]
+        try:
+            strangers[-1].sendall(b"POST /act HTTP/1.1\r\nHost: x\r\n")  # headers begun, never finished
+            threading.Event().wait(deadline + 1.0)
+            for stranger in strangers:  # each closed by the server: reading gives end of file at once
+                assert stranger.recv(1024) == b""
+            assert request(port, "POST", "/act", b'{"n": 3}', right) == (200, 6)
+        finally:
+            for stranger in strangers:
+                stranger.close()
+
+
+def test_a_failed_model_call_leaves_its_traceback_in_the_server_log(caplog):
+    with serving(fail=True) as port:
+        assert request(port, "POST", "/act", b'{"n": 1}')[0] == 500
+    assert caplog.text.count("Traceback") == 1 and "the model broke" in caplog.text

@@ -107,13 +107,14 @@ def test_a_full_queue_answers_busy_and_never_grows():
     assert queued == 3 and [answer for answer, _ in answers] == [0, 1, 2, 3]
 
 
-def test_an_unexpected_error_is_answered_in_one_line_not_a_traceback():
+def test_an_unexpected_error_is_answered_in_one_line_not_a_traceback(caplog):
     with running(_server(fail=True)) as port:
         with connect(f"ws://127.0.0.1:{port}", proxy=None, open_timeout=TIMEOUT_S) as client:
             client.recv(timeout=TIMEOUT_S)
             client.send(b"abc")
             answer = client.recv(timeout=TIMEOUT_S)
     assert answer == "RuntimeError: the model broke on line two"
+    assert caplog.text.count("Traceback") == 1  # in the server's log, once (the batcher's)
 
 
 @pytest.mark.parametrize("header", [None, "Api-Key wrong", "Bearer s3cret"], ids=["missing", "wrong", "scheme"])

@@ -108,3 +108,50 @@ def test_a_server_given_no_guard_uses_the_process_wide_one():
             assert call(endpoint_request("ping", "from-configure"))["status"] == "ok"
     finally:
         guards._current = before
+
+
+@contextmanager
+def dealer(port: int):
+    """A DEALER socket: it sends whatever frames it likes (a REQ socket sends its delimiter and one message)."""
+    context = zmq.Context()
+    socket = context.socket(zmq.DEALER)
+    socket.setsockopt(zmq.LINGER, 0)
+    socket.connect(f"tcp://127.0.0.1:{port}")
+    try:
+        yield socket
+    finally:
+        socket.close()
+        context.term()
+
+
+def test_a_message_of_more_frames_than_a_request_is_dropped_and_never_echoed():
+    # Each frame is under the bound (ZeroMQ's MAXMSGSIZE is per frame), the message is 300 times it; the server
+    # used to read it whole and send 299 frames of it back as the reply's envelope.
+    limit = 10_000
+    frames = [b""] + [b"x" * (limit - 1)] * 298 + [packb(endpoint_request("ping"))]
+    with running(LengthServer(Guard(max_message_bytes=limit))) as port:
+        with dealer(port) as stranger:
+            stranger.send_multipart(frames)
+            assert not stranger.poll(1000), "the server answered (and echoed the frames)"
+            stranger.send_multipart([b"", b"extra", packb(endpoint_request("ping"))])  # small, but one frame too many
+            assert not stranger.poll(500)
+            stranger.send_multipart([b"", packb(endpoint_request("ping"))])  # what a REQ socket sends: answered
+            assert stranger.poll(TIMEOUT_MS)
+            assert unpackb(stranger.recv_multipart()[-1])["status"] == "ok"
+        with client(port) as call:
+            assert call({"endpoint": "get_action", "data": {"text": "abc"}}) == {"length": 3}
+
+
+def test_the_token_is_checked_before_any_array_is_decoded():
+    unsafe = {"__ndarray_class__": True, "as_npy": b"\x93NUMPY not an array"}
+    with running(LengthServer(Guard(token="s3cret"))) as port, client(port) as call:
+        stranger = {"endpoint": "get_action", "data": {"image": unsafe}}
+        assert call(stranger) == {"error": "Unauthorized: Invalid API token"}
+        answer = call({"endpoint": "get_action", "data": {"image": unsafe}, "api_token": "s3cret"})
+        assert answer["error"].startswith("UnsafeArray: not .npy data")
+
+
+def test_a_failed_model_call_leaves_its_traceback_in_the_server_log(caplog):
+    with running(LengthServer(fail=True)) as port, client(port) as call:
+        assert call({"data": {"text": "abc"}})["error"].startswith("RuntimeError")
+    assert caplog.text.count("Traceback") == 1 and "the model broke" in caplog.text
