@@ -13,8 +13,9 @@ from contextlib import contextmanager
 
 import pytest
 
-from conflictbench import InfrastructureError, PolicyClient, ServerUnavailable
+from conflictbench import InfrastructureError, PolicyClient, ServerUnavailable, UserError
 from conflictbench.hosting import transport as transports
+from conflictbench.hosting import trust
 
 serving = pytest.importorskip("conflictbench_serving")
 from conflictbench_serving import guard as guards  # noqa: E402 (after the check that the serving half is here)
@@ -47,6 +48,26 @@ def test_the_clients_bound_and_header_are_the_servers():
     assert transports.MESSAGE_LIMIT_VARIABLE == guards.MESSAGE_LIMIT_VARIABLE
     assert transports.DEFAULT_MAX_MESSAGE_BYTES == guards.DEFAULT_MAX_MESSAGE_BYTES
     assert transports.authorization("t") == guards.authorization("t") and transports.authorization(None) == {}
+    assert trust.TOKEN_VARIABLE == guards.TOKEN_VARIABLE  # restated: conflictbench's core install needs no serving
+
+
+# The message bound's variable, as a run and its servers read it: each value accepted by both, or refused by both.
+LIMITS = ["1000", " 1000 ", "12582912", "0", "-5", "+5", "1_000", "1e6", "\u00b2", "\u0663", "lots", "5.0"]
+
+
+@pytest.mark.parametrize("text", LIMITS)
+def test_a_run_and_its_servers_read_the_message_bound_alike(monkeypatch, text):
+    monkeypatch.setenv(guards.MESSAGE_LIMIT_VARIABLE, text)
+    try:
+        server = guards.message_limit_from_environment()
+    except ValueError:
+        server = "refused"
+    try:
+        run = transports.message_limit()
+    except UserError:
+        run = "refused"
+    assert run == server
+    assert server == "refused" or text.strip() in ("1000", "12582912")  # plain ASCII digits, nothing else
 
 
 # ---- openpi's websocket ------------------------------------------------------------------------------------------
@@ -177,15 +198,16 @@ def test_json_numpy_sends_the_token_on_every_request_and_a_refused_one_stops_the
 
 
 @contextmanager
-def big_reply_server(size: int, chunked: bool):
-    """A plain HTTP server whose every reply is a JSON string of ``size`` bytes (declared, or chunked)."""
+def big_reply_server(size: int, chunked: bool, reply: bytes | None = None):
+    """A plain HTTP server whose every reply is a JSON string of ``size`` bytes (declared, or chunked), or
+    ``reply``."""
 
     class Handler(http.server.BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
 
         def do_POST(self):
             self.rfile.read(int(self.headers.get("Content-Length", 0)))
-            body = b'"' + b"x" * (size - 2) + b'"'
+            body = reply if reply is not None else b'"' + b"x" * (size - 2) + b'"'
             self.send_response(200)
             if chunked:
                 self.send_header("Transfer-Encoding", "chunked")
@@ -224,6 +246,20 @@ def test_http_replies_are_read_no_further_than_the_bound(chunked):
         roomy.connect(TIMEOUT_S)
         assert len(roomy.exchange({"a": 1}, TIMEOUT_S)) == 50_000 - 2
         roomy.close()
+
+
+def test_json_numpy_says_why_it_refused_an_array_in_a_reply():
+    from conflictbench.hosting.rest import JsonNumpyTransport
+
+    objects = b'[{"__numpy__": "QUFBQUFBQUFBQUFBQUFBQQ==", "dtype": "|O", "shape": [2]}]'
+    with big_reply_server(0, False, reply=objects) as url:
+        client = JsonNumpyTransport(url)
+        client.connect(TIMEOUT_S)
+        with pytest.raises(InfrastructureError) as refused:
+            client.exchange({"a": 1}, TIMEOUT_S)
+        client.close()
+    message = str(refused.value)
+    assert "arrays of dtype '|O' are refused" in message and "not JSON" not in message and "\n" not in message
 
 
 def test_a_bad_message_bound_in_the_environment_is_one_line(monkeypatch):

@@ -45,6 +45,18 @@ def test_a_token_file_that_cannot_serve_is_one_line(tmp_path, content, words):
     assert words in str(refused.value) and "a b" not in str(refused.value)
 
 
+def test_a_token_file_other_users_can_read_is_warned_of_as_the_server_does(tmp_path, capsys):
+    token_file = tmp_path / "token"
+    token_file.write_text("  the-token \n")  # the same rules as conflictbench-serve --token-file: one word, trimmed
+    token_file.chmod(0o600)
+    assert HostedPolicy.configured_token(HostedConfig(token_file=str(token_file))) == "the-token"
+    assert capsys.readouterr().err == ""
+    token_file.chmod(0o644)
+    assert HostedPolicy.configured_token(HostedConfig(token_file=str(token_file))) == "the-token"
+    warned = f"conflictbench: warning: model.token_file={token_file} is readable by other users (chmod 600 it)\n"
+    assert capsys.readouterr().err == warned
+
+
 # ---- GR00T's ZeroMQ client against our ZeroMQ server with a token: the ping and the metadata carry it -----------
 
 

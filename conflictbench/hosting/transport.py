@@ -36,7 +36,7 @@ def message_limit(given: int | None = None) -> int:
         text = os.environ.get(MESSAGE_LIMIT_VARIABLE, "").strip()
         if not text:
             return DEFAULT_MAX_MESSAGE_BYTES
-        value = int(text) if text.isdigit() else 0
+        value = int(text) if text.isascii() and text.isdigit() else 0  # as the servers read it (guard.py)
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         setting = f"{MESSAGE_LIMIT_VARIABLE} (max_message_bytes)"
         raise UserError(f"{setting} must be a positive number of bytes, got {text[:40]!r}")
@@ -136,7 +136,9 @@ class HttpJsonTransport(Transport):
             except OSError as exc:  # not a slow reply: the client reconnects with its back-off
                 raise ConnectionError(f"reconnecting after the server closed the connection: {exc}") from exc
             conn = self._conn
-        conn.sock.settimeout(timeout)
+        conn.timeout = timeout  # a server that closed after its handshake's reply: http.client opens a new socket
+        if conn.sock is not None:
+            conn.sock.settimeout(timeout)
         try:
             conn.request("POST", self._path, body, {"Content-Type": "application/json", **self._headers})
             response = conn.getresponse()
@@ -151,7 +153,7 @@ class HttpJsonTransport(Transport):
                 f"{one_line(data.decode(errors='replace'))}"
             )
         try:
-            reply = self.loads(data)
+            reply = self.loads(data)  # an array it refuses raises InfrastructureError, saying why
         except ValueError:
             raise InfrastructureError(
                 f"{self.url} answered something that is not JSON: {one_line(data.decode(errors='replace'))}"

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import inspect
 import os
+import stat
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,22 +23,32 @@ from ..core.errors import UserError
 from .launch import ServerProcess
 from .transport import Transport
 
-#: Where a run and a server read their shared token from (conflictbench_serving.guard's name for it).
+#: Where a run and a server read their shared token from (conflictbench_serving.guard's name for it, restated: a
+#: test keeps the two equal).
 TOKEN_VARIABLE = "CONFLICTBENCH_SERVER_TOKEN"
 
 
 def configured_token(token_file: str = "") -> str | None:
     """The token of a running server: ``token_file``'s (``model.token_file``), else ``$CONFLICTBENCH_SERVER_TOKEN``,
     else None. A file that cannot be read, or holds no single word, is one line (:class:`UserError`), never the
-    token."""
+    token; one that other users can read is warned of. The rules of ``conflictbench-serve --token-file``
+    (``conflictbench_serving.command``), restated: the two live in different distributions, and conflictbench's
+    own install needs no conflictbench-serving."""
     if not token_file:
         return os.environ.get(TOKEN_VARIABLE) or None
+    path = Path(token_file).expanduser()
     try:
-        token = Path(token_file).expanduser().read_text().strip()
+        token = path.read_text().strip()
+        mode = path.stat().st_mode
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"model.token_file={token_file}: cannot read it ({type(exc).__name__})") from None
     if not token or any(character.isspace() for character in token):
         raise UserError(f"model.token_file={token_file}: the token must be one word, on one line")
+    if mode & (stat.S_IRGRP | stat.S_IROTH):
+        print(
+            f"conflictbench: warning: model.token_file={token_file} is readable by other users (chmod 600 it)",
+            file=sys.stderr,
+        )
     return token
 
 

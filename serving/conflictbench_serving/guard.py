@@ -153,10 +153,9 @@ def message_limit_from_environment() -> int:
     text = os.environ.get(MESSAGE_LIMIT_VARIABLE, "").strip()
     if not text:
         return DEFAULT_MAX_MESSAGE_BYTES
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
+    # ASCII digits only, as the run reads it (conflictbench.hosting.transport): int() alone would also take "+5",
+    # "1_000" and other scripts' digits, and the two sides would disagree on the bound
+    value = int(text) if text.isascii() and text.isdigit() else 0
     if value < 1:
         raise ValueError(f"{MESSAGE_LIMIT_VARIABLE} must be a positive number of bytes, got {text[:40]!r}")
     return value
