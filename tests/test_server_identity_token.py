@@ -84,7 +84,7 @@ def gr00t(url: str, **settings):
     return load("gr00t", Gr00tConfig(server=url, checkpoint="gr00t-libero", connect_retries=0, **settings))
 
 
-def test_gr00t_sends_the_environments_token_on_its_ping_and_metadata(zeromq_server, monkeypatch):
+def test_gr00t_sends_the_environments_token_on_its_ping_and_metadata(zeromq_server, monkeypatch, capsys):
     monkeypatch.setenv(TOKEN_VARIABLE, SECRET)
     policy = gr00t(zeromq_server)
     try:
@@ -92,8 +92,12 @@ def test_gr00t_sends_the_environments_token_on_its_ping_and_metadata(zeromq_serv
     finally:
         policy.close()
     monkeypatch.setenv(TOKEN_VARIABLE, "not-the-token")
-    policy = gr00t(zeromq_server, api_token=SECRET)  # model.api_token, as before: the same token
+    # model.api_token, as before: the same token, deprecated (Hydra saves it with the run's config, ps shows it)
+    with pytest.warns(DeprecationWarning, match="model.api_token .*CONFLICTBENCH_SERVER_TOKEN or model.token_file"):
+        policy = gr00t(zeromq_server, api_token=SECRET)
     policy.close()
+    warned = [line for line in capsys.readouterr().err.splitlines() if "api_token" in line]
+    assert len(warned) == 1 and "warning: model.api_token is deprecated" in warned[0] and SECRET not in warned[0]
 
 
 @pytest.mark.parametrize("token", [None, "not-the-token"], ids=["none", "wrong"])

@@ -12,6 +12,7 @@ episodes are not bit-identical from run to run.
 from __future__ import annotations
 
 import functools
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -20,6 +21,7 @@ import numpy as np
 
 from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, published_results, sampling_seed
 from conflictbench.core import LIBERO_SUITES
+from conflictbench.core.deprecation import deprecated
 from conflictbench.hosting.zeromq import ZmqTransport, answers_ping
 from conflictbench_serving.checkpoints import NOISE_SEED_LIMIT
 
@@ -47,9 +49,9 @@ class Gr00tConfig(HostedConfig):
     max_steps: int = 0
     """Policy steps per episode; 0: GR00T's LIBERO budget, 720 in every suite (``--max_episode_steps=720``)."""
     api_token: str = ""
-    """The running server's API token (``model.server``), if it was started with one; default: ``model.token_file``'s,
-    else ``$CONFLICTBENCH_SERVER_TOKEN``. Better there than here: a value here is saved with the run's config. A
-    server the run starts gets a fresh token of its own."""
+    """Deprecated (goes in 0.4.0; setting it warns, and it still works): the running server's API token. Hydra saves
+    it with the run's config (``.hydra/config.yaml``, ``overrides.yaml``) and ``ps`` shows it on the command line:
+    use ``model.token_file`` or ``$CONFLICTBENCH_SERVER_TOKEN``. A server the run starts gets a fresh token."""
 
 
 class Gr00tPolicy(HostedPolicy):
@@ -70,7 +72,12 @@ class Gr00tPolicy(HostedPolicy):
 
     @classmethod
     def configured_token(cls, cfg: Gr00tConfig) -> str | None:
-        return cfg.api_token or super().configured_token(cfg)
+        if not cfg.api_token:
+            return super().configured_token(cfg)
+        instead = "set CONFLICTBENCH_SERVER_TOKEN or model.token_file (Hydra saves model.api_token in the run's config)"
+        deprecated("model.api_token", instead)
+        print(f"conflictbench: warning: model.api_token is deprecated: {instead}", file=sys.stderr)
+        return cfg.api_token
 
     def make_transport(self, url: str) -> ZmqTransport:
         return ZmqTransport(url, api_token=self.token)  # its ping carries the token too
