@@ -28,8 +28,7 @@ What it owns, the same for every model:
   the environment's probe before the run plans; the started server must then report the same); against a running
   server, what its metadata says (``checkpoint_fingerprint``, ``max_batch``,
   ``model_stack``), else the name given in ``model.checkpoint`` and "unreported", said once.
-- **The right model.** A server whose metadata names another ``policy_type`` is refused; a checkpoint
-  changed while its server was loading it is refused.
+- **The right model.** A server naming another ``policy_type``, or a checkpoint changed while it loaded, is refused.
 - **The server it started, and no other.** A started server (``served``) binds any free port and says which over
   its own pipe (``ServerProcess(reports_address=True)``), so no process that took a port first can answer for it;
   it must say both what it loaded (``checkpoint_fingerprint``) and on what (``model_stack``), so an impostor cannot
