@@ -108,7 +108,7 @@ def scalar(item: Any, dtype_spec: Any) -> np.generic:
     else:  # a number, of a fixed size whatever its value: never a text that numpy would parse
         fits = isinstance(item, (bool, int, float))
     if not fits:
-        raise UnsafeArray(f"a {dtype.str!r} scalar cannot hold a {type(item).__name__} ({_preview(item)})")
+        raise UnsafeArray(f"a {dtype.str!r} scalar cannot hold {type(item).__name__} data ({_preview(item)})")
     try:
         # built as an array of the declared dtype: a ``dtype.type(item)`` of bytes or text ignores the itemsize
         return np.array(item, dtype=dtype)[()] if dtype.kind in "SUmM" else dtype.type(item)
