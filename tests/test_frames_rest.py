@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from conflictbench import InfrastructureError
 from conflictbench.hosting.rest import JsonNumpyTransport
+from conflictbench.hosting.transport import UnreadableReply
 
 IMAGE = np.zeros((8, 8, 3), np.uint8)
 # A structured array (its bytes could hide anything) and one whose shape asks for more bytes than it carries.
@@ -36,5 +36,5 @@ def test_the_rest_servers_refuse_an_unsafe_array_anywhere_in_the_body(plugin, ar
 
 @pytest.mark.parametrize("array", [STRUCTURED, SHORT], ids=["structured", "short"])
 def test_the_rest_client_refuses_an_unsafe_array_in_a_reply(array):
-    with pytest.raises(InfrastructureError, match="a json-numpy array that cannot be read: .*(refused|needs 24 bytes)"):
+    with pytest.raises(UnreadableReply, match="a json-numpy array that cannot be read: .*(refused|needs 24 bytes)"):
         JsonNumpyTransport("http://127.0.0.1:1").loads(json.dumps([array]).encode())

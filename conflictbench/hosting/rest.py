@@ -19,7 +19,7 @@ import urllib.parse
 from typing import Any
 
 from ..core.errors import InfrastructureError
-from .transport import HttpJsonTransport, extra_missing, one_line, refused_token
+from .transport import HttpJsonTransport, UnreadableReply, extra_missing, refused_token
 
 try:
     import json_numpy
@@ -75,9 +75,8 @@ class JsonNumpyTransport(HttpJsonTransport):
         try:
             reply = json_numpy_loads(text)  # each array checked before it is built (conflictbench_serving.arrays)
         except UnsafeArray as exc:  # an object, structured or void dtype, a shape that does not match the bytes
-            # not a ValueError: the transport would call the reply "not JSON" and lose the reason
-            reason = one_line(str(exc))
-            raise InfrastructureError(f"{self.url} sent a json-numpy array that cannot be read: {reason}") from None
+            # UnreadableReply, not a plain ValueError, which the transport reports as "not JSON", the reason lost
+            raise UnreadableReply(f"a json-numpy array that cannot be read: {exc}") from None
         if isinstance(reply, str) and reply == ERROR_REPLY:
             raise InfrastructureError(
                 f'{self.url} answered "error": the server caught an exception on this request (its log has the '

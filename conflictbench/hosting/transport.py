@@ -62,6 +62,12 @@ def refused_token(url: str, detail: str) -> PermissionError:
     return PermissionError(f"{url} refused this run's token: {one_line(detail)}")
 
 
+class UnreadableReply(ValueError):
+    """A reply that is JSON but holds something the protocol refuses to read (json-numpy's unsafe array): what
+    :meth:`HttpJsonTransport.loads` raises so the one-line error keeps the reason (a plain ValueError there means
+    "not JSON")."""
+
+
 class Transport(ABC):
     """One connection to a policy server in one wire protocol. The client makes one per stream.
 
@@ -120,7 +126,8 @@ class HttpJsonTransport(Transport):
         return json.dumps(request, default=_json_default)
 
     def loads(self, text: bytes) -> Any:
-        """The reply's JSON text read (raise ValueError where it is not JSON)."""
+        """The reply's JSON text read (raise ValueError where it is not JSON, :class:`UnreadableReply` where it holds
+        what the protocol refuses)."""
         return json.loads(text)
 
     def exchange(self, request: Any, timeout: float) -> Any:
@@ -153,7 +160,9 @@ class HttpJsonTransport(Transport):
                 f"{one_line(data.decode(errors='replace'))}"
             )
         try:
-            reply = self.loads(data)  # an array it refuses raises InfrastructureError, saying why
+            reply = self.loads(data)
+        except UnreadableReply as exc:
+            raise InfrastructureError(f"{self.url} answered {one_line(str(exc))}") from None
         except ValueError:
             raise InfrastructureError(
                 f"{self.url} answered something that is not JSON: {one_line(data.decode(errors='replace'))}"
