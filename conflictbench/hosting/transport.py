@@ -192,7 +192,8 @@ class HttpJsonTransport(Transport):
 
 
 def one_line(text: str, limit: int = 300) -> str:
-    """``text`` on one line, cut to ``limit`` characters (server messages go into one-line errors)."""
+    """``text`` on one line, cut to ``limit`` characters (server messages go into one-line errors). The servers'
+    own is ``conflictbench_serving.guard.one_line``: the run's built-in transport needs only the standard library."""
     flat = " ".join(text.split())
     return flat if len(flat) <= limit else flat[: limit - 3] + "..."
 
