@@ -17,7 +17,10 @@ from .errors import PluginError, UserError
 from .hookspecs import hookimpl
 from .records import FAMILIES, LEVELS, LIBERO_SUITES
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+#: The one name pattern: policies, metrics and families are registered under it, and a store's names (a policy, an
+#: episode id) become path parts only if they match it (``conflictbench.store.paths``). Matched whole (``fullmatch``):
+#: ``$`` would also match before a final newline, and a name ending in one made a file name with a newline (#42).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
 #: ``format_prompt(instruction, condition) -> str | None`` of one policy (None: the core's default).
 PromptFormatter = Callable[[str, str], "str | None"]
@@ -190,7 +193,7 @@ def operator_spec(
 ) -> ConflictOperatorSpec:
     if not callable(generate) or (check is not None and not callable(check)):
         raise PluginError(f"{where}: generate and check must be callable")
-    if not isinstance(family, str) or not _NAME.match(family):
+    if not isinstance(family, str) or not NAME_PATTERN.fullmatch(family):
         raise PluginError(f"{where}: family {family!r} is not a valid name")
     if family not in FAMILIES and (check is None or not witness_type):
         raise PluginError(f"{where}: the new family {family!r} needs a witness_type and a check")
@@ -202,7 +205,7 @@ def operator_spec(
 
 
 def check_name(kind: str, name: Any, plugin_name: str) -> None:
-    if not isinstance(name, str) or not _NAME.match(name):
+    if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
         raise PluginError(f"{kind} name {name!r} from {plugin_name} is not valid (letters, digits, '_', '.', '-')")
 
 

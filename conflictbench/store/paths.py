@@ -18,25 +18,25 @@ import contextlib
 import errno
 import fnmatch
 import os
-import re
 import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import BinaryIO
 
 from conflictbench.core import UserError
+from conflictbench.core.registry import NAME_PATTERN
 from conflictbench.core.words import counted
 
-#: The registry's name pattern (``conflictbench.core.registry``): policies are registered under it, and episode
-#: ids (hex digests) match it too. No separator, no leading dot, so never ``..``, a hidden file or a path.
-NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+#: The registry's name pattern, the same object: policies are registered under it, and episode ids (hex digests)
+#: match it too. No separator, no leading dot, so never ``..``, a hidden file or a path; matched whole.
+NAME = NAME_PATTERN
 #: Longer names are refused: with a suffix and a temporary file's tag they must still fit a file name (255 bytes).
 MAX_NAME = 128
 RULE = f"letters, digits, '_', '.', '-', starting with a letter or digit, at most {MAX_NAME} characters"
 
 
 def is_name(name: object) -> bool:
-    return isinstance(name, str) and len(name) <= MAX_NAME and NAME.match(name) is not None
+    return isinstance(name, str) and len(name) <= MAX_NAME and NAME.fullmatch(name) is not None
 
 
 def check_name(what: str, name: object, where: str = "") -> str:
@@ -164,12 +164,18 @@ def write_at(
         raise
 
 
+def is_store(root: str | os.PathLike) -> bool:
+    """Whether ``root`` is an episode store: it has an ``episodes/`` or ``replay/`` folder (one that is a link
+    included: what reads it then says it is not followed)."""
+    return any((Path(root) / name).is_dir() for name in ("episodes", "replay"))
+
+
 def writable_folder(folder: Path, what: str) -> Path:
     """``folder``, about to take files of ``what`` (a report: written, never deleted), refused in one line where a
     write there would go through a link: an entry that is a link (``report.md -> ~/.bashrc``), or the folder itself
     when it is a link inside an episode store (the store's data: ``DIR/report`` of a store from elsewhere). A folder
     the user named that is a link is the user's choice."""
-    if folder.is_symlink() and any((folder.parent / name).is_dir() for name in ("episodes", "replay")):
+    if folder.is_symlink() and is_store(folder.parent):
         raise UserError(f"{folder} is a link inside the store: {what} is written in a folder of its own only")
     links = sorted(p for p in folder.iterdir() if p.is_symlink()) if folder.is_dir() else []
     if links:
