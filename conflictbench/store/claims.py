@@ -17,6 +17,7 @@ import fcntl
 import functools
 import hashlib
 import os
+import stat
 import time
 import uuid
 from collections.abc import Iterable, Iterator
@@ -55,15 +56,50 @@ def pid_place() -> str:
     return hashlib.sha256(f"{boot}:{namespace}".encode()).hexdigest()[:10]
 
 
+@functools.cache
+def pid_limit() -> int:
+    """One more than the largest process id this kernel hands out (``/proc/sys/kernel/pid_max``; Linux's most,
+    2**22, where it cannot be read)."""
+    try:
+        return int(Path("/proc/sys/kernel/pid_max").read_text())
+    except (OSError, ValueError):
+        return 2**22
+
+
+def valid_pid(text: str) -> int | None:
+    """``text`` as a process id some process could have, else None. A claim or a temporary's name is data someone
+    else may have written: 0 (``os.kill(0, 0)`` signals this process's whole group: always "alive"), a number too
+    big for ``os.kill`` (OverflowError), or one past the kernel's limit is no process (#42)."""
+    if not (text.isascii() and text.isdigit()) or len(text) > 12:
+        return None
+    pid = int(text)
+    return pid if 1 <= pid < pid_limit() else None
+
+
+class NotAClaim(UserError):
+    """Something that is not a regular file (a folder) sits at a claim's place and cannot be taken over."""
+
+
 def read_claim(path: Path) -> tuple[str, str, str, str | None, str | None] | None:
     """(host, pid, renewal token, nonce, place) of a claim; the older ``host pid token`` form has no nonce or place
-    (both None). None where there is no claim or it cannot be read."""
-    try:  # never through a link at the claim's name (its text would come from anywhere)
-        with os.fdopen(os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)) as fh:
-            host, pid, token = fh.read().split()
+    (both None). None where there is no claim, it cannot be read, or it is garbage (no regular file, a pid no
+    process can have): a claim nobody holds, taken over by the next job that wants its episode. Opened never
+    through a link (its text would come from anywhere) and without waiting (``O_NONBLOCK``: a FIFO at the claim's
+    place would block the run until someone writes to it), and read only where it is a regular file (#42)."""
+    flags = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+    try:
+        fd = os.open(path, flags)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        host, pid, token = os.read(fd, 4096).decode().split()
     except (OSError, ValueError):
         return None
-    if not pid.isdigit():
+    finally:
+        os.close(fd)
+    if valid_pid(pid) is None:
         return None
     renewal, _, rest = token.partition("/")
     nonce, _, place = rest.partition("/")
@@ -71,6 +107,9 @@ def read_claim(path: Path) -> tuple[str, str, str, str | None, str | None] | Non
 
 
 def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this place lives; a pid no process can have (:func:`valid_pid`) never does."""
+    if not 1 <= pid < pid_limit():
+        return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -160,12 +199,21 @@ class Claims:
                 with self._takeover_lock(folder):
                     if self._claimed_by_other(path):
                         return False
-                    with contextlib.suppress(FileNotFoundError):  # ours, or its owner died (SIGKILL): take it over
-                        os.unlink(path.name, dir_fd=folder)
+                    self._clear(folder, path)  # ours, its owner died (SIGKILL), or garbage: take it over
                     return _link(folder, mine, path.name)  # fails if a fresh claim landed meanwhile
             finally:
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(mine, dir_fd=folder)
+
+    def _clear(self, folder: int, path: Path) -> None:
+        """Remove what sits at a claim's place before taking it over: a claim, or garbage that is no regular file (a
+        FIFO, a link); a folder there is not removed (it may hold anything): refused in one line (#42)."""
+        try:
+            os.unlink(path.name, dir_fd=folder)
+        except FileNotFoundError:
+            pass
+        except IsADirectoryError:
+            raise NotAClaim(f"{path} is a folder, not a file: no claim can be taken there (remove it)") from None
 
     def _claim_text(self) -> str:
         """``host pid token/nonce/place``: a new token at every renewal is what tells another machine the owner is

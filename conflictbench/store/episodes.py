@@ -22,14 +22,13 @@ from pathlib import Path
 from typing import BinaryIO
 
 import pyarrow as pa
-import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from conflictbench.core import EpisodeRecord, StoreFull
+from conflictbench.core import EpisodeRecord, StoreFull, UserError
 
 from . import paths
 from .check import ChosenDamaged, footer_damage, read_intact, set_aside
-from .claims import Claims, pid_alive, pid_place, process_nonce
+from .claims import Claims, pid_alive, pid_place, process_nonce, valid_pid
 from .durable import land
 from .schema import SCHEMA, records_to_table, table_to_records
 
@@ -106,13 +105,17 @@ class EpisodeStore(Claims):
 
     @staticmethod
     def _last_failure(path: Path) -> tuple[str | None, str | None] | None:
-        """(kind, error) of the attempt stored at ``path`` (a replay waiting), or ``None``."""
+        """(kind, error) of the attempt stored at ``path`` (a replay waiting), or ``None``: read as every read of the
+        store reads (``check.read_intact``); a damaged one is left for this write to replace, not set aside."""
         if not path.is_file():
             return None
         try:
-            [record] = table_to_records(ds.dataset(str(path), format="parquet", schema=SCHEMA).to_table())
-        except (OSError, ValueError, pa.ArrowException):
+            tables = read_intact([path], on_damage=lambda _path, _why: None)
+        except (OSError, UserError, pa.ArrowException):  # (another version's: replaced by this attempt)
             return None
+        if not tables:
+            return None
+        [record] = table_to_records(tables[0])
         return record.failure_kind, record.error
 
     def repeated_failure_ids(self) -> set[str]:
@@ -179,18 +182,23 @@ class EpisodeStore(Claims):
         chose it from the keys, and goes on by choosing again without it (``check.going_on``)."""
         files = [self.path_for(policy, eid) for eid, policy in keys]
         damaged: list[tuple[Path, str, Path | None]] = []
+        gone: list[Path] = []
 
         def aside(path: Path, why: str) -> None:
             self._left_out.add(path)
             damaged.append((path, why, set_aside(path, why, then="left out here; the next run plays it again")))
 
-        tables = read_intact(files, on_damage=aside)
+        tables = read_intact(files, on_damage=aside, on_gone=gone.append)
         if damaged:
             path, why, moved = damaged[0]
             more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
             where = f"set aside as {moved.relative_to(self.root)}" if moved is not None else "left in place"
             message = f"episode {path.stem} of {path.parent.name} is damaged ({why}){more}: {where}"
             raise ChosenDamaged(f"{message}; run the same command again: it goes on", [d[0] for d in damaged])
+        if gone:  # removed since its keys were read (another job's prune): chosen again, it is not there (#42)
+            more = f" (and {len(gone) - 1} more)" if len(gone) > 1 else ""
+            message = f"episode {gone[0].stem} of {gone[0].parent.name} was removed while read{more}"
+            raise ChosenDamaged(f"{message}; run the same command again: it goes on", gone)
         return table_to_records(pa.concat_tables(tables)) if tables else []
 
     def set_aside_damaged(self, episode_ids: Iterable[str]) -> set[str]:
@@ -230,12 +238,13 @@ class EpisodeStore(Claims):
         ``<pid>-<nonce>@<host>~<place>``, or ``<pid>@<host>`` as written before nonces."""
         rest, _, where = name.rpartition("@")
         host, marked, place = where.partition("~")
-        pid, _, nonce = rest.rpartition(".")[2].partition("-")
-        if host != self._host or not pid.isdigit() or (marked and place != pid_place()):
+        text, _, nonce = rest.rpartition(".")[2].partition("-")
+        pid = valid_pid(text)  # a name is data: a pid no process can have is a dead one's (never os.kill'd, #42)
+        if host != self._host or not text.isdigit() or (marked and place != pid_place()):
             return False
-        if int(pid) == os.getpid():  # this process's while being written; another nonce: an earlier one's, gone
+        if pid == os.getpid():  # this process's while being written; another nonce: an earlier one's, gone
             return not marked or nonce != process_nonce()
-        return not pid_alive(int(pid))
+        return pid is None or not pid_alive(pid)
 
     @property
     def _temporary_tag(self) -> str:
