@@ -142,7 +142,7 @@ def test_prune_delete_never_reaches_through_a_link_in_the_store(tmp_path, capsys
     err = capsys.readouterr().err
     assert other.is_file(), "prune deleted a file outside the store through a link"
     assert store.stored_ids() == {"new"}
-    assert "skipped 1 link in" in err and "1 of 2 episodes removed" in err, err
+    assert "skipped 1 link in" in err and "removed 1 of 2 episodes" in err, err
 
 
 def test_unlink_inside_never_follows_a_linked_folder_and_removes_a_link_itself(tmp_path):
@@ -209,12 +209,14 @@ def test_a_store_that_is_itself_a_link_at_view_is_refused(paired, tmp_path):
     assert list((tmp_path / "other-site").iterdir()) == []
 
 
-def test_the_viewer_writes_no_page_an_episode_id_names_out_of_its_site(paired, tmp_path, plugins):
+def test_the_viewer_writes_no_page_an_episode_id_names_out_of_its_site(paired, tmp_path, plugins, capsys):
+    """A file whose id is not the one its place names is not read as an episode at all (#42): set aside, named."""
     con = paired.records(["con"])[0]
     crafted(paired.episodes_dir / "noop" / "con.parquet", replace(con, episode_id="../../../escaped"))
-    with pytest.raises(UserError, match="cannot name a file"):
-        build_site(paired.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
-    assert not list(tmp_path.rglob("escaped*"))
+    built = build_site(paired.root, tmp_path / "site", plugins, Selection(), videos=0, progress=False)
+    assert built.pairs == 0 and not list(tmp_path.rglob("escaped*"))
+    [line] = [x for x in capsys.readouterr().err.splitlines() if "con.parquet" in x]
+    assert "not the one its place names" in line and (paired.root / "damaged" / "episodes" / "noop").is_dir()
 
 
 def test_the_viewer_skips_linked_pages_when_clearing_stale_ones(paired, tmp_path, plugins):
@@ -300,11 +302,12 @@ def test_prune_deletes_a_file_only_on_what_that_file_itself_holds(tmp_path):
     store = EpisodeStore(tmp_path / "store")
     store.write(episode("cur", 1, config_hash="h2", created_at="2026-11-02T10:00:00+00:00"))  # the current identity
     store.write(episode("old", 1, config_hash="h1"))
-    # a file that claims to be "cur", played under an older identity: its row must not condemn the real "cur"
+    # a file that claims to be "cur", played under an older identity: its row must not condemn the real "cur" (it is
+    # not read as an episode at all: set aside as not holding the episode its place names)
     crafted(store.episodes_dir / "pi0" / "fake.parquet", episode("cur", 1, config_hash="h0", created_at="2026-10"))
     assert [s.episode_id for s in superseded(store)] == ["old"]
     assert main(["prune", str(store.root), "--delete"]) == 0
-    assert store.stored_ids() == {"cur", "fake"}
+    assert store.stored_ids() == {"cur"} and (store.root / "damaged" / "episodes" / "pi0" / "fake.parquet").is_file()
 
 
 def test_only_regular_files_are_episodes(tmp_path):

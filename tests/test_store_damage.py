@@ -260,11 +260,15 @@ def test_an_unreadable_episode_is_not_quarantined_when_it_only_vanished(tmp_path
 def small_disk(tmp_path):
     """A real tmpfs of 256 KiB mounted as the store (root only); skipped where this process cannot mount one (the
     RLIMIT_FSIZE test below takes the same path without privileges)."""
+    yield from mounted_tmpfs(tmp_path / "small")
+
+
+def mounted_tmpfs(folder, size: str = "256k"):
+    """A tmpfs mounted at ``folder`` for as long as the generator runs (a fixture's body)."""
     import subprocess
 
-    folder = tmp_path / "small"
     folder.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(folder)],
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
                              capture_output=True, text=True)  # fmt: skip
     if mounted.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
@@ -427,7 +431,8 @@ def test_a_run_on_a_disk_that_fills_ends_in_one_line_and_the_same_command_resume
 
 def test_a_file_this_version_cannot_cast_is_not_set_aside(tmp_path):
     """Not damage: a column of another type (a newer writer's, say) fails the cast to this version's schema. Reads
-    stop as before, and the file stays where it is (a newer conflictbench reads it)."""
+    stop in one line naming the file (not Arrow's traceback), and the file stays where it is (a newer conflictbench
+    reads it); tests/test_store_trust.py runs the commands."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -438,6 +443,8 @@ def test_a_file_this_version_cannot_cast_is_not_set_aside(tmp_path):
     table = records_to_table([episode("ref2", state=2)])
     index = table.schema.get_field_index("eef_pos")
     pq.write_table(table.set_column(index, "eef_pos", pa.array(["a newer encoding"])), path)
-    with pytest.raises(pa.ArrowNotImplementedError):
+    from conflictbench.core import UserError
+
+    with pytest.raises(UserError, match="ref2.parquet is not readable by this version.*newer.* conflictbench"):
         store.read_table()
     assert path.exists() and not (store.root / "damaged").exists()

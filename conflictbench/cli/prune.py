@@ -36,10 +36,12 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         return 0
     for item in old:
         print(item.path)
-    verb = "removed" if args.delete else "superseded (--delete removes them)"
-    print(
-        f"conflictbench: {len(old)} of {counted(total, 'episode')} {verb}: {by_policy}; {size:.1f} MB", file=sys.stderr
-    )
-    if args.delete:
-        remove(store, old)
+    if not args.delete:
+        print(f"conflictbench: {len(old)} of {counted(total, 'episode')} superseded (--delete removes them): "
+              f"{by_policy}; {size:.1f} MB", file=sys.stderr)  # fmt: skip
+        return 0
+    removed = remove(store, old)  # said once done, with what it removed (a file gone meanwhile is not counted)
+    gone = f" ({len(old) - removed} gone meanwhile)" if removed < len(old) else ""
+    print(f"conflictbench: removed {removed} of {counted(total, 'episode')}, superseded{gone}: {by_policy}; "
+          f"{size:.1f} MB", file=sys.stderr)  # fmt: skip
     return 0

@@ -41,10 +41,11 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
     from conflictbench.sim.progress import CountProgress
     from conflictbench.store import EpisodeStore
     from conflictbench.store.check import DAMAGED, check_files, set_aside_list
+    from conflictbench.store.paths import is_store
 
     root = store_dir(args.store)
     store = EpisodeStore(root)
-    if not (store.episodes_dir.is_dir() or store.replay_dir.is_dir()):
+    if not is_store(root):
         raise UserError(f"{root} is not an episode store (no {store.episodes_dir.name}/ folder)")
     files = store.kept_files() + store.waiting_files()
     bar = CountProgress(len(files), "store check: episode files read",
@@ -53,18 +54,35 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         result = check_files(files, args.quarantine, on_file=bar.update)
     finally:
         bar.close()
-    earlier = len(set_aside_list(root)) - sum(moved is not None for _, _, moved in result.damaged)
-    aside = f"; {earlier} set aside earlier ({root / DAMAGED}/)" if earlier else ""
-    if not result.damaged:
-        print(f"conflictbench: {root}: {result.read} episode files read: all readable{aside}")
-        return 0
-    for path, why, moved in result.damaged:
+    # A linked episodes/ or replay/ is not read (a store is read without following links): say so, never "all
+    # readable" over files nobody looked at (#42).
+    linked = [d.name for d in (store.episodes_dir, store.replay_dir) if d.is_symlink()]
+    _say(root, result, args.quarantine, len(set_aside_list(root)), root / DAMAGED, bool(linked))
+    for name in linked:
+        print(f"conflictbench: {root / name} is a link: a store is read without following links, so nothing under "
+              "it was checked (copy the files into the store, or `conflictbench merge` them)")  # fmt: skip
+    return 1 if result.damaged or result.other_version or linked else 0
+
+
+def _say(root, result, quarantine: bool, aside_now: int, damaged_dir, linked: bool) -> None:
+    earlier = aside_now - sum(moved is not None for _, _, moved, _ in result.damaged)
+    aside = f"; {earlier} set aside earlier ({damaged_dir}/)" if earlier else ""
+    for path, why in result.other_version:
+        print(f"not readable by this version: {path.relative_to(root)} ({why}): likely written by another (newer) "
+              "conflictbench version; left in place")  # fmt: skip
+    for path, why, moved, why_not in result.damaged:
         where = f": set aside as {moved.relative_to(root)}" if moved is not None else ""
+        where += f": could not be moved ({why_not})" if why_not is not None else ""
         print(f"damaged: {path.relative_to(root)} ({why}){where}")
-    if args.quarantine:
-        kept = sum(moved is None for _, _, moved in result.damaged)
-        then = "set aside; the next run plays them again" + (f" ({kept} could not be moved)" if kept else "")
+    other = f"; {len(result.other_version)} not readable by this version" if result.other_version else ""
+    if not result.damaged:
+        readable = "no damage" if result.other_version or linked else "all readable"
+        print(f"conflictbench: {root}: {result.read} episode files read: {readable}{other}{aside}")
+        return
+    if quarantine:
+        kept = [why_not for *_, why_not in result.damaged if why_not is not None]
+        then = "set aside; the next run plays them again"
+        then += f" ({len(kept)} could not be moved: {kept[0]})" if kept else ""
     else:
         then = f"`conflictbench store check --quarantine {root}` sets them aside (the next run plays them again)"
-    print(f"conflictbench: {root}: {len(result.damaged)} of {result.read} episode files damaged{aside}; {then}")
-    return 1
+    print(f"conflictbench: {root}: {len(result.damaged)} of {result.read} episode files damaged{other}{aside}; {then}")

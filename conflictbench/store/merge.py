@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from conflictbench.core import UserError
+from conflictbench.core import StoreFull, UserError
 
 from . import paths
 from .check import left_out, read_intact
@@ -63,17 +63,20 @@ def _digest_column(digest, name: str, column: pa.ChunkedArray) -> None:
     array = column.combine_chunks()
     digest.update(name.encode() + b"\0")
     while pa.types.is_list(array.type) or pa.types.is_fixed_size_list(array.type):
-        lengths = array.value_lengths().to_numpy(zero_copy_only=False).astype("int64")
+        # a null list has no length: -1 (never a float NaN cast to an integer, which numpy warns about)
+        lengths = array.value_lengths().fill_null(-1).to_numpy(zero_copy_only=False).astype("int64")
         digest.update(len(lengths).to_bytes(8, "little") + lengths.tobytes())
         array = array.flatten()
-    digest.update(array.to_numpy(zero_copy_only=False).astype("float64").tobytes())
+    digest.update(array.fill_null(float("nan")).to_numpy(zero_copy_only=False).astype("float64").tobytes())
 
 
 def read_copy(path: Path) -> Copy | None:
     """One episode file's identity, recorded versions and a digest of its rollout (its arrays). Read through the
     store's schema, as the store reads it (a file from before a column was added has it empty)."""
     try:
-        tables = read_intact([path], ["policy", "episode_id", *VERSION_COLUMNS, *ARRAY_COLUMNS], on_damage=left_out)
+        # placed=False: a file naming another place is refused below in one line (nothing merged), not left out
+        tables = read_intact([path], ["policy", "episode_id", *VERSION_COLUMNS, *ARRAY_COLUMNS], on_damage=left_out,
+                             placed=False)  # fmt: skip
     except (pa.ArrowException, OSError) as exc:
         raise UserError(f"cannot read {path} as a stored episode: {exc}") from None
     if not tables:  # damaged (named, left in place: a shard is only read) or gone meanwhile: left out (#42)
@@ -81,12 +84,13 @@ def read_copy(path: Path) -> Copy | None:
     [table] = tables
     if table.num_rows != 1:
         raise UserError(f"{path} holds {table.num_rows} rows, not one episode")
+    row = table.select(["policy", "episode_id", *VERSION_COLUMNS]).to_pylist()[0]
+    names = _names(path, row["policy"], row["episode_id"])  # refused before its arrays are looked at
     digest = hashlib.sha256()
     for name in ARRAY_COLUMNS:
         _digest_column(digest, name, table[name])
-    row = table.select(["policy", "episode_id", *VERSION_COLUMNS]).to_pylist()[0]
     versions = tuple(tuple(row[k] or ()) if k == "code_versions" else row[k] for k in VERSION_COLUMNS)
-    return Copy(path, *_names(path, row["policy"], row["episode_id"]), versions, digest.hexdigest()[:20])
+    return Copy(path, *names, versions, digest.hexdigest()[:20])
 
 
 def _names(path: Path, policy: object, episode_id: object) -> tuple[str, str]:
@@ -145,7 +149,7 @@ def merge_stores(out: EpisodeStore, shards: Sequence[EpisodeStore], *, dry_run: 
     temporary name, then renamed); refused, writing nothing, where two copies of an episode record other versions."""
     roots = [out.root.resolve(), *(s.root.resolve() for s in shards)]
     for shard in shards:
-        if not (shard.episodes_dir.is_dir() or shard.replay_dir.is_dir()):
+        if not paths.is_store(shard.root):
             raise UserError(f"{shard.root} is not an episode store (no {shard.episodes_dir.name}/ folder)")
     if len(set(roots)) != len(roots):
         raise UserError("the output and the shards must be different stores (one was named twice)")
@@ -158,6 +162,25 @@ def merge_stores(out: EpisodeStore, shards: Sequence[EpisodeStore], *, dry_run: 
             f"(not the same experiment):\n  {shown}{more}"
         )
     if not dry_run:
-        for copy in plan.new:
-            out.copy_in(copy.path, copy.policy, copy.episode_id)
+        for done, copy in enumerate(plan.new):
+            try:
+                out.copy_in(copy.path, copy.policy, copy.episode_id)
+            except StoreFull as exc:
+                raise MergeFull(exc.root, exc.reason, done, len(plan.new)) from None
     return plan
+
+
+class MergeFull(StoreFull):
+    """A merge whose output's file system took no more: said in a merge's words (not a run's ``run.out``)."""
+
+    def __init__(self, root: str, reason: str, stored: int | None = None, total: int = 0):
+        super().__init__(root, reason, stored)
+        self.args, self.total = (root, reason, stored, total), total
+
+    def __str__(self) -> str:
+        return (
+            f"no room left in the store {self.root} while merging ({self.reason}): merged {self.stored} of "
+            f"{self.total} episode(s), each whole, no partial copy left; free space on its disk (`conflictbench "
+            f"prune {self.root} --delete` removes superseded episodes) or merge into another OUT, then run the same "
+            "merge again: it copies the rest"
+        )

@@ -15,6 +15,8 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
+from conflictbench.core import UserError
+
 from .episodes import SUFFIX, EpisodeStore
 from .paths import unlink_inside
 
@@ -60,8 +62,16 @@ def superseded(store: EpisodeStore) -> list[Superseded]:
 
 def remove(store: EpisodeStore, items: list[Superseded]) -> int:
     """Delete the superseded episodes' files; how many were there. Never through a link (#42): the listing skipped
-    linked files and folders, and a folder turned into a link since is refused in one line, not followed."""
-    return sum(unlink_inside(store.root, item.path) for item in items)
+    linked files and folders, and a folder turned into a link since is refused in one line, not followed. A file
+    the system will not remove (a store this user may only read) stops it in one line saying how many went."""
+    removed = 0
+    for item in items:
+        try:
+            removed += unlink_inside(store.root, item.path)
+        except OSError as exc:
+            raise UserError(f"removed {removed} of {len(items)} superseded episodes; cannot remove {item.path}: "
+                            f"{exc.strerror or exc}") from None  # fmt: skip
+    return removed
 
 
 def _join_older_rows(groups: dict[tuple, list[dict]]) -> None:
