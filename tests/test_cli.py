@@ -70,6 +70,7 @@ def test_bad_input_is_one_clear_line_and_exit_code_2(cli, args, message):
         assert len(lines) == 1 and lines[0].startswith("conflictbench: error:"), out.stderr
 
 
+@pytest.mark.e2e  # costly (10-18 s): CI's marked lane plays it; the default selection stays under 10 min
 def test_a_rejected_run_leaves_no_file_behind_and_keeps_an_existing_store(cli, tmp_path):
     kept = tmp_path / "kept"
     (kept / "episodes").mkdir(parents=True)

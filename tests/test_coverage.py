@@ -68,6 +68,7 @@ def show(title: str, figures: dict[str, float]) -> None:
     print(f"\n{title}: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in figures.items()))
 
 
+@pytest.mark.slow  # a coverage simulation of 5 s: CI's marked lane runs it
 def test_intervals_cover_the_truth_at_the_papers_size_and_pair_level_ones_do_not(components, paper):
     clustered = coverage(paper, 200, (0.5, 0.5, 0.5), ("PCSR", "RGSR", "dSR", "ts"), components, seed=1)
     pair_level = coverage(paper, 100, (0.5, 0.5, 0.5), ("PCSR", "dSR", "ts"), components, seed=2, pair_level=True)
@@ -139,6 +140,7 @@ def check_comparisons(stores: int, fpr_limit: float, seeds: tuple[int, int, int]
             assert ours >= 0.8 - slack
 
 
+@pytest.mark.slow  # a coverage simulation of 5 s: CI's marked lane runs it
 def test_two_models_alike_are_seldom_told_apart_and_a_dsr_difference_is_found(components, paper):
     check_comparisons(100, 0.12, (4, 5, 9), components, paper, slack=0.1)  # 100 stores: within their noise
 

@@ -67,6 +67,7 @@ def one_golden(tmp_path: Path) -> Path:
 
 
 # -- the doctor, run ---------------------------------------------------------------------------------------------
+@pytest.mark.e2e  # costly (10-18 s): CI's marked lane plays it; the default selection stays under 10 min
 @pytest.mark.sim
 def test_doctor_replays_one_golden_with_and_without_cameras_and_passes(tmp_path):
     done = doctor("--goldens", str(one_golden(tmp_path)))
@@ -131,6 +132,7 @@ def test_frames_of_another_renderer_family_are_reported_without_failing(tmp_path
     assert said_plainly in said["rendering"]
 
 
+@pytest.mark.e2e  # costly (10-18 s): CI's marked lane plays it; the default selection stays under 10 min
 def test_a_mistake_in_doctors_arguments_is_one_line_and_exit_code_2(tmp_path):
     for args in (["--perturb", "gravity=0"], ["--goldens", str(tmp_path / "none")], ["stray"]):
         done = doctor(*args)

@@ -115,6 +115,7 @@ class PaperCheckpoint:
                      date="2026-01-01", paper_model=paper_model)  # fmt: skip
 
 
+@pytest.mark.e2e  # costly (10-18 s): CI's marked lane plays it; the default selection stays under 10 min
 @pytest.mark.sim
 def test_a_declared_run_shows_the_papers_rows_at_its_end_in_its_report_and_on_the_viewers_index(tmp_path, capsys):
     from conflictbench.cli.report import command as report_command

@@ -110,6 +110,7 @@ def verdict_of(text: str, suite: str = "libero_goal") -> str:
     return line.split()[-1]
 
 
+@pytest.mark.e2e  # costly (10-18 s): CI's marked lane plays it; the default selection stays under 10 min
 @pytest.mark.sim
 def test_noop_is_below_a_half_consistent_with_ten_and_quick_mode_is_inconclusive(tmp_path, capsys):
     store = tmp_path / "store"
