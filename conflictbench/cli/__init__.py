@@ -31,14 +31,8 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from conflictbench.core import (
-    PluginError,
-    PolicyStalled,
-    ServerUnavailable,
-    SimulatorUnavailable,
-    StoreFull,
-    UserError,
-)
+from conflictbench.core import UserError
+from conflictbench.core.errors import ONE_LINE_ERRORS
 
 VERBS = {
     "list": "listing",
@@ -123,7 +117,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         plugins = conflictbench.plugins()
         module, rest = (VERBS[argv[0]], argv[1:]) if argv[:1] and argv[0] in VERBS else ("run", argv)
         return importlib.import_module(f"{__name__}.{module}").command(rest, plugins)
-    except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled, StoreFull) as exc:
+    except ONE_LINE_ERRORS as exc:
         print(f"conflictbench: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # output piped into `head` and the like

@@ -15,13 +15,9 @@ from conflictbench.core import (
     FAMILIES,
     LEVELS,
     PROMPT_CONDITIONS,
-    PluginError,
-    PolicyStalled,
-    ServerUnavailable,
-    SimulatorUnavailable,
-    StoreFull,
     UserError,
 )
+from conflictbench.core.errors import ONE_LINE_ERRORS
 from conflictbench.core.plugins import Plugins
 from conflictbench.core.words import counted
 
@@ -221,7 +217,7 @@ def play(argv: list[str], plugins: Plugins, *, declared: str | None = None, fini
         try:
             model = HydraConfig.get().runtime.choices["model"]
             return run_job(cfg, here.get(), model, declared=declared, finish=finish)
-        except (UserError, PluginError, SimulatorUnavailable, ServerUnavailable, PolicyStalled, StoreFull) as exc:
+        except ONE_LINE_ERRORS as exc:
             print(f"conflictbench: error: {exc}", file=sys.stderr)
             hydra_config, job = HydraConfig.get(), sweep_job()
             if job is not None:  # the sweep goes on; its end says which jobs failed (and takes the record back)

@@ -112,3 +112,15 @@ class PolicyStalled(ConflictbenchError):
     the run stops with this message, every finished episode stored; the same command resumes."""
 
     exit_code = 3
+
+
+#: What ends a command with its message as one line (``conflictbench: error: ...``) and its ``exit_code``: the
+#: command's own handler and a Hydra job's catch exactly these, so a new kind is added here once.
+ONE_LINE_ERRORS: tuple[type[ConflictbenchError], ...] = (
+    UserError,
+    PluginError,
+    SimulatorUnavailable,
+    ServerUnavailable,
+    PolicyStalled,
+    StoreFull,
+)
