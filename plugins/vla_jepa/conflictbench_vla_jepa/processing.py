@@ -6,12 +6,15 @@ The facts, from VLA-JEPA's ``examples/LIBERO/eval_libero.py`` and ``examples/LIB
   ``INTER_AREA`` to 224 x 224 (agentview first, then the wrist camera); LIBERO's 8-D state (position,
   axis-angle, two gripper joint positions); the task text as it is (the server applies its own template);
 - **server**: the model's ``predict_action`` answers a NORMALIZED chunk;
-- **client**, on the reply: the chunk's first ``future_action_window_size + 1`` rows (7 or 8, from the
-  checkpoint's ``config.yaml``), clipped to [-1, 1]; the gripper (dimension 6) thresholded to 0 / 1 at 0.5;
-  min/max un-normalization, ``0.5 (a + 1)(max - min) + min``, on the dimensions the statistics' ``mask``
-  keeps (all where it has none), with the statistics of ``unnorm_key`` in the checkpoint's
-  ``dataset_statistics.json`` (the only key when none is given); then LIBERO's gripper ``1 - 2 (g > 0.5)``
-  (open 1 -> -1); the whole chunk executed before asking again;
+- **client**, on the reply, in the reply's own dtype (float32 from a server) as upstream computes it
+  (``model2libero_interface.py:136-147`` at ginwind/VLA-JEPA@ec8c70f): clipped to [-1, 1]; the gripper (dimension 6)
+  thresholded to 0 / 1 at 0.5; ``0.5 * (a + 1)`` still in the reply's dtype, then ``* (max - min) + min`` in float64
+  (the statistics come from JSON), on the dimensions the statistics' ``mask`` keeps (all where it has none), with the
+  statistics of ``unnorm_key`` in the checkpoint's ``dataset_statistics.json`` (the only key when none is given);
+  then (``eval_libero.py:207-221``) each part cast to float32 and LIBERO's gripper ``1 - 2 (g > 0.5)`` of the float32
+  value (open 1 -> -1): the executed action is float32's, ``.tolist()``-ed; the chunk's first
+  ``future_action_window_size + 1`` rows (7 or 8, from the checkpoint's ``config.yaml``) executed before asking
+  again;
 - **episodes**: 10 no-op warm-up steps (conflictbench's default) and 250 / 280 / 300 / 520 policy steps for
   libero_spatial / object / goal / 10 (one revision of ``eval_libero.py`` gives libero_spatial 400).
 """
@@ -91,16 +94,20 @@ def chunk_length_from_config(path: str | Path) -> int:
 
 
 def unnormalize(normalized: np.ndarray, stats: ActionStatistics) -> np.ndarray:
-    """Clip to [-1, 1], gripper to 0 / 1 at 0.5, then min/max back to the dataset's units where ``mask`` says."""
-    actions = np.clip(np.asarray(normalized, dtype=np.float64), -1.0, 1.0)
-    actions[:, 6] = np.where(actions[:, 6] < 0.5, 0.0, 1.0)
-    return np.where(stats.mask, 0.5 * (actions + 1.0) * (stats.high - stats.low) + stats.low, actions)
+    """Upstream's ``unnormalize_actions`` step by step, dtypes included: clip and the gripper's snap to 0 / 1 at 0.5
+    in the reply's dtype, ``0.5 * (a + 1)`` too, then ``* (max - min) + min`` in float64 where ``mask`` says (the
+    rest keep the reply's values); float64 out (a float32 reply's values are not rounded yet)."""
+    actions = np.clip(normalized, -1, 1)  # python scalars: the reply's dtype stays (float32 from a server)
+    actions[:, 6] = np.where(actions[:, 6] < 0.5, 0, 1)
+    return np.where(stats.mask, 0.5 * (actions + 1) * (stats.high - stats.low) + stats.low, actions)
 
 
 def env_actions(normalized: np.ndarray, stats: ActionStatistics, chunk_length: int) -> np.ndarray:
-    """The LIBERO actions (chunk_length, 7) of a normalized chunk: un-normalized, gripper as LIBERO's sign."""
+    """The LIBERO actions (chunk_length, 7) of a normalized chunk, as upstream's loop hands them to ``env.step``:
+    un-normalized, every value cast to float32, the gripper LIBERO's sign of the float32 value (``> 0.5``: -1).
+    Returned as float64 holding those float32 values exactly (``env.step(delta_action.tolist())`` upstream)."""
     if normalized.ndim != 2 or normalized.shape[1] != 7 or len(normalized) < chunk_length:
         raise ValueError(f"normalized_actions row has shape {normalized.shape}, expected at least ({chunk_length}, 7)")
-    actions = unnormalize(normalized[:chunk_length], stats)
-    actions[:, 6] = 1.0 - 2.0 * (actions[:, 6] > 0.5)
-    return actions
+    actions = unnormalize(normalized, stats)[:chunk_length].astype(np.float32)
+    actions[:, 6] = np.where(actions[:, 6] > 0.5, np.float32(-1.0), np.float32(1.0))
+    return actions.astype(np.float64)

@@ -68,14 +68,18 @@ def infer_request(
 
 
 def normalized_actions(reply: Any) -> np.ndarray:
-    """The first row's normalized chunk (chunk, D) of an ``inference_result``; :class:`ReplyError` for an error."""
+    """The first row's normalized chunk (chunk, D) of an ``inference_result``, in the dtype it came in;
+    :class:`ReplyError` for an error."""
     if not isinstance(reply, dict):
         raise ValueError(f"a reply is a map, got {type(reply).__name__}")
     if reply.get("status") == "error" or reply.get("ok") is False:
         error = reply.get("error")
         message = error.get("message") if isinstance(error, dict) else error
         raise ReplyError(str(message or "no message"))
-    actions = np.asarray(reply["data"]["normalized_actions"], dtype=np.float64)
+    # Its own dtype (float32 from a server): upstream's client un-normalizes in it, so ours does too.
+    actions = np.asarray(reply["data"]["normalized_actions"])
+    if actions.dtype.kind not in "fiu":
+        raise ValueError(f"normalized_actions must be numbers, got dtype {actions.dtype}")
     if actions.ndim != 3 or actions.shape[0] < 1 or actions.shape[1] < 1:
         raise ValueError(f"normalized_actions has shape {actions.shape}, expected (B, chunk, D)")
     return actions[0]
