@@ -17,7 +17,8 @@ proprio                   not used                               client sends ra
 unnorm_key                client sends it (per suite)            fixed when the server started
 un-normalization          server                                 server
 gripper sign and invert   client                                 client
-actions per query         1                                      the chunk of 8, open loop
+actions per query         1                                      the chunk of 8, open loop (the last
+                                                                 ``chunk_length`` of it where fewer)
 ========================  =====================================  ======================================
 
 ``deploy.py`` names no model, so ``model.checkpoint`` names what it hosts; our server says (its checkpoint's
@@ -71,7 +72,9 @@ class OftConfig(HostedConfig):
     server: str = ""
     """``http://HOST:PORT`` of a running OFT ``deploy.py`` (``/act`` is added where the URL has no path)."""
     chunk_length: int = OFT_CHUNK
-    """Actions of each chunk executed before asking again (``num_open_loop_steps``; OFT's LIBERO value 8)."""
+    """Upstream's ``--num_open_loop_steps`` (OFT's LIBERO value 8, the whole chunk): as upstream's client, the
+    LAST ``chunk_length`` actions of each chunk are executed before asking again (its ``deque(maxlen=...)``
+    drops the first ones), all of them where the chunk is shorter."""
 
 
 class _DeployClient(HostedPolicy):
@@ -111,10 +114,9 @@ class OftPolicy(_DeployClient):
         return oft_request(full, wrist, observation.state, observation.instruction)
 
     def decode(self, reply: Any, observation: Observation) -> np.ndarray:
-        chunk = read_chunk(reply)
-        if len(chunk) < self.cfg.chunk_length:
-            raise ValueError(f"the server answered {len(chunk)} actions, fewer than model.chunk_length")
-        return env_gripper(chunk[: self.cfg.chunk_length])
+        # moojink/openvla-oft@213c5ff run_libero_eval.py:306, :341: deque(maxlen=num_open_loop_steps).extend(chunk)
+        # keeps the chunk's last num_open_loop_steps actions (all where it holds fewer), executed in order
+        return env_gripper(read_chunk(reply)[-self.cfg.chunk_length :])
 
 
 POLICIES: dict[str, tuple[type[_DeployClient], type[HostedConfig]]] = {

@@ -119,21 +119,23 @@ def test_oft_sends_uncropped_images_and_the_raw_state_and_executes_the_chunk(oft
         policy.close()
 
 
-def test_oft_executes_fewer_actions_of_each_chunk_where_asked(oft_server):
-    policy = oft(oft_server, chunk_length=5)
+def test_oft_executes_the_last_actions_of_each_chunk_where_fewer_are_asked_as_upstreams_deque_does(oft_server):
+    whole, last = oft(oft_server), oft(oft_server, chunk_length=5)
     try:
-        assert policy.act(observation(0)).shape == (5, 7)
+        chunk = whole.act(observation(0))
+        assert np.array_equal(last.act(observation(0)), chunk[3:])  # deque(maxlen=5).extend(chunk of 8)
     finally:
-        policy.close()
+        whole.close()
+        last.close()
 
 
-def test_a_chunk_shorter_than_asked_is_an_infrastructure_error(oft_server):
-    policy = oft(oft_server, chunk_length=9)
+def test_a_chunk_shorter_than_asked_is_executed_whole_as_upstreams_deque_does(oft_server):
+    whole, more = oft(oft_server), oft(oft_server, chunk_length=9)
     try:
-        result = policy.act_batch([observation(0)])[0]
-        assert isinstance(result, InfrastructureError) and "fewer than model.chunk_length" in str(result)
+        assert np.array_equal(more.act(observation(0)), whole.act(observation(0)))
     finally:
-        policy.close()
+        whole.close()
+        more.close()
 
 
 def test_traits_follow_upstreams_evaluation(openvla_server):
