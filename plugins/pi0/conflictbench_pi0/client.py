@@ -18,7 +18,7 @@ from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, ho
 from conflictbench.hosting.openpi import OpenpiTransport
 
 from .checkpoints import POLICY_TYPES, fingerprint
-from .processing import REPLAN_STEPS, camera_image
+from .processing import REPLAN_STEPS, camera_image, executed_part
 from .protocol import ACTIONS, IMAGE, NOISE_SEED, NOISE_SEED_LIMIT, PROMPT, STATE, WRIST_IMAGE
 from .server import SERVED
 
@@ -73,7 +73,12 @@ class PiPolicy(HostedPolicy):
         actions = np.asarray(reply[ACTIONS], dtype=np.float64)
         if actions.ndim != 2 or actions.shape[1] != 7 or len(actions) == 0:
             raise ValueError(f"the server's actions have shape {actions.shape}, expected (horizon, 7)")
-        return actions[: self.replan_steps]
+        if len(actions) < self.replan_steps:  # openpi's client asserts it and ends the episode (main.py:145-147)
+            raise ValueError(
+                f"the server's chunk holds {len(actions)} actions, fewer than model.replan_steps={self.replan_steps} "
+                "(openpi's LIBERO client executes none of such a chunk): lower model.replan_steps"
+            )
+        return executed_part(actions, self.replan_steps)
 
 
 def load(name: str, cfg: PiConfig) -> PiPolicy:

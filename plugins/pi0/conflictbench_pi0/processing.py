@@ -58,6 +58,10 @@ def camera_image(rendered: np.ndarray) -> np.ndarray:
     return resize_with_pad(rotate_180(rendered))
 
 
-def executed_part(chunk: np.ndarray) -> np.ndarray:
-    """The actions of a reply executed before the next query (the first ``REPLAN_STEPS``)."""
-    return chunk[:REPLAN_STEPS]
+def executed_part(chunk: np.ndarray, replan_steps: int = REPLAN_STEPS) -> np.ndarray:
+    """The actions of a reply executed before the next query: its first ``replan_steps`` rows, values unchanged.
+
+    openpi's client passes each as ``row.tolist()`` (Python floats: each element's exact value) and robosuite reads
+    an action through ``np.clip`` / ``np.sign``, as float64; a float64 row is read the same, bit for bit.
+    """
+    return chunk[:replan_steps]
