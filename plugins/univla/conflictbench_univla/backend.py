@@ -92,41 +92,64 @@ def decoder_head(map_block: type, window: int):
     return ActionDecoderHead()
 
 
+def model_inputs(row: Row, checkpoint: str = "") -> tuple[str, Any]:
+    """The prompt and the PIL image handed to the processor for ``row``, the checkpoint named ``checkpoint``: UniVLA's
+    ``get_vla_latent_action`` (``experiments/robot/openvla_utils.py:176-213``) after the client's image steps."""
+    from PIL import Image
+
+    text = prompt(row.instruction, row.history, v01="openvla-v01" in checkpoint)  # upstream: the path as given
+    return text, Image.fromarray(np.asarray(row.image, np.uint8)).convert("RGB")
+
+
+def reply_of(head_output: Any, generated_ids: Any, window: int) -> dict[str, np.ndarray]:
+    """The reply for the action decoder's output (a float32 tensor, or an array, of ``7 * window`` values a row) and
+    ``predict_latent_action``'s ids: as UniVLA's ``ActionDecoder.forward`` reads it (``run_libero_eval.py:142-143``:
+    reshaped to ``(-1, window, 7)`` and read through ``.tolist()``, so float64 holding the float32 values
+    exactly), its first row; the ids as int64, the last four (``predict_latent_action`` returns at most four)."""
+    chunk = np.array(head_output.reshape(-1, window, 7)[0].tolist(), dtype=np.float64)
+    tokens = np.asarray(generated_ids[0].tolist(), dtype=np.int64).reshape(-1)[-LATENT_TOKENS:]
+    return {"actions": chunk, "latent_tokens": tokens}
+
+
+def action_statistics(norm_stats: dict) -> dict[str, dict]:
+    """``/metadata``'s ``action_statistics``: per key, the ``q01``, ``q99`` and ``mask`` of its ``action`` entry, as
+    JSON gave them (UniVLA's loop reads ``model.get_action_stats(key)``, ``run_libero_eval.py:326-328``)."""
+    return {
+        key: {name: entry["action"][name] for name in ("q01", "q99", "mask") if name in entry["action"]}
+        for key, entry in norm_stats.items()
+        if isinstance(entry, dict) and "action" in entry
+    }
+
+
 class UnivlaBackend:
     """One loaded checkpoint: :meth:`infer_batch` answers each distinct row with its own seeded call."""
 
-    def __init__(self, checkpoint: Path, processor: Any, vla: Any, decoder: Any, window: int, device: str) -> None:
+    def __init__(
+        self, checkpoint: Path, processor: Any, vla: Any, decoder: Any, window: int, device: str, given: str = ""
+    ) -> None:
         import torch
 
         self.torch, self.processor, self.vla, self.decoder = torch, processor, vla, decoder
-        self.device, self.window = torch.device(device), window
-        statistics = getattr(vla, "norm_stats", {}) or {}
+        self.device, self.window, self.given = torch.device(device), window, given or str(checkpoint)
         self.metadata: dict = {
             "policy_type": POLICY_TYPE,
             "checkpoint": str(checkpoint),
             "checkpoint_fingerprint": fingerprint(checkpoint),
             "window": window,
-            "action_statistics": {
-                key: {name: entry["action"][name] for name in ("q01", "q99", "mask") if name in entry["action"]}
-                for key, entry in statistics.items()
-                if "action" in entry
-            },
+            "action_statistics": action_statistics(getattr(vla, "norm_stats", {}) or {}),
         }
 
     def infer(self, row: Row) -> dict[str, np.ndarray]:
-        from PIL import Image
-
         torch = self.torch
-        image = Image.fromarray(np.asarray(row.image, dtype=np.uint8)).convert("RGB")
-        inputs = self.processor(prompt(row.instruction, row.history), image).to(self.device, dtype=torch.bfloat16)
+        text, image = model_inputs(row, self.given)
+        inputs = self.processor(text, image).to(self.device, dtype=torch.bfloat16)
         torch.manual_seed(reduce_seed(row.seed))
         with torch.inference_mode():
             latent_action, visual_embed, generated_ids = self.vla.predict_latent_action(
                 **inputs, unnorm_key=row.unnorm_key, do_sample=True, temperature=0.75, top_p=0.9
             )
             chunk = self.decoder(latent_action.to(torch.float), visual_embed.to(torch.float))
-        tokens = np.asarray(generated_ids[0].tolist(), dtype=np.int64).reshape(-1)[-LATENT_TOKENS:]
-        return {"actions": np.array(chunk.reshape(-1, self.window, 7)[0].tolist()), "latent_tokens": tokens}
+        return reply_of(chunk, generated_ids, self.window)
 
     def infer_batch(self, rows: list[Row]) -> list[dict]:
         answers: dict[int, dict] = {}
@@ -172,4 +195,4 @@ def load_backend(checkpoint: str | Path, device: str = "cpu") -> UnivlaBackend:
     except RuntimeError as error:  # keys or shapes of another module (a "net." or "module." prefix, ...)
         first = str(error).strip().splitlines()[0]
         raise CheckpointError(f"{folder / DECODER} does not fit UniVLA's ActionDecoderHead: {first}") from None
-    return UnivlaBackend(folder, processor, vla, decoder.to(device).eval(), rows // 7, device)
+    return UnivlaBackend(folder, processor, vla, decoder.to(device).eval(), rows // 7, device, str(checkpoint))

@@ -29,11 +29,12 @@ from conflictbench import (
     published_results,
     sampling_seed,
 )
+from conflictbench.core import PolicyError
 from conflictbench.hosting.openvla_family import env_gripper, policy_image, unnorm_key, unnormalize
 from conflictbench.hosting.rest import JsonNumpyTransport
 
 from .checkpoints import POLICY_TYPE, fingerprint
-from .processing import UNIVLA_MAX_STEPS, TemporalEnsemble, history_text
+from .processing import UNIVLA_MAX_STEPS, TemporalEnsemble, history_text, unreadable_tokens
 from .protocol import NOISE_SEED_LIMIT, act_request, read_reply
 from .server import SERVED
 
@@ -120,6 +121,12 @@ class UnivlaPolicy(HostedPolicy):
 
     def decode(self, reply: Any, observation: Observation) -> np.ndarray:
         chunk, tokens = read_reply(reply, self.window)
+        unreadable = unreadable_tokens(tokens)
+        if unreadable:  # upstream's history lookup raises IndexError there, and its loop ends the episode
+            raise PolicyError(
+                f"the model generated latent token id {unreadable[0]}, which is no <ACT_0> .. <ACT_31>: UniVLA's "
+                "loop cannot write it into the next prompt's history and ends the episode (IndexError)"
+            )
         episode = self._episode(observation)
         episode.history = history_text(tokens)
         ensembled = episode.ensemble.add(chunk)

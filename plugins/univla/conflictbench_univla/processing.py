@@ -24,9 +24,17 @@ import numpy as np
 
 UNIVLA_MAX_STEPS = {"libero_spatial": 240, "libero_object": 300, "libero_goal": 320, "libero_10": 550}
 LATENT_TOKEN_OFFSET = 32001
+LATENT_CODES = 32  # <ACT_0> .. <ACT_31>, the list upstream's loop de-tokenizes with
 LATENT_TOKENS = 4
 WINDOW = 12
 BALANCING_FACTOR = 0.1
+
+
+def unreadable_tokens(token_ids: Sequence[int]) -> list[int]:
+    """The ids that are no ``<ACT_k>`` (``32001 + k``, k < 32): upstream's loop looks each up in its list of 32
+    (``run_libero_eval.py:231, 322``), an IndexError past ``<ACT_31>`` (``predict_latent_action`` keeps only ids
+    above 32000)."""
+    return [int(token) for token in token_ids if not 0 <= int(token) - LATENT_TOKEN_OFFSET < LATENT_CODES]
 
 
 def history_text(token_ids: Sequence[int]) -> str:
@@ -34,11 +42,21 @@ def history_text(token_ids: Sequence[int]) -> str:
     return "".join(f"<ACT_{int(token) - LATENT_TOKEN_OFFSET}>" for token in token_ids)
 
 
-def prompt(instruction: str, history: str) -> str:
-    """UniVLA's prompt: OpenVLA's, with the previous query's latent tokens once there are any."""
+V01_SYSTEM_PROMPT = (
+    "A chat between a curious user and an artificial intelligence assistant. "
+    "The assistant gives helpful, detailed, and polite answers to the user's questions."
+)
+
+
+def prompt(instruction: str, history: str, v01: bool = False) -> str:
+    """UniVLA's prompt: OpenVLA's, with the previous query's latent tokens once there are any (that form also for a
+    checkpoint whose path says ``openvla-v01``, which otherwise gets OpenVLA v0.1's template, as upstream's)."""
+    task = instruction.lower()
     if history:
-        return f"In: What action should the robot take to {instruction.lower()}? History action {history}\nOut:"
-    return f"In: What action should the robot take to {instruction.lower()}?\nOut:"
+        return f"In: What action should the robot take to {task}? History action {history}\nOut:"
+    if v01:
+        return f"{V01_SYSTEM_PROMPT} USER: What action should the robot take to {task}? ASSISTANT:"
+    return f"In: What action should the robot take to {task}?\nOut:"
 
 
 class TemporalEnsemble:
