@@ -11,7 +11,11 @@ decoder's ensembling window, history and un-normalization are the client's (stat
 UniVLA's code comes from the user's checkout (``UNIVLA_CODE``), loaded by file: ``prismatic/__init__.py`` imports
 UniVLA's whole training stack, which the model does not need. Sampling is seeded per request (torch's global
 generator, right before the row's call, in the one model thread): a row's tokens depend on its episode and step,
-never on the call order.
+never on the call order (upstream seeds once per run, so its samples depend on every query before). Two more
+differences (docs/upstream/audit_univla.md): UniVLA's ``get_vla`` asks for flash-attention 2, which has no CPU
+kernel and is no dependency here, so this loads transformers' default attention; and it ran on torch 2.2.0 where
+the model environment has the LeRobot environments' torch. Both move bfloat16 results in the last bits, and a
+sampled token can change with them.
 
 Imports torch and transformers only inside :func:`load_backend`.
 """
