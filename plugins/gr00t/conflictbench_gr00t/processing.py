@@ -1,7 +1,8 @@
 """What GR00T's LIBERO client does around the model, step by step (each pinned by ``tests/test_gr00t_processing.py``).
 
 The facts, from Isaac-GR00T's ``gr00t/eval/sim/LIBERO/libero_env.py`` (the environment its LIBERO evaluation
-``gr00t/eval/rollout_policy.py`` steps) and ``examples/LIBERO/README.md``:
+``gr00t/eval/rollout_policy.py`` steps) and ``examples/LIBERO/README.md`` at NVIDIA/Isaac-GR00T@23ace64 (tag
+``n1.7-release``), step by step in ``docs/upstream/audit_gr00t.md``:
 
 - **client**: both cameras rotated 180 degrees (LIBERO renders upside down) and sent at the rendered 256 x 256,
   uint8, no resize (``video.image`` = agentview, ``video.wrist_image`` = eye-in-hand); the state split into
@@ -38,7 +39,8 @@ def upright(image: np.ndarray) -> np.ndarray:
 
 
 def gr00t_observation(agentview: np.ndarray, wrist: np.ndarray, state: np.ndarray, instruction: str) -> dict:
-    """One observation in the sim wrapper's flat layout: B = T = 1 on every array, the text in a list.
+    """One observation in the sim wrapper's flat layout: B = T = 1 on every array, the text in a list, the keys
+    sorted (as upstream's gymnasium batches them).
 
     ``state`` is LIBERO's 8-D vector (position, axis-angle, two gripper joint positions)."""
     state = np.asarray(state, dtype=np.float64)
@@ -49,7 +51,11 @@ def gr00t_observation(agentview: np.ndarray, wrist: np.ndarray, state: np.ndarra
         observation[key] = np.asarray(state[index : index + 1], dtype=np.float32)[None, None]
     observation[STATE_KEYS[-1]] = np.asarray(state[6:8], dtype=np.float32)[None, None]
     observation[LANGUAGE_KEY] = [instruction]
-    return observation
+    # In upstream's key order, so that the msgpack map is upstream's to the byte: gymnasium's spaces.Dict sorts
+    # a plain dict's keys and the vector env batches the observation in that order (gymnasium 0.29.1, which
+    # Isaac-GR00T@23ace64 gr00t/eval/sim/LIBERO/setup_libero.sh:24 pins: spaces/dict.py:70-74,
+    # vector/utils/numpy_utils.py:70-77). NVIDIA's server looks keys up by name; the order changes no value.
+    return {key: observation[key] for key in sorted(observation)}
 
 
 def env_actions(action: dict, row: int = 0) -> np.ndarray:
