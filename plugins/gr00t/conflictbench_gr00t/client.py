@@ -3,10 +3,10 @@
 ``conflictbench model=gr00t model.checkpoint=DIR`` starts our server (``conflictbench-serve gr00t``) for a
 LeRobot checkpoint in the model environment, waits until it answers a ping, plays, and stops it.
 ``conflictbench model=gr00t model.server=tcp://HOST:5555 model.checkpoint=NAME`` plays against a running
-server: NVIDIA's own (``gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag NEW_EMBODIMENT
---use-sim-policy-wrapper`` on a GPU machine) or ours. NVIDIA's server does not say what it hosts, so
-``model.checkpoint`` names it (part of every episode's identity); it also draws its own sampling noise, so its
-episodes are not bit-identical from run to run.
+server: NVIDIA's own (``gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag LIBERO_PANDA
+--use-sim-policy-wrapper`` of the ``n1.7-release`` tag, on a GPU machine) or ours. NVIDIA's server does not say
+what it hosts, so ``model.checkpoint`` names it (part of every episode's identity); it also draws its own sampling
+noise, so its episodes are not bit-identical from run to run.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ class Gr00tConfig(HostedConfig):
     action_steps: int = ACTION_STEPS
     """Actions of each chunk executed before asking again (GR00T's LIBERO evaluation: 8)."""
     max_steps: int = 0
-    """Policy steps per episode; 0: GR00T's LIBERO budget, 720 in every suite (``--max_episode_steps=720``)."""
+    """Policy steps per episode; 0: GR00T's LIBERO budget, 720 in every suite (``--max-episode-steps 720``)."""
     api_token: str = ""
     """Deprecated (goes in 0.4.0; setting it warns, and it still works): the running server's API token. Hydra saves
     it with the run's config (``.hydra/config.yaml``, ``overrides.yaml``) and ``ps`` shows it on the command line:

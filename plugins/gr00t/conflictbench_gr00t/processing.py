@@ -14,9 +14,9 @@ The facts, from Isaac-GR00T's ``gr00t/eval/sim/LIBERO/libero_env.py`` (the envir
   the actions to the dataset's units (gripper in [0, 1], 1 = open); nothing here repeats it;
 - **client**, on the reply: ``action.x … action.gripper`` concatenated to 7-D; the gripper mapped to [-1, 1]
   (2g - 1), binarized with ``sign`` (0 stays 0) and inverted (LIBERO: -1 = open, +1 = close); the first 8
-  actions of each chunk executed (``--n_action_steps 8``) before asking again;
+  actions of each chunk executed (``--n-action-steps 8``) before asking again;
 - **episodes**: no no-op warm-up steps (the wrapper acts from the first step after reset) and at most 720
-  steps (``--max_episode_steps=720``) in every suite.
+  steps (``--max-episode-steps 720``) in every suite.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 from .protocol import ACTION_KEYS, LANGUAGE_KEY, STATE_KEYS, VIDEO_KEYS
 
-#: Actions of each chunk executed before asking again (``--n_action_steps 8``).
+#: Actions of each chunk executed before asking again (``--n-action-steps 8``).
 ACTION_STEPS = 8
 #: Environment steps per episode in GR00T's LIBERO evaluation, the same in every suite.
 MAX_EPISODE_STEPS = 720
