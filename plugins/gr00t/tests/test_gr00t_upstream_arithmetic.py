@@ -347,7 +347,7 @@ def test_the_episode_constants_are_upstreams(served):
 
 
 @pytest.mark.sim
-@pytest.mark.slow  # builds a LIBERO env and plays 2 x 48 steps (about 10 s): CI's marked lane runs it
+@pytest.mark.slow  # builds a LIBERO env and plays 2 x 48 steps (about 5 s here): CI's marked lane runs it
 def test_libero_steps_our_float64_rows_as_it_steps_upstreams_float32_arrays(plugins, served):
     from conflictbench.sim.libero_env import EnvSettings, configure_process, make_env
     from conflictbench.tasks.libero.base_tasks import base_task, load_init_states
