@@ -16,7 +16,8 @@ The facts, from VLA-JEPA's ``examples/LIBERO/eval_libero.py`` and ``examples/LIB
   ``future_action_window_size + 1`` rows (7 or 8, from the checkpoint's ``config.yaml``) executed before asking
   again;
 - **episodes**: 10 no-op warm-up steps (conflictbench's default) and 250 / 280 / 300 / 520 policy steps for
-  libero_spatial / object / goal / 10 (one revision of ``eval_libero.py`` gives libero_spatial 400).
+  libero_spatial / object / goal / 10 (``eval_libero.py`` at ec8c70f; its earlier revisions gave libero_spatial
+  400 at 6e4846c, then 200 at c3d2fde).
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ websocket_policy_server.py`` and ``websocket_policy_client.py``, starVLA's, adap
 
 - a websocket; the server's first frame is its packed metadata (``{"env": "simpler_env"}`` upstream); every
   frame is openpi's msgpack-numpy (read and written with conflictbench-serving's codec);
-- a request is ``{"type": "infer", "request_id": ID, "payload": {...}}`` (``type`` ``ping`` answers at once);
+- a request is ``{"payload": {...}, "type": "infer"}`` as upstream's client packs it (``request_id`` optional; ``type``
+  ``ping`` answers at once);
   the LIBERO client's payload holds ``batch_images`` (a list per batch row of its camera images, uint8),
   ``instructions`` (a list of texts), ``state`` (a list per row of an (1, 8) array), ``unnorm_key``,
   ``do_sample`` (False), ``use_ddim`` (True) and ``num_ddim_steps`` (10), all passed to the model's
@@ -14,7 +15,8 @@ websocket_policy_server.py`` and ``websocket_policy_client.py``, starVLA's, adap
   {"normalized_actions": (B, chunk, 7)}}``; a failure the server catches is the same map with ``"status":
   "error"`` and ``"error": {"message": ...}``; one it does not is a text frame and close code 1011.
 
-Our one addition to the payload: the seed of this request's sampling noise, ``conflictbench/noise_seed``.
+Our additions: the seed of this request's sampling noise in the payload, ``conflictbench/noise_seed``, and the
+envelope's ``request_id`` after upstream's two keys (its server reads both by name and echoes the id).
 """
 
 from __future__ import annotations
@@ -64,7 +66,8 @@ def infer_request(
         "state": [np.asarray(state, dtype=np.float64)[None]],
         NOISE_SEED: seed,
     }
-    return {"type": "infer", "request_id": request_id, "payload": payload}
+    # Upstream's envelope and key order (websocket_policy_client.py:72-76 at ec8c70f), then our request id.
+    return {"payload": payload, "type": "infer", "request_id": request_id}
 
 
 def normalized_actions(reply: Any) -> np.ndarray:

@@ -9,8 +9,6 @@ every chunk passes before ``env.step`` (``as_action_chunk``).
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 import upstream_vla_jepa as upstream
@@ -32,6 +30,11 @@ HALF = np.float32(0.5)
 STATISTICS = {
     "starvla": ACTION_STATS,
     "unmasked": {"min": [-0.9, -0.8, -0.7, -0.2, -0.3, -0.4, -1.0], "max": [0.9, 0.7, 0.9, 0.25, 0.35, 0.3, 1.0]},
+    "rotation-masked": {  # a dimension left normalized: the mask must pick per dimension
+        "min": [-0.9, -0.8, -0.7, -0.2, -0.3, -0.4, 0.0],
+        "max": [0.9, 0.7, 0.9, 0.25, 0.35, 0.3, 1.0],
+        "mask": [True, True, True, True, False, True, False],
+    },
     "gripper-at-half": {
         "min": [-0.937, -0.93, -0.94, -0.12, -0.17, -0.21, 0.0],
         "max": [0.937, 0.87, 0.94, 0.19, 0.21, 0.36, 1.0000000001],
@@ -40,12 +43,13 @@ STATISTICS = {
 
 
 def replies(seed: int) -> list[np.ndarray]:
-    """(1, 8, 7) float32 chunks as a server sends them: at and past the bounds, the gripper around 0.5, and
-    values in between."""
+    """(1, 8, 7) float32 chunks as a server sends them (one of 16 rows, more than a query executes): at and past
+    the bounds, the gripper around 0.5, and values in between."""
     rng = np.random.default_rng(seed)
     edges = np.array([-1.5, -1.0, np.nextafter(-1.0, 0), 0.0, np.nextafter(HALF, 0), HALF, np.nextafter(HALF, 1),
                       np.nextafter(1.0, 0), 1.0, 2.0], dtype=np.float32)  # fmt: skip
-    chunks = [rng.uniform(-1.2, 1.2, size=(1, WINDOW + 1, 7)).astype(np.float32) for _ in range(6)]
+    chunks = [rng.uniform(-1.2, 1.2, size=(1, WINDOW + 1, 7)).astype(np.float32) for _ in range(5)]
+    chunks.append(rng.uniform(-1.2, 1.2, size=(1, 16, 7)).astype(np.float32))  # longer than the chunk executed
     chunks.append(rng.choice(edges, size=(1, WINDOW + 1, 7)).astype(np.float32))
     gripper = rng.uniform(-1, 1, size=(1, WINDOW + 1, 7)).astype(np.float32)
     gripper[0, :, 6] = edges[4:7].repeat(3)[: WINDOW + 1]
@@ -132,16 +136,21 @@ def test_a_float64_reply_is_followed_in_float64_as_upstream_does(standin, tmp_pa
         policy.close()
 
 
-@pytest.mark.parametrize("w", [None, 1.0, -0.3, 0.999999999])
-def test_the_request_is_upstreams_payload_plus_the_noise_seed(w, standin, tmp_path):
+TEXTS = ("pick up the black bowl between the plate and the ramekin and place it on the plate",
+         "  Put the Bowl on the STOVE.  Before you act, check that the task is possible.\n")  # fmt: skip
+
+
+@pytest.mark.parametrize("w, text", [(None, TEXTS[0]), (1.0, TEXTS[1]), (-0.3, TEXTS[0]), (0.999999999, TEXTS[1]),
+                                     (1.0000001, TEXTS[0]), (-1.0000001, TEXTS[1])])  # fmt: skip
+def test_the_request_is_upstreams_payload_plus_the_noise_seed(w, text, standin, tmp_path):
     policy = policy_with(ACTION_STATS, tmp_path / "run", standin)
     raw = raw_observation(2, w)
-    text = "pick up the black bowl between the plate and the ramekin and place it on the plate"
     try:
-        ours = policy.encode(observation_of(raw, text, step=8))["payload"]
+        message = policy.encode(observation_of(raw, text, step=8))
         theirs = upstream.request({k: np.array(v) for k, v in raw.items()}, text)
     finally:
         policy.close()
+    ours = message["payload"]
     assert [key for key in ours if key != NOISE_SEED] == list(theirs)  # the same keys, in the same order
     for ours_image, their_image in zip(ours["batch_images"][0], theirs["batch_images"][0], strict=True):
         assert ours_image.dtype == their_image.dtype == np.uint8 and ours_image.shape == their_image.shape
@@ -151,14 +160,16 @@ def test_the_request_is_upstreams_payload_plus_the_noise_seed(w, standin, tmp_pa
     np.testing.assert_array_equal(ours_state.view(np.uint64), their_state.view(np.uint64))
     for key in ("instructions", "unnorm_key", "do_sample", "use_ddim", "num_ddim_steps"):
         assert ours[key] == theirs[key] and type(ours[key]) is type(theirs[key]), key
-    # And on the wire: upstream's message packs to the same bytes as ours without the seed and the request id.
-    ours_wire = {k: v for k, v in ours.items() if k != NOISE_SEED}
-    assert packb({"payload": ours_wire, "type": "infer"}) == upstream.pack(upstream.infer_message(theirs))
+    # And on the wire: the message encode made, less our two additions (the seed and the request id, each after
+    # upstream's keys), packs to upstream's bytes: the envelope's keys and order are upstream's too.
+    assert list(message) == ["payload", "type", "request_id"]
+    without_ours = {**{k: v for k, v in message.items() if k != "request_id"},
+                    "payload": {k: v for k, v in ours.items() if k != NOISE_SEED}}  # fmt: skip
+    assert packb(without_ours) == upstream.pack(upstream.infer_message(theirs))
 
 
 def test_a_whole_query_against_a_server_executes_upstreams_actions(standin, tmp_path):
     """End to end: the stand-in server's reply to our request, executed by ours and by upstream's steps."""
-    (tmp_path / "stats.json").write_text(json.dumps({"libero": {"action": ACTION_STATS}}))
     policy = policy_with(ACTION_STATS, tmp_path / "run", standin)
     obs = observation_of(raw_observation(3), "put the cream cheese in the bowl", step=16)
     try:
