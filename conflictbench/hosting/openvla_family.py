@@ -3,7 +3,8 @@ code forks OpenVLA's) do to every image and action, shared by conflictbench-open
 
 The action steps (the facts: ``experiments/robot/robot_utils.py`` of each; ``docs/upstream/openvla_oft_univla.md``):
 the gripper mapping (:func:`env_gripper`), the statistics key per suite (:func:`unnorm_key`) and q01/q99
-un-normalization (:func:`unnormalize`), pinned by the plugins' ``test_*_processing.py``.
+un-normalization (:func:`unnormalize`, in float64: upstream's arithmetic for float64 input, not for OFT's float32
+heads; see its docstring), pinned by the plugins' ``test_*_processing.py``.
 
 The image steps, restated exactly without TensorFlow. Upstream's clients (``experiments/robot/libero/libero_utils.py``
 and ``openvla_utils.py`` of openvla/openvla, moojink/openvla-oft and OpenDriveLab/UniVLA) run these TensorFlow ops
@@ -205,7 +206,16 @@ def unnorm_key(setting: str, suite: str, known: Collection[str] | None = None) -
 
 
 def unnormalize(normalized: np.ndarray, stats: dict, epsilon: float = 0.0) -> np.ndarray:
-    """q01/q99 un-normalization where ``stats["mask"]`` keeps the dimension (all where it has no mask)."""
+    """q01/q99 un-normalization where ``stats["mask"]`` keeps the dimension (all where it has no mask).
+
+    The input is widened to float64 first, so every step is float64. That is upstream's arithmetic for float64
+    input: OpenVLA's and OFT's bin centres, UniVLA's ensembled actions (its loop un-normalizes float64 too). It is
+    not OFT's for its L1 and diffusion heads, whose float32 output upstream's model code un-normalizes with
+    ``0.5 * (a + 1)`` in float32 (moojink/openvla-oft@213c5ff ``prismatic/extern/hf/modeling_prismatic.py:787``,
+    output dtype ``:875``, ``:925``): on float32 uniform in [-1.05, 1.05], 2849 of 7000 values differ, by up to
+    1.1e-7 (``docs/upstream/audit_openvla.md``). No run takes that path: our server refuses OFT checkpoints, and
+    against OFT's ``deploy.py`` the un-normalization runs there. ``epsilon`` is OFT's ``+ 1e-8``.
+    """
     low, high = np.asarray(stats["q01"], dtype=np.float64), np.asarray(stats["q99"], dtype=np.float64)
     mask = np.asarray(stats.get("mask", np.ones_like(low, dtype=bool)), dtype=bool)
     normalized = np.asarray(normalized, dtype=np.float64)

@@ -14,7 +14,10 @@ openvla/openvla, moojink/openvla-oft and OpenDriveLab/UniVLA, and the models' ``
 - **de-tokenization** (OpenVLA, in the model): 256 bins in [-1, 1] have 255 centres; the action token ``id``
   is bin ``vocab_size - id - 1`` clipped to [0, 254];
 - **q01/q99 un-normalization**: ``0.5 (a + 1)(q99 - q01) + q01`` on the dimensions the statistics' ``mask``
-  keeps (LIBERO's excludes the gripper, which stays a bin centre); OpenVLA-OFT adds 1e-8 to ``q99 - q01``;
+  keeps (LIBERO's excludes the gripper, which stays a bin centre); OpenVLA-OFT adds 1e-8 to ``q99 - q01``.
+  ``openvla_family.unnormalize`` computes it in float64, widening its input first: OpenVLA's arithmetic (float64
+  bin centres), not OFT's for the float32 output of its L1 and diffusion heads (``0.5 (a + 1)`` in float32 there);
+  no run takes that path (OFT's un-normalization runs in OFT's ``deploy.py``), see ``docs/upstream/audit_openvla.md``;
 - **OFT's proprio**: ``2 (x - q01) / (q99 - q01 + 1e-8) - 1`` clipped to [-1, 1];
 - **steps**: 220 / 280 / 300 / 520 policy steps for libero_spatial / object / goal / 10 (OpenVLA and OFT), after
   10 no-op warm-up steps.

@@ -8,8 +8,11 @@ history and ensembling window:
   the previous query's latent tokens as text ("" at an episode's first query), "unnorm_key": key,
   "conflictbench/noise_seed": int}``;
 - reply ``{"actions": float64 (window, 7), the action decoder's normalized chunk, "latent_tokens": int64 (<= 4,),
-  the generated latent token ids (upstream keeps the last four ids above 32000: fewer where the model sampled
-  other tokens, and the next prompt's history is then shorter, as upstream's)}``;
+  what upstream's ``predict_latent_action`` returns as ids: the last four ids above 32000 of the whole sequence,
+  prompt included (OpenDriveLab/UniVLA@0ab9e9d ``prismatic/extern/hf/modeling_prismatic.py:561-567``). Where the
+  model sampled other tokens, ids of the prompt's history fill the gap; fewer than four come back only where the
+  prompt holds too few, as at an episode's first query. Our server calls that function, so these are upstream's
+  ids; the client writes them into the next prompt's history as upstream's loop does}``;
 - ``GET /metadata``: ``policy_type`` "univla", ``checkpoint_fingerprint``, ``max_batch``, ``window`` and
   ``action_statistics`` (per key: ``q01``, ``q99``, ``mask``), with which the client un-normalizes.
 """
