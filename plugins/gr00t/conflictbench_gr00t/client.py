@@ -6,7 +6,8 @@ LeRobot checkpoint in the model environment, waits until it answers a ping, play
 server: NVIDIA's own (``gr00t/eval/run_gr00t_server.py --model-path DIR --embodiment-tag LIBERO_PANDA
 --use-sim-policy-wrapper`` of the ``n1.7-release`` tag, on a GPU machine) or ours. NVIDIA's server does not say
 what it hosts, so ``model.checkpoint`` names it (part of every episode's identity); it also draws its own sampling
-noise, so its episodes are not bit-identical from run to run.
+noise, so its episodes are not bit-identical from run to run. A server of NVIDIA's main branch since ``3df8b38``
+speaks another wire: the connection asks its ``get_modality_config`` and stops the run, naming the revision to serve.
 """
 
 from __future__ import annotations
@@ -19,7 +20,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from conflictbench import HostedConfig, HostedPolicy, Observation, UserError, hookimpl, published_results, sampling_seed
+from conflictbench import (
+    HostedConfig,
+    HostedPolicy,
+    InfrastructureError,
+    Observation,
+    UserError,
+    hookimpl,
+    published_results,
+    sampling_seed,
+)
 from conflictbench.core import LIBERO_SUITES
 from conflictbench.core.deprecation import deprecated
 from conflictbench.hosting.zeromq import ZmqTransport, answers_ping
@@ -27,7 +37,14 @@ from conflictbench_serving.checkpoints import NOISE_SEED_LIMIT
 
 from .checkpoints import POLICY_TYPE, fingerprint
 from .processing import ACTION_STEPS, MAX_EPISODE_STEPS, WARMUP_STEPS, env_actions, gr00t_observation
-from .protocol import get_action_request
+from .protocol import (
+    MODALITY_CONFIG,
+    RELEASE_COMMIT,
+    RELEASE_TAG,
+    endpoint_request,
+    get_action_request,
+    speaks_msgpack_numpy,
+)
 from .server import SERVED
 
 
@@ -69,6 +86,23 @@ class Gr00tPolicy(HostedPolicy):
     def __init__(self, name: str, cfg: Gr00tConfig, checkpoint: Path | None = None, python: Path | None = None):
         self.action_steps = cfg.action_steps
         super().__init__(name, cfg, checkpoint, python)
+        if self.client is not None and not self.metadata:  # a running server, not ours: which wire does it speak?
+            self._refuse_main_branch(cfg.server)
+
+    def _refuse_main_branch(self, url: str) -> None:
+        """Stop before any episode when the server is Isaac-GR00T's main since 3df8b38: it would fail every query."""
+        assert self.client is not None
+        try:
+            modality_config = self.client.request(endpoint_request(MODALITY_CONFIG, self.token))
+        except InfrastructureError:  # a server without the endpoint: its wire is not known to differ
+            return
+        if speaks_msgpack_numpy(modality_config):
+            self.close()
+            raise UserError(
+                f"the GR00T server at {url} is Isaac-GR00T's main branch from 3df8b38 (2026-05-07) on: its "
+                "msgpack_numpy decoder cannot read this client's arrays (np.save maps), so every get_action would "
+                f"fail; serve with the {RELEASE_TAG} tag ({RELEASE_COMMIT}; any revision before 3df8b38 speaks it)"
+            )
 
     @classmethod
     def configured_token(cls, cfg: Gr00tConfig) -> str | None:

@@ -14,6 +14,13 @@ Our additions, which NVIDIA's server ignores: the per-request sampling seed insi
 policies take ``options`` and leave it unused), and the endpoint ``conflictbench_metadata`` (what our server
 hosts: policy type, checkpoint fingerprint, batch shape), which NVIDIA's server answers with its unknown
 endpoint error. This module imports neither conflictbench nor torch: the model environment's server uses it.
+
+The wire is ``n1.7-release``'s (``23ace64``), which every revision before ``3df8b38`` (2026-05-07) speaks. From
+``3df8b38`` on, NVIDIA's main branch packs arrays with msgpack_numpy and its decoder no longer reads
+``__ndarray_class__`` maps (``server_client.py:50-55``, ``:99-112`` at ``626af89``): our arrays would reach its
+policy as maps and every ``get_action`` fail. The two are told apart by a ``get_modality_config`` reply
+(:func:`speaks_msgpack_numpy`), a request NVIDIA's own ``PolicyClient`` sends (``server_client.py:260-261`` at
+``23ace64``; ``examples/DROID/main_gr00t.py:149``) and its server answers with the policy's modality configs.
 """
 
 from __future__ import annotations
@@ -46,6 +53,7 @@ __all__ = [  # the framing's names, re-exported: this protocol's codec and endpo
     "unpackb",
     "get_action_request",
     "request_seed",
+    "speaks_msgpack_numpy",
     "validate_observation",
 ]
 
@@ -59,6 +67,13 @@ LANGUAGE_KEY = "annotation.human.action.task_description"
 ACTION_KEYS = ("action.x", "action.y", "action.z", "action.roll", "action.pitch", "action.yaw", "action.gripper")
 #: LIBERO renders 256 x 256 and GR00T's LIBERO client sends the images at that size.
 IMAGE_SIZE = 256
+#: NVIDIA's endpoint answering the policy's ``ModalityConfig`` per modality (ours answers ``{}``).
+MODALITY_CONFIG = "get_modality_config"
+#: How a ``ModalityConfig`` is marked on the wire: ``n1.7-release`` (``server_client.py:43``, ``:51-55`` at
+#: ``23ace64``) and main since ``3df8b38`` (``server_client.py:93-96``, ``:104`` at ``626af89``).
+RELEASE_MODALITY_MARK, MAIN_MODALITY_MARK = "__ModalityConfig_class__", "__ModalityConfig__"
+#: The one revision this client is audited against; the wire it speaks holds up to ``3df8b38``, not included.
+RELEASE_TAG, RELEASE_COMMIT = "n1.7-release", "23ace64f17aa5015259b8609d371eb61a357c776"
 
 
 def get_action_request(observation: dict, seed: int | None = None, api_token: str | None = None) -> dict:
@@ -71,6 +86,14 @@ def get_action_request(observation: dict, seed: int | None = None, api_token: st
     if api_token:
         request["api_token"] = api_token
     return request
+
+
+def speaks_msgpack_numpy(modality_config: Any) -> bool:
+    """Whether a ``get_modality_config`` reply comes from a server of Isaac-GR00T's main branch since ``3df8b38``,
+    whose msgpack_numpy decoder cannot read our arrays (any other reply, an error included, says nothing)."""
+    if not isinstance(modality_config, dict):
+        return False
+    return any(isinstance(value, dict) and MAIN_MODALITY_MARK in value for value in modality_config.values())
 
 
 def validate_observation(observation: Any) -> int:

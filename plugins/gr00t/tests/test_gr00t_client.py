@@ -12,11 +12,15 @@ from nvidia_standin_server import actions_for
 
 from conflictbench import InfrastructureError, Observation, ServerUnavailable, UserError, sampling_seed
 from conflictbench.core import LIBERO_SUITES, PolicyTraits
+from conflictbench.hosting.zeromq import ZmqTransport
 from conflictbench.testing import camera_observation
 from conflictbench_gr00t.client import Gr00tConfig, load
 from conflictbench_gr00t.processing import env_actions, gr00t_observation
+from conflictbench_gr00t.protocol import get_action_request
 
 observation = camera_observation
+#: One row as GR00T's client sends it: two 256-px images, the 8-D state, the task.
+ROW = (np.zeros((256, 256, 3), np.uint8), np.zeros((256, 256, 3), np.uint8), np.zeros(8), "put the bowl on the plate")
 
 
 def config(url: str, **settings) -> Gr00tConfig:
@@ -120,6 +124,44 @@ def test_an_api_token_is_sent_and_a_wrong_one_is_refused(tmp_path):
             load("gr00t", config(url, api_token="wrong", connect_timeout_s=1.0))
     finally:
         server.stop()
+
+
+def test_a_server_of_nvidias_main_branch_is_named_before_any_episode(tmp_path):
+    """Isaac-GR00T's main since 3df8b38 decodes arrays with msgpack_numpy only: our np.save maps reach its policy
+    as maps, and every get_action fails. The run must say so in one line when it connects, not play episodes."""
+    server, url = start_standin(tmp_path, "--revision", "main")
+    try:
+        transport = ZmqTransport(url)  # what such a server does with our request: the stand-in is main's
+        transport.connect(timeout=5.0)
+        try:
+            request = get_action_request(gr00t_observation(*ROW))
+            with pytest.raises(InfrastructureError, match=re.escape("must be a numpy array. Got <class 'dict'>")):
+                transport.exchange(request, timeout=5.0)
+        finally:
+            transport.close()
+        with pytest.raises(UserError) as failure:
+            load("gr00t", config(url))
+        message = str(failure.value)
+        assert "\n" not in message and url in message
+        assert all(name in message for name in ("3df8b38", "n1.7-release", "23ace64f17aa5015259b8609d371eb61a357c776"))
+    finally:
+        server.stop()
+
+
+def test_a_server_of_the_release_speaks_our_wire_and_answers_its_modality_config(standin):
+    transport = ZmqTransport(standin)
+    transport.connect(timeout=5.0)
+    try:
+        reply = transport.exchange({"endpoint": "get_modality_config"}, timeout=5.0)
+    finally:
+        transport.close()
+    assert reply["action"]["__ModalityConfig_class__"] is True
+    assert reply["action"]["as_json"]["delta_indices"] == list(range(16))
+    policy = load("gr00t", config(standin))
+    try:
+        assert policy.act(observation(0)).shape == (8, 7)
+    finally:
+        policy.close()
 
 
 @pytest.mark.parametrize(
