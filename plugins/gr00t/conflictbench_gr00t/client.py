@@ -101,7 +101,7 @@ class Gr00tPolicy(HostedPolicy):
             raise UserError(
                 f"the GR00T server at {url} is Isaac-GR00T's main branch from 3df8b38 (2026-05-07) on: its "
                 "msgpack_numpy decoder cannot read this client's arrays (np.save maps), so every get_action would "
-                f"fail; serve with the {RELEASE_TAG} tag ({RELEASE_COMMIT}; any revision before 3df8b38 speaks it)"
+                f"fail; serve with the {RELEASE_TAG} tag ({RELEASE_COMMIT}; usable up to but not including 3df8b38)"
             )
 
     @classmethod

@@ -15,8 +15,8 @@ policies take ``options`` and leave it unused), and the endpoint ``conflictbench
 hosts: policy type, checkpoint fingerprint, batch shape), which NVIDIA's server answers with its unknown
 endpoint error. This module imports neither conflictbench nor torch: the model environment's server uses it.
 
-The wire is ``n1.7-release``'s (``23ace64``), which every revision before ``3df8b38`` (2026-05-07) speaks. From
-``3df8b38`` on, NVIDIA's main branch packs arrays with msgpack_numpy and its decoder no longer reads
+The wire is ``n1.7-release``'s (``23ace64``), usable up to but not including ``3df8b38`` (2026-05-07). From
+``3df8b38`` on, NVIDIA's main branch encodes arrays with msgpack_numpy and its decoder no longer reads
 ``__ndarray_class__`` maps (``server_client.py:50-55``, ``:99-112`` at ``626af89``): our arrays would reach its
 policy as maps and every ``get_action`` fail. The two are told apart by a ``get_modality_config`` reply
 (:func:`speaks_msgpack_numpy`), a request NVIDIA's own ``PolicyClient`` sends (``server_client.py:260-261`` at
