@@ -131,7 +131,13 @@ class Gr00tPolicy(HostedPolicy):
     def decode(self, reply: Any, observation: Observation) -> np.ndarray:
         if not isinstance(reply, (list, tuple)) or len(reply) != 2 or not isinstance(reply[0], dict):
             raise ValueError(f"a get_action reply is [action, info], got {type(reply).__name__}")
-        return env_actions(reply[0])[: self.action_steps]
+        actions = env_actions(reply[0])
+        if len(actions) < self.action_steps:  # upstream's MultiStepWrapper indexes past it: IndexError, none executed
+            raise ValueError(
+                f"the server's chunk holds {len(actions)} actions, fewer than model.action_steps={self.action_steps} "
+                "(GR00T's LIBERO rollout executes none of such a chunk): lower model.action_steps"
+            )
+        return actions[: self.action_steps]
 
 
 def load(name: str, cfg: Gr00tConfig) -> Gr00tPolicy:

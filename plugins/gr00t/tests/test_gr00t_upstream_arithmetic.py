@@ -289,6 +289,21 @@ def test_the_gripper_at_and_around_the_midpoint_is_upstreams(plugins, served):
     assert np.signbit(ours[0][6]) and np.signbit(theirs[0][6])
 
 
+def test_a_chunk_shorter_than_the_steps_executed_is_refused_as_upstream_refuses_it(plugins, served):
+    # upstream's MultiStepWrapper indexes value[step] for every step (IndexError past the chunk: the rollout stops
+    # with none of it executed); ours refuses such a reply in one line: a client failure, never scored
+    state, policies = served
+    observation = observation_of(*synthetic_observations()[1])
+    reply = [{key: np.zeros((1, 5, 1), np.float32) for key in upstream.ACTION_KEYS}, {}]
+    with pytest.raises(IndexError):
+        upstream.executed(reply, n_action_steps=8)
+    state["replies"].append(reply)
+    (raw,) = ask_policy(policies[8], [observation], batched=True)
+    decided = reply_for(plugins, "gr00t", item_for(), observation, raw)
+    assert not isinstance(decided, Actions) and decided.kind == "client", decided
+    assert "5 actions, fewer than model.action_steps=8" in decided.reason
+
+
 # -- IN: LIBERO's observation -> the request ----------------------------------------------------------------------
 
 
