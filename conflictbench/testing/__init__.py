@@ -9,8 +9,9 @@
 
   and two checks a served model's plugin can run against its own servers: :func:`check_failed_episode_is_replayed`
   and :func:`check_killed_server_run_resumes` (conflictbench runs both end to end with a served test plugin);
-- observations as a worker sends them (:func:`camera_observation`) and actions pinned bit for bit
-  (:func:`check_pinned_actions`: what a refactor must not change);
+- observations as a worker sends them (:func:`camera_observation`; :func:`worker_observation` of a LIBERO
+  observation dict, with :func:`edge_quaternion` for the quaternions where conversions branch) and actions pinned
+  bit for bit (:func:`check_pinned_actions`: what a refactor must not change);
 - the plugin's model environment (:class:`ModelEnvironment`): its processes, marks and tiny-checkpoint fixtures;
 - a stand-in of an upstream server started on a free port (:func:`start_script_server`).
 
@@ -19,7 +20,15 @@ imports it when called), so a command never needs pytest installed.
 """
 
 from .model_env import BASE_ENV, ModelEnvironment
-from .observations import RECORD_PINNED_ACTIONS, camera_observation, check_pinned_actions, pinned_observations
+from .observations import (
+    EDGE_QUATERNION_W,
+    RECORD_PINNED_ACTIONS,
+    camera_observation,
+    check_pinned_actions,
+    edge_quaternion,
+    pinned_observations,
+    worker_observation,
+)
 from .runs import (
     ONE_CASE,
     check_failed_episode_is_replayed,
@@ -33,6 +42,7 @@ from .runs import (
 
 __all__ = [
     "BASE_ENV",
+    "EDGE_QUATERNION_W",
     "ONE_CASE",
     "RECORD_PINNED_ACTIONS",
     "ModelEnvironment",
@@ -40,10 +50,12 @@ __all__ = [
     "check_failed_episode_is_replayed",
     "check_killed_server_run_resumes",
     "check_pinned_actions",
+    "edge_quaternion",
     "episode_counts",
     "pinned_observations",
     "planned_conflict_instruction",
     "run_cli",
     "shipped_cases_file",
     "start_script_server",
+    "worker_observation",
 ]

@@ -71,3 +71,36 @@ def check_pinned_actions(policy, golden: Path, fingerprint: str = "") -> None:
         f"{OTHER_PROCESSOR_ATOL:g} allowed):\n{actions[worst]}\n{expected_actions[worst]}"
     )
     print(f"{golden.name}: every action within {deviations[worst]:.3g} of those recorded on {recorded_on}")
+
+
+#: Real parts of a quaternion where an axis-angle conversion branches or clips: exactly +-1, just past +-1, just
+#: below 1. The plugins' upstream tests feed each (with a tiny imaginary part) to their client and its restatement.
+EDGE_QUATERNION_W = (
+    1.0,
+    -1.0,
+    float(np.nextafter(1.0, 2.0)),
+    -float(np.nextafter(1.0, 2.0)),
+    float(np.nextafter(1.0, 0.0)),
+)
+
+
+def edge_quaternion(rng: np.random.Generator, w: float | None = None) -> np.ndarray:
+    """(x, y, z, w): a random unit quaternion where ``w`` is None, else ``w`` with an imaginary part of order 1e-9."""
+    if w is None:
+        quat = rng.normal(size=4)
+        return quat / np.linalg.norm(quat)
+    return np.array([*(rng.normal(size=3) * 1e-9), w])
+
+
+def worker_observation(
+    raw: dict, instruction: str, *, suite: str, step: int = 0, episode_id: str = "e", sampling_key: str = ""
+) -> Observation:
+    """The observation a simulator worker makes of LIBERO's observation dict ``raw`` (``make_observation``, the run's
+    own code), from a copy: an upstream client's quaternion conversion may clip ``raw``'s quaternion in place."""
+    from ..sim.capture import make_observation  # the simulator's side: imported only where a test calls it
+
+    return make_observation(
+        {key: np.copy(value) for key, value in raw.items()},
+        step=step, instruction=instruction, stream=0, episode_id=episode_id, suite=suite, images=True,
+        privileged=None, sampling_key=sampling_key,
+    )  # fmt: skip

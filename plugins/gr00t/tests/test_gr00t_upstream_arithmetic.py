@@ -41,11 +41,11 @@ from nvidia_standin_server import from_bytes, to_bytes  # noqa: E402
 import conflictbench  # noqa: E402
 import conflictbench_gr00t.client as gr00t_client  # noqa: E402
 from conflictbench.core import PolicyTraits  # noqa: E402
-from conflictbench.sim.capture import make_observation  # noqa: E402
 from conflictbench.sim.deciding import ask_policy, reply_for  # noqa: E402
 from conflictbench.sim.messages import Actions, EpisodeJob  # noqa: E402
 from conflictbench.sim.plan import EpisodeSpec  # noqa: E402
 from conflictbench.sim.slots import Item  # noqa: E402
+from conflictbench.testing import EDGE_QUATERNION_W, edge_quaternion, worker_observation  # noqa: E402
 from conflictbench_gr00t.client import Gr00tConfig, load  # noqa: E402
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
@@ -157,15 +157,10 @@ def halfway(value: float) -> float:
 def synthetic_observations() -> list[tuple[dict, str]]:
     """LIBERO observation dicts (images upside down, as rendered): w at +-1, past +-1, next to 1, random; states
     halfway between two float32s (the cast's ties) and ordinary ones."""
-    ws = [1.0, -1.0, float(np.nextafter(1.0, 2.0)), -float(np.nextafter(1.0, 2.0)), float(np.nextafter(1.0, 0.0))]
     out = []
-    for seed, w in enumerate(ws + [None] * 5):
+    for seed, w in enumerate([*EDGE_QUATERNION_W, *[None] * 5]):
         rng = np.random.default_rng(seed)
-        if w is None:
-            quat = rng.normal(size=4)
-            quat /= np.linalg.norm(quat)
-        else:
-            quat = np.array([*(rng.normal(size=3) * 1e-9), w])
+        quat = edge_quaternion(rng, w)
         position = rng.uniform([-0.3, -0.3, 0.8], [0.3, 0.3, 1.3])
         fingers = np.array([0.039 * seed / 9, -0.0387 * seed / 9])
         if seed % 2:
@@ -183,12 +178,7 @@ def synthetic_observations() -> list[tuple[dict, str]]:
 
 
 def observation_of(raw: dict, instruction: str, step: int = 0):
-    """The observation a worker sends for LIBERO's ``raw`` (conflictbench.sim.capture, as a run makes it)."""
-    return make_observation(
-        {key: np.copy(value) for key, value in raw.items()},  # upstream's quat2axisangle clips its argument in place
-        step=step, instruction=instruction, stream=0, episode_id="e", suite="libero_goal", images=True,
-        privileged=None, sampling_key="gr00t-upstream",
-    )  # fmt: skip
+    return worker_observation(raw, instruction, suite="libero_goal", step=step, sampling_key="gr00t-upstream")
 
 
 # -- replies ------------------------------------------------------------------------------------------------------

@@ -17,10 +17,9 @@ import numpy as np
 import upstream_openvla as upstream
 import upstream_openvla_oft as upstream_oft
 
-from conflictbench.sim.capture import make_observation
 from conflictbench.sim.deciding import reply_for
 from conflictbench.sim.messages import Actions
-from conflictbench.testing import camera_observation
+from conflictbench.testing import EDGE_QUATERNION_W, camera_observation, edge_quaternion, worker_observation
 from conflictbench_openvla.client import OftConfig, load
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
@@ -132,14 +131,9 @@ def tf_image_functions():
 def synthetic_states() -> list[tuple[list[float], list[float], list[float]]]:
     """eef position, quaternion (x, y, z, w) and finger positions: w at 1, past +-1, at nextafter(1, 0), random."""
     states = []
-    special_w = [1.0, -1.0, float(np.nextafter(1.0, 2.0)), -float(np.nextafter(1.0, 2.0)), float(np.nextafter(1.0, 0))]
-    for seed, w in enumerate(special_w + [None] * 5):
+    for seed, w in enumerate([*EDGE_QUATERNION_W, *[None] * 5]):
         rng = np.random.default_rng(seed)
-        if w is None:
-            quat = rng.normal(size=4)
-            quat = quat / np.linalg.norm(quat)
-        else:
-            quat = np.array([*(rng.normal(size=3) * 1e-9), w])
+        quat = edge_quaternion(rng, w)
         states.append((list(rng.uniform([-0.3, -0.3, 0.8], [0.3, 0.3, 1.3])), list(quat), [0.039, -0.0387 * seed / 9]))
     return states
 
@@ -166,11 +160,7 @@ def raw_observations(inputs: np.ndarray) -> list[tuple[dict, str, str]]:
 
 
 def observation_of(raw: dict, instruction: str, suite: str, step: int = 0):
-    """The observation a worker sends for LIBERO's ``raw`` (conflictbench.sim.capture, as a run makes it)."""
-    return make_observation(
-        {key: np.copy(value) for key, value in raw.items()},  # upstream's quat2axisangle clips its argument in place
-        step=step, instruction=instruction, stream=0, episode_id="e", suite=suite, images=True, privileged=None,
-    )  # fmt: skip
+    return worker_observation(raw, instruction, suite=suite, step=step)
 
 
 def same_payload(ours: dict, theirs: dict) -> None:

@@ -40,11 +40,11 @@ import upstream_openpi as upstream  # noqa: E402
 import conflictbench  # noqa: E402
 import conflictbench_pi0.client as pi_client  # noqa: E402
 from conflictbench.core.sampling import sampling_seed  # noqa: E402
-from conflictbench.sim.capture import make_observation  # noqa: E402
 from conflictbench.sim.deciding import ask_policy, reply_for  # noqa: E402
 from conflictbench.sim.messages import Actions, EpisodeJob  # noqa: E402
 from conflictbench.sim.plan import EpisodeSpec  # noqa: E402
 from conflictbench.sim.slots import Item  # noqa: E402
+from conflictbench.testing import EDGE_QUATERNION_W, edge_quaternion, worker_observation  # noqa: E402
 from conflictbench_pi0.client import PiConfig, load  # noqa: E402
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
@@ -133,16 +133,11 @@ def rendered_like(rng: np.random.Generator, height: int, width: int) -> np.ndarr
 
 def synthetic_observations() -> list[tuple[dict, str]]:
     """LIBERO observation dicts (images upside down, as rendered): w at +-1, past +-1, next to 1, random."""
-    ws = [1.0, -1.0, float(np.nextafter(1.0, 2.0)), -float(np.nextafter(1.0, 2.0)), float(np.nextafter(1.0, 0.0))]
     sizes = [(256, 256), (256, 256), (128, 128), (480, 640), (97, 131)]
     out = []
-    for seed, w in enumerate(ws + [None] * 5):
+    for seed, w in enumerate([*EDGE_QUATERNION_W, *[None] * 5]):
         rng = np.random.default_rng(seed)
-        if w is None:
-            quat = rng.normal(size=4)
-            quat /= np.linalg.norm(quat)
-        else:
-            quat = np.array([*(rng.normal(size=3) * 1e-9), w])
+        quat = edge_quaternion(rng, w)
         height, width = sizes[seed % len(sizes)]
         raw = {
             "agentview_image": rendered_like(rng, height, width),
@@ -157,12 +152,7 @@ def synthetic_observations() -> list[tuple[dict, str]]:
 
 
 def observation_of(raw: dict, instruction: str, step: int = 0):
-    """The observation a worker sends for LIBERO's ``raw`` (conflictbench.sim.capture, as a run makes it)."""
-    return make_observation(
-        {key: np.copy(value) for key, value in raw.items()},  # upstream's quat2axisangle clips its argument in place
-        step=step, instruction=instruction, stream=0, episode_id="e", suite="libero_spatial", images=True,
-        privileged=None, sampling_key="pi-upstream",
-    )  # fmt: skip
+    return worker_observation(raw, instruction, suite="libero_spatial", step=step, sampling_key="pi-upstream")
 
 
 # -- replies ------------------------------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ from jepa_standin import ACTION_STATS, start_standin, write_run
 from starvla_standin_server import normalized_for
 
 from conflictbench.core.policy import as_action_chunk
-from conflictbench.sim.capture import make_observation
+from conflictbench.testing import worker_observation
 from conflictbench_vla_jepa.client import VlaJepaConfig, load
 from conflictbench_vla_jepa.protocol import NOISE_SEED, packb, unpackb
 
@@ -100,8 +100,7 @@ def raw_observation(seed: int, w: float | None = None) -> dict:
 
 
 def observation_of(raw: dict, text: str, step: int = 0):
-    return make_observation(raw, step=step, instruction=text, stream=0, episode_id="e0", suite="libero_goal",
-                            images=True, privileged=None)  # fmt: skip
+    return worker_observation(raw, text, suite="libero_goal", step=step, episode_id="e0")
 
 
 @pytest.mark.parametrize("name", sorted(STATISTICS))
