@@ -109,6 +109,7 @@ def env_actions(normalized: np.ndarray, stats: ActionStatistics, chunk_length: i
     Returned as float64 holding those float32 values exactly (``env.step(delta_action.tolist())`` upstream)."""
     if normalized.ndim != 2 or normalized.shape[1] != 7 or len(normalized) < chunk_length:
         raise ValueError(f"normalized_actions row has shape {normalized.shape}, expected at least ({chunk_length}, 7)")
-    actions = unnormalize(normalized, stats)[:chunk_length].astype(np.float32)
+    # Only the rows executed: upstream un-normalizes the whole reply, but every step is row by row (the same bits).
+    actions = unnormalize(normalized[:chunk_length], stats).astype(np.float32)
     actions[:, 6] = np.where(actions[:, 6] > 0.5, np.float32(-1.0), np.float32(1.0))
     return actions.astype(np.float64)
