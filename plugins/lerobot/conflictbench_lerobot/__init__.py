@@ -1,0 +1,1 @@
+"""Any LeRobot policy for conflictbench, played the way ``lerobot-eval --env.type=libero`` plays it."""
