@@ -49,7 +49,7 @@ def conflictbench_register_policies(register):
     (simulator truth, the goal and the case: experts and oracles only), ``needs_scene_state`` [False]
     (object poses, regions and scene joints, nothing about the task: :class:`SceneState`),
     ``image_size`` [256], ``warmup_steps`` [10], ``max_steps`` [220/280/300/520] (a mapping LIBERO
-    suite -> steps).
+    suite -> steps), ``control_mode`` [relative] (or ``absolute``: a target pose after the warm-up).
 
     A run loads the policy once, whatever ``run.workers`` is, and how it is called depends on
     ``act_batch``:

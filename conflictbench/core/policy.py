@@ -66,7 +66,16 @@ POLICY_DECLARATIONS: tuple[Declaration, ...] = (
     Declaration("image_size", "256", "the cameras' width and height in pixels"),
     Declaration("warmup_steps", "10", "no-op steps after the initial state, before the first query"),
     Declaration("max_steps", "220/280/300/520", "steps per LIBERO suite (a mapping suite -> steps)"),
+    Declaration(
+        "control_mode",
+        "relative",
+        "how the arm reads actions after the warm-up: `relative` (OSC deltas, LIBERO's own) or `absolute` (a target "
+        "pose, as LeRobot's `--env.control_mode=absolute`; rows are stepped as float32)",
+    ),
 )
+
+#: The arm's control modes a policy may declare (:attr:`PolicyTraits.control_mode`).
+CONTROL_MODES = ("relative", "absolute")
 
 
 @runtime_checkable
@@ -86,6 +95,9 @@ class PolicyTraits:
         self.image_size: int = int(getattr(policy, "image_size", DEFAULT_IMAGE_SIZE))
         self.warmup_steps: int = int(getattr(policy, "warmup_steps", DEFAULT_WARMUP_STEPS))
         self.max_steps: dict[str, int] = {**DEFAULT_MAX_STEPS, **dict(getattr(policy, "max_steps", None) or {})}
+        self.control_mode: str = str(getattr(policy, "control_mode", "relative"))
+        if self.control_mode not in CONTROL_MODES:
+            raise ValueError(f"control_mode must be one of {', '.join(CONTROL_MODES)}, not {self.control_mode!r}")
         self.identity: dict[str, Any] = dict(getattr(policy, "identity", None) or {})
         """What the settings do not say about the model (a checkpoint's fingerprint); part of the identity."""
         self.batched: bool = callable(getattr(policy, "act_batch", None))
@@ -99,7 +111,8 @@ class PolicyTraits:
         ``batched`` and ``concurrent`` are left out: they change how calls are scheduled, never an
         episode's actions (sampling is seeded per episode and step, see ``rng_for``).
         """
-        later = {"needs_scene_state": False}  # declarations added later: at their default they leave identities
+        # Declarations added later: at their default they leave identities as they were.
+        later = {"needs_scene_state": False, "control_mode": "relative"}
         return {
             k: v
             for k, v in vars(self).items()

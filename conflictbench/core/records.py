@@ -191,6 +191,13 @@ class Observation:
     wrist_image: np.ndarray | None = None
     joint_positions: np.ndarray | None = None
     """The seven arm joint positions."""
+    joint_velocities: np.ndarray | None = None
+    """The seven arm joint velocities (robosuite's ``robot0_joint_vel``)."""
+    gripper_qvel: np.ndarray | None = None
+    """The two gripper joint velocities (robosuite's ``robot0_gripper_qvel``)."""
+    eef_mat: np.ndarray | None = None
+    """The end-effector orientation as a 3x3 matrix, as the arm's controller last computed it
+    (``robots[0].controller.ee_ori_mat``: what LeRobot's LIBERO env reports, not derived from ``eef_quat``)."""
     privileged: PrivilegedState | None = None
     scene: SceneState | None = None
     """Object poses, regions and scene joints, for a policy that declares ``needs_scene_state``."""

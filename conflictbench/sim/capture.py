@@ -304,8 +304,12 @@ def make_observation(
     privileged: PrivilegedState | None,
     scene: SceneState | None = None,
     sampling_key: str = "",
+    eef_mat: np.ndarray | None = None,
 ) -> Observation:
-    """The policy's view: robosuite's own observation values, exactly as a native client gets them."""
+    """The policy's view: robosuite's own observation values, exactly as a native client gets them.
+
+    ``eef_mat`` is the controller's end-effector orientation matrix (:func:`controller_eef_mat`), which robosuite's
+    observation does not hold."""
     eef_pos = np.asarray(raw_obs["robot0_eef_pos"], dtype=np.float64).copy()
     eef_quat = np.asarray(raw_obs["robot0_eef_quat"], dtype=np.float64).copy()
     gripper = np.asarray(raw_obs["robot0_gripper_qpos"], dtype=np.float64).copy()
@@ -322,6 +326,9 @@ def make_observation(
         agentview_image=agent,
         wrist_image=wrist,
         joint_positions=np.asarray(raw_obs["robot0_joint_pos"], dtype=np.float64).copy(),
+        joint_velocities=_optional(raw_obs, "robot0_joint_vel"),
+        gripper_qvel=_optional(raw_obs, "robot0_gripper_qvel"),
+        eef_mat=None if eef_mat is None else np.array(eef_mat, dtype=np.float64),
         privileged=privileged,
         scene=scene,
         stream=stream,
@@ -329,3 +336,16 @@ def make_observation(
         sampling_key=sampling_key,
         suite=suite,
     )
+
+
+def _optional(raw_obs: dict, key: str) -> np.ndarray | None:
+    """A float64 copy of ``raw_obs[key]``; None where robosuite's observation does not hold it."""
+    value = raw_obs.get(key)
+    return None if value is None else np.asarray(value, dtype=np.float64).copy()
+
+
+def controller_eef_mat(env) -> np.ndarray:
+    """The arm controller's end-effector orientation matrix (3, 3), as the controller last updated it (at its last
+    control sub-step): what LeRobot's LIBERO env reports as ``robot_state/eef/mat`` (``libero.py``'s
+    ``_format_raw_obs`` reads ``robots[0].controller.ee_ori_mat``)."""
+    return np.array(env.env.robots[0].controller.ee_ori_mat, dtype=np.float64)

@@ -59,6 +59,7 @@ def make_items(
             needs_privileged=traits.needs_privileged,
             needs_scene_state=traits.needs_scene_state,
             case=spec.case,
+            control_mode=traits.control_mode,
         )
         items.append(Item(spec, job))
     return items

@@ -38,6 +38,8 @@ class EpisodeJob:
     stream: int = 0
     sampling_key: str = ""
     """Seeds a sampling policy's draws (``Observation.sampling_key``): the episode's id without the code digest."""
+    control_mode: str = "relative"
+    """How the arm reads actions after the warm-up (:attr:`conflictbench.core.PolicyTraits.control_mode`)."""
 
 
 @dataclass(frozen=True)

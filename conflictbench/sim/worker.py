@@ -89,7 +89,7 @@ class EpisodePlayer:
 
     def play(self, job: EpisodeJob, conn) -> EpisodeOutcome:
         """Play one episode; ``conn`` carries observations out and action chunks in."""
-        from .capture import make_observation, privileged_state, scene_state, target_resolver
+        from .capture import controller_eef_mat, make_observation, privileged_state, scene_state, target_resolver
 
         start = time.perf_counter()
         out = _Recording(targets=len(job.targets))
@@ -109,6 +109,7 @@ class EpisodePlayer:
             for k in range(job.warmup_steps):
                 render_next(k == job.warmup_steps - 1)
                 raw, _, _, _ = env.step(NOOP_ACTION)
+            set_control_mode(env, job.control_mode)
             targets = [target_resolver(env, name) for name in job.targets]
             eef_site = env.env.robots[0].eef_site_id
 
@@ -136,6 +137,7 @@ class EpisodePlayer:
                             images=gate is not None,
                             privileged=priv,
                             scene=scene,
+                            eef_mat=controller_eef_mat(env),
                         )
                     )
                 )
@@ -151,7 +153,7 @@ class EpisodePlayer:
                 for i, (raw_action, action) in enumerate(zip(reply.raw, reply.executed)):
                     render_next(i == last and out.steps + 1 < job.max_steps)
                     out.stepping = action
-                    raw, _, done, _ = env.step(action)
+                    raw, _, done, _ = env.step(as_stepped(action, job.control_mode))
                     out.stepping = None
                     out.steps += 1
                     out.raw_actions.append(np.asarray(raw_action, dtype=np.float64))
@@ -190,12 +192,28 @@ class EpisodePlayer:
             env.set_init_state(self._init_states[job.init_state])
             for _ in range(job.warmup_steps):
                 env.step(NOOP_ACTION)
+            set_control_mode(env, job.control_mode)
             for action in actions:
-                env.step(action)
+                env.step(as_stepped(action, job.control_mode))
         except Exception as exc:
             self.close()
             return f"{type(exc).__name__}: {exc}" == failure
         return False
+
+
+def set_control_mode(env, mode: str) -> None:
+    """How every arm reads actions from now on: OSC deltas (``"relative"``, robosuite's configured default, which a
+    reset restores) or a target pose (``"absolute"``), set on the controllers after the warm-up's delta no-ops, as
+    LeRobot's LIBERO env does (``libero.py``, ``reset``: ``controller.use_delta``)."""
+    for robot in env.env.robots:
+        robot.controller.use_delta = mode == "relative"
+
+
+def as_stepped(action: np.ndarray, mode: str) -> np.ndarray:
+    """The row handed to ``env.step``. Absolute control keeps the row's float32: robosuite's axis-angle to quaternion
+    conversion computes in the input's dtype, and LeRobot steps its policies' float32 rows (a float32 value and its
+    float64 copy give other goal rotations). Relative control scales in float64 either way."""
+    return np.asarray(action, dtype=np.float32) if mode == "absolute" else action
 
 
 #: Added to a simulator failure's error when the policy's actions reproduce it.
