@@ -178,7 +178,8 @@ class LeRobotBackend:
     def raw_observation(self, request: dict) -> dict:
         """What ``LiberoEnv._format_raw_obs`` returns, batched by one as the vector env stacks it."""
         names = dict(request.get(CAMERA_NAMES, DEFAULT_CAMERA_NAMES))
-        pixels = {names[camera]: np.asarray(request[image_key(camera)])[None] for camera in CAMERAS}
+        # Copies: a frame's arrays are read-only views, where the vector env hands LeRobot arrays of its own.
+        pixels = {names[camera]: np.array(request[image_key(camera)])[None] for camera in CAMERAS}
         robot_state: dict = {}
         for key, (path, _) in ROBOT_STATE.items():
             robot_state.setdefault(path[0], {})[path[1]] = np.array(request[key], dtype=np.float64)[None]
