@@ -34,10 +34,13 @@ KNOWN_TYPES = (
     *("eo1", "evo1", "fastwam", "gaussian_actor", "groot", "lingbot_va", "molmoact2", "multi_task_dit"),
     *("pi0", "pi0_fast", "tdmpc", "vla_jepa", "vqbet", "wall_x"),
 )
-#: The state each type's LIBERO processors build (``LiberoProcessorStep``: 8; X-VLA's own: 20).
+#: The state each type's LIBERO processors build (``LiberoProcessorStep``: 8; X-VLA's own: 20) and the action its
+#: policy answers before the environment's post-processor (X-VLA's 20-D ``ee6d`` actions, which its LIBERO
+#: post-processor turns into LIBERO's 7: ``policies/xvla/processor_xvla.py``).
 STATE_SIZE = {"xvla": 20}
 DEFAULT_STATE_SIZE = 8
-ACTION_SIZE = 7
+ACTION_SIZE = {"xvla": 20}
+DEFAULT_ACTION_SIZE = 7
 
 
 def _shape(features: dict, key: str) -> list[int] | None:
@@ -86,9 +89,12 @@ def check_checkpoint(folder: str | Path, camera_names: dict[str, str], rename_ma
         raise CheckpointError(
             f"{folder} takes a state of shape {state}; LeRobot's LIBERO processors give the {kind} policy [{wanted}]"
         )
-    action = _shape(outputs, "action")
-    if action is not None and action != [ACTION_SIZE]:
-        raise CheckpointError(f"{folder} answers actions of shape {action}; LIBERO's arm takes [{ACTION_SIZE}]")
+    action, wanted = _shape(outputs, "action"), ACTION_SIZE.get(kind, DEFAULT_ACTION_SIZE)
+    if action is not None and action != [wanted]:
+        raise CheckpointError(
+            f"{folder} answers actions of shape {action}; LeRobot's LIBERO post-processors take [{wanted}] of a "
+            f"{kind} policy (LIBERO's arm: 7)"
+        )
     return kind
 
 
