@@ -22,4 +22,8 @@ def camera_observation(
         gripper_qpos=state[6:], state=state, stream=stream, episode_id=f"episode-{stream}", suite=suite,
         agentview_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
         wrist_image=rng.integers(0, 256, (256, 256, 3), dtype=np.uint8),
+        # The raw robot state LeRobot's LIBERO env also reports: fixed (no draw, so the images stay as they were).
+        eef_mat=np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]),
+        joint_positions=np.array([0.0, 0.2, 0.0, -2.4, 0.0, 2.6, 0.8]), joint_velocities=np.full(7, 0.01 * step),
+        gripper_qvel=np.array([0.001, -0.001]),
     )  # fmt: skip
