@@ -12,7 +12,8 @@ config and a ``LiberoEnv`` config, as ``lerobot-eval`` builds it.
 Each episode has its own copy of the policy's state (:class:`EpisodeStates`): LeRobot keeps the action queue and
 observation history (Diffusion, VQ-BeT) on the policy object, which ``rollout`` resets at an episode's start, and
 the workers of a run play several episodes at once. The copy shares every module and weight and owns the rest.
-An episode's steps must come in order, each once: a step repeated or skipped would pop another action.
+An episode's steps must come in order: a step skipped, or one from before the last, is refused (it would pop
+another action); the last step sent again (a client whose connection broke before the reply) gets the same answer.
 
 Sampling: before every ``select_action`` the global generators torch, numpy and ``random`` draw from are seeded
 with the step's seed (the request's ``conflictbench/noise_seed``, from the episode and step): a policy samples
@@ -68,6 +69,8 @@ class _Episode:
     policy: Any
     next_step: int
     settings: tuple
+    last: tuple[int, int, np.ndarray] | None = None
+    """(step, seed, action) of the last step answered: a client that lost the reply sends that step again."""
 
 
 def settings_of(request: dict) -> tuple:
@@ -185,10 +188,22 @@ class LeRobotBackend:
             robot_state.setdefault(path[0], {})[path[1]] = np.array(request[key], dtype=np.float64)[None]
         return {"pixels": pixels, "robot_state": robot_state}
 
+    def repeated(self, request: dict) -> np.ndarray | None:
+        """The answer already given to this very step, where a client sends it again (its connection broke before
+        the reply came): the policy's queue must not move twice for one step."""
+        held = self.episodes.get(request[EPISODE])
+        if held is None or held.last is None or held.settings != settings_of(request):
+            return None
+        step, seed, action = held.last
+        return action.copy() if (step, seed) == (int(request[STEP]), int(request[NOISE_SEED])) else None
+
     def step(self, request: dict) -> np.ndarray:
         from lerobot.envs.utils import preprocess_observation
 
         torch = self._torch
+        again = self.repeated(request)
+        if again is not None:
+            return again
         episode = self.episode_policy(request)
         preprocessor, postprocessor = self.processors(episode.settings[1])
         env_preprocessor, env_postprocessor = self.env_processors
@@ -200,8 +215,10 @@ class LeRobotBackend:
             with torch.inference_mode():
                 action = episode.policy.select_action(observation)
             action = env_postprocessor({"action": postprocessor(action)})["action"]
+        answer = action.to("cpu").numpy()
+        episode.last = (episode.next_step, int(request[NOISE_SEED]), answer.copy())
         episode.next_step += 1
-        return action.to("cpu").numpy()
+        return answer
 
 
 def seed_everything(seed: int) -> None:

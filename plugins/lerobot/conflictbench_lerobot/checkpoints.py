@@ -34,10 +34,11 @@ KNOWN_TYPES = (
     *("eo1", "evo1", "fastwam", "gaussian_actor", "groot", "lingbot_va", "molmoact2", "multi_task_dit"),
     *("pi0", "pi0_fast", "tdmpc", "vla_jepa", "vqbet", "wall_x"),
 )
-#: The state each type's LIBERO processors build (``LiberoProcessorStep``: 8; X-VLA's own: 20) and the action its
+#: The state each type's LIBERO processors build (``LiberoProcessorStep``: 8; X-VLA's own build 20, which its model
+#: pads to ``max_state_dim`` whatever its config's state feature says: not checked) and the action its
 #: policy answers before the environment's post-processor (X-VLA's 20-D ``ee6d`` actions, which its LIBERO
 #: post-processor turns into LIBERO's 7: ``policies/xvla/processor_xvla.py``).
-STATE_SIZE = {"xvla": 20}
+STATE_SIZE: dict[str, int | None] = {"xvla": None}
 DEFAULT_STATE_SIZE = 8
 ACTION_SIZE = {"xvla": 20}
 DEFAULT_ACTION_SIZE = 7
@@ -85,7 +86,7 @@ def check_checkpoint(folder: str | Path, camera_names: dict[str, str], rename_ma
         )
     state = _shape(inputs, "observation.state")
     wanted = STATE_SIZE.get(kind, DEFAULT_STATE_SIZE)
-    if state is not None and state != [wanted]:
+    if state is not None and wanted is not None and state != [wanted]:
         raise CheckpointError(
             f"{folder} takes a state of shape {state}; LeRobot's LIBERO processors give the {kind} policy [{wanted}]"
         )

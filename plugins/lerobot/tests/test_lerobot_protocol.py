@@ -195,14 +195,13 @@ DEFAULT = {"agentview_image": "image", "robot0_eye_in_hand_image": "image2"}
             {},
             "takes a state of shape [14]; LeRobot's LIBERO processors give the act policy [8]",
         ),  # fmt: skip
-        (lambda t: folder(t, kind="xvla"), DEFAULT, {}, "give the xvla policy [20]"),
         (
             lambda t: folder(t, action=(14,)),
             DEFAULT,
             {},
             "answers actions of shape [14]; LeRobot's LIBERO post-processors take [7] of a act policy",
         ),  # fmt: skip
-        (lambda t: folder(t, kind="xvla", state=(20,)), DEFAULT, {}, "take [20] of a xvla policy"),
+        (lambda t: folder(t, kind="xvla", state=(5,)), DEFAULT, {}, "take [20] of a xvla policy"),
     ],
 )
 def test_a_checkpoint_libero_cannot_feed_is_one_line_naming_what_was_expected_and_found(

@@ -1,0 +1,74 @@
+"""``conflictbench model=lerobot model.checkpoint=DIR`` on real LIBERO episodes: the run starts our server in the model
+environment, plays lerobot-eval's episode (360-px renders, 10 settle steps, one request a step), and a checkpoint
+LeRobot cannot load, or one LIBERO cannot feed, is one line and exit code 2 before any episode."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from tiny_fixtures import LEROBOT, needs_model_env
+from tiny_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
+
+from conflictbench.testing import run_cli
+from conflictbench.testing.plugin_tests import played_records
+
+pytestmark = [pytest.mark.sim, pytest.mark.e2e]
+STEPS = 12
+
+
+@needs_model_env
+def test_a_started_server_plays_lerobot_evals_episode_with_each_instruction(tiny_lerobot_checkpoints, tmp_path):
+    checkpoint = tiny_lerobot_checkpoints["smolvla"]
+    env = {**LEROBOT.env(checkpoint), "MUJOCO_GL": "egl"}
+    out = run_cli(tmp_path, "model=lerobot", f"model.checkpoint={checkpoint}", "model.device=cpu", env=env,
+                  max_steps=STEPS)  # fmt: skip
+    assert "plays a LeRobot smolvla policy" in out.stderr and "untested" not in out.stderr
+    reference, conflict = played_records(tmp_path, out, STEPS)
+    for record in (reference, conflict):
+        assert record.warmup_steps == 10 and record.actions.shape == (STEPS, 7)
+        assert np.all(np.abs(record.actions) < 10) and np.linalg.norm(record.eef_pos[-1] - record.eef_pos[0]) > 1e-4
+    # SmolVLA reads the task: the conflict's instruction moved its actions from the first step on.
+    assert not np.array_equal(reference.actions[0], conflict.actions[0])
+    server_log = next((tmp_path / "results" / "logs" / "servers").glob("lerobot-*.log")).read_text()
+    assert "serving lerobot from" in server_log
+
+
+@needs_model_env
+def test_a_checkpoint_lerobot_cannot_load_is_one_line_and_exit_code_2(tiny_lerobot_checkpoints, tmp_path):
+    broken = tmp_path / "broken"
+    shutil.copytree(tiny_lerobot_checkpoints["act"], broken)
+    (broken / "model.safetensors").write_bytes(b"not a safetensors file")
+    out = run_cli(tmp_path, "model=lerobot", f"model.checkpoint={broken}", "model.device=cpu",
+                  env=LEROBOT.env(broken), max_steps=STEPS)  # fmt: skip
+    assert out.returncode == 2, out.stderr[-3000:]
+    last = out.stderr.strip().splitlines()[-1]
+    assert "cannot load" in last and str(broken) in last, out.stderr[-3000:]
+    assert not (tmp_path / "results" / "episodes").exists() or not any((tmp_path / "results").rglob("*.parquet"))
+
+
+def test_a_checkpoint_whose_inputs_libero_cannot_give_is_refused_before_any_server(tmp_path):
+    folder = tmp_path / "three-cameras"
+    folder.mkdir()
+    inputs = {f"observation.images.{c}": {"type": "VISUAL", "shape": [3, 224, 224]} for c in ("top", "left", "right")}
+    config = {"type": "act", "input_features": inputs, "output_features": {"action": {"type": "ACTION", "shape": [7]}}}
+    (folder / "config.json").write_text(json.dumps(config))
+    (folder / "model.safetensors").write_bytes(b"")
+    out = run_cli(tmp_path, "model=lerobot", f"model.checkpoint={folder}", max_steps=STEPS)
+    last = out.stderr.strip().splitlines()[-1]
+    assert out.returncode == 2 and last.startswith("conflictbench: error: ") and "starting" not in out.stderr
+    assert "takes the cameras observation.images.left, observation.images.right, observation.images.top" in last
+    assert "LIBERO gives observation.images.image, observation.images.image2" in last
+
+
+def test_an_untested_policy_type_loads_with_a_one_line_warning(tmp_path, capsys):
+    from conflictbench_lerobot.client import announce
+
+    announce("tdmpc", str(tmp_path))
+    said = capsys.readouterr().err.splitlines()
+    assert said[0].endswith(f"plays a LeRobot tdmpc policy ({tmp_path})")
+    assert said[1].startswith("conflictbench: warning: untested policy type tdmpc (tested: act, diffusion, pi05")
+    announce("act", str(tmp_path))
+    assert len(capsys.readouterr().err.splitlines()) == 1
