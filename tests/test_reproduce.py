@@ -27,7 +27,8 @@ class StandIns:
                    ("expert-high", "scripted", 95.0), ("expert-half", "scripted", 50.0)]  # fmt: skip
         for name, policy, percent in figures:
             register(name, policy=policy, checkpoint="(built in)", success={"libero_goal": percent},
-                     protocol=PROTOCOL, source="test", url="https://example.org/t", date="2026-01-01")  # fmt: skip
+                     protocol=PROTOCOL, source="test", url="https://example.org/t", date="2026-01-01",
+                     played_by=["random"] if name == "noop-half" else [])  # fmt: skip
 
 
 def stand_in_plugins() -> Plugins:
@@ -84,6 +85,8 @@ def test_declarations_merge_and_replace(tmp_path):
         (["reproduce", "-m", "model=noop", "model.published=noop-ten"], "not a sweep"),
         (["model=noop,scripted", "model.published=noop-ten", "-m"], "not a sweep over models"),
         (["model=random", "model.published=noop-ten"], "not one of model=random's"),
+        (["reproduce", "model=scripted", "model.published=noop-half"], "declare it with model=noop or model=random"),
+        (["reproduce", "model=random", "model.published=noop-tne"], "closest: noop-half"),
     ],
 )
 def test_a_wrong_declaration_is_one_line_and_exit_2(monkeypatch, capsys, argv, says):
@@ -91,6 +94,14 @@ def test_a_wrong_declaration_is_one_line_and_exit_2(monkeypatch, capsys, argv, s
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert says in err and len(err.splitlines()) == 1, err
+
+
+def test_an_entry_another_policy_plays_as_its_source_did_is_declared_with_either():
+    from conflictbench.cli.published import check_declaration
+
+    plugins = stand_in_plugins()
+    assert check_declaration("noop-half", "noop", plugins).name == "noop-half"
+    assert check_declaration("noop-half", "random", plugins).played_by == ("random",)
 
 
 # -- whole runs ------------------------------------------------------------------------------------------------

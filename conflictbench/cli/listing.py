@@ -28,7 +28,8 @@ def command(argv: Sequence[str], plugins: Plugins) -> int:
         notes = ([f"[paper: {result.paper_model}]"] if result.paper_model else []) + (
             ["[secondary]"] if result.status != "primary" else []
         )
-        print(f"  {name:<42} model={result.policy}  {' '.join([suites, *notes])}")
+        players = " ".join(f"model={p}" for p in (result.policy, *result.played_by))
+        print(f"  {name:<42} {players}  {' '.join([suites, *notes])}")
     print("metrics (per pair):")
     metrics = plugins.metrics()
     if not metrics:

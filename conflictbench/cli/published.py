@@ -44,14 +44,15 @@ def check_declaration(entry: str, model: str, plugins: Plugins) -> PublishedResu
     results = plugins.published_results()
     if entry in results:
         found = results[entry]
-        if found.policy != model:
+        if not found.playable_by(model):
+            players = " or ".join(f"model={p}" for p in (found.policy, *found.played_by))
             raise UserError(
                 f"{KEY}={entry} is a published {found.policy} checkpoint, not one of model={model}'s; "
-                f"declare it with model={found.policy}"
+                f"declare it with {players}"
             )
         check_paper_model(found)  # the report would show the paper's rows beside it
         return found
-    own = sorted(name for name, result in results.items() if result.policy == model)
+    own = sorted(name for name, result in results.items() if result.playable_by(model))
     if not own:
         raise UserError(f"unknown published checkpoint {entry!r}: model={model} has no published results")
     close = difflib.get_close_matches(entry, own, n=3, cutoff=0.0)

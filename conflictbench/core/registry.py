@@ -243,6 +243,12 @@ class PublishedResult:
     caveats: tuple[str, ...] = ()
     counts: dict[str, str] | None = None
     """Suite -> ``"k/n"`` where the source prints counts too (they may disagree with its percentages)."""
+    played_by: tuple[str, ...] = ()
+    """Other policies that play this checkpoint the way its source evaluated it (a LeRobot port of a model:
+    ``lerobot``, which plays it as ``lerobot-eval`` does); ``reproduce`` accepts them beside ``policy``."""
+
+    def playable_by(self, policy: str) -> bool:
+        return policy == self.policy or policy in self.played_by
 
     @property
     def citation(self) -> str:
@@ -265,6 +271,7 @@ def published_spec(
     status: str = "primary",
     caveats: Sequence[str] = (),
     counts: dict[str, str] | None = None,
+    played_by: Sequence[str] = (),
 ) -> PublishedResult:
     for label, text in (("policy", policy), ("checkpoint", checkpoint), ("source", source), ("date", date)):
         if not isinstance(text, str) or not text.strip():
@@ -294,9 +301,12 @@ def published_spec(
         set(counts) - set(success) or not all(re.fullmatch(r"\d+/\d+", c) for c in counts.values())
     ):
         raise PluginError(f"{where}: counts must map suites of success to 'k/n'")
+    if isinstance(played_by, str) or not all(isinstance(p, str) and p.strip() for p in played_by):
+        raise PluginError(f"{where}: played_by must be a list of policy names, got {played_by!r}")
     return PublishedResult(
         name, policy, checkpoint, {s: float(v) for s, v in success.items()}, dict(protocol), source, url, date,
         src.distribution, src.version, paper_model, status, tuple(caveats), dict(counts) if counts else None,
+        tuple(played_by),
     )  # fmt: skip
 
 
