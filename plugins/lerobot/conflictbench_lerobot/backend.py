@@ -58,6 +58,8 @@ logger = logging.getLogger(__name__)
 NO_RENAME = {"observation.state": "observation.state"}
 #: Episodes whose state is kept at once (a run plays at most its workers' count at a time; the oldest goes first).
 MAX_EPISODES = 64
+#: Processor pipelines kept, one per rename_map (a run names one).
+MAX_RENAME_MAPS = 4
 
 
 class StepOutOfOrder(ValueError):
@@ -121,10 +123,16 @@ class LeRobotBackend:
         }
 
     def processors(self, rename_map: tuple) -> tuple[Any, Any]:
-        """The checkpoint's pre/post-processors with lerobot-eval's overrides (device, ``rename_map``), loaded once."""
-        if rename_map not in self._processors:
+        """The checkpoint's pre/post-processors with lerobot-eval's overrides (device, ``rename_map``), loaded once
+        for each of the last :data:`MAX_RENAME_MAPS` rename maps requests named (a peer naming ever new ones makes
+        the server load them again, never hold more)."""
+        if rename_map in self._processors:
+            self._processors[rename_map] = self._processors.pop(rename_map)  # the most recently used last
+        else:
             from lerobot.policies.factory import make_pre_post_processors
 
+            while len(self._processors) >= MAX_RENAME_MAPS:
+                self._processors.pop(next(iter(self._processors)))
             self._processors[rename_map] = make_pre_post_processors(
                 self.policy.config,
                 pretrained_path=str(self.folder),
