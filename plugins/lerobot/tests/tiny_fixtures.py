@@ -47,6 +47,9 @@ def model_process_env(checkpoint: Path | None) -> dict[str, str]:
 
 
 LEROBOT = ModelEnvironment("lerobot", TESTS, extra=model_process_env)
+if LEROBOT.missing and (TESTS.parents[2] / ".venv" / "models" / "lerobot" / "bin" / "python").exists():
+    # Tests run by another environment's Python (CI's 3.12 pass, .venv312) use the checkout's model environment.
+    LEROBOT.python = TESTS.parents[2] / ".venv" / "models" / "lerobot" / "bin" / "python"
 model_env_missing, MODEL_ENV_REASON, needs_model_env = LEROBOT.missing, LEROBOT.reason, LEROBOT.needs
 
 #: What the last session's build said, per type (its seconds, its digest), for reports.
