@@ -5,10 +5,10 @@ Run with the model environment's Python:
     .venv/models/lerobot/bin/python plugins/lerobot/tests/recording_server.py CHECKPOINT OUT_DIR
 
 It loads the checkpoint with the plugin's own backend and serves it with the plugin's own server on a free port of
-127.0.0.1 (no token), printing ``HOST PORT`` on stdout once it listens. Each step of each episode is written to
-``OUT_DIR/<episode>/<step>.npz`` as it is answered: ``policy_in/<key>`` (every tensor of the batch ``select_action``
-received, as numpy), ``task``, ``policy_out`` (what it returned), ``action`` (the reply) and ``seed``. The oracle
-test compares these with what LeRobot's own rollout recorded (``oracle/lerobot_rollout.py``).
+127.0.0.1 (no token), writing ``HOST PORT`` to ``OUT_DIR/address`` once it listens. Each step of each episode is
+written to ``OUT_DIR/<episode>/<step>.npz`` as it is answered: ``policy_in/<key>`` (every tensor of the batch
+``select_action`` received, as numpy), ``task``, ``policy_out`` (what it returned), ``action`` (the reply) and
+``seed``. The oracle test compares these with what LeRobot's own rollout recorded (``oracle/lerobot_rollout.py``).
 """
 
 from __future__ import annotations
@@ -73,7 +73,9 @@ def main() -> None:
     backend = RecordingBackend(checkpoint, out)
 
     def ready(host: str, port: int) -> None:
-        print(host, port, flush=True)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "address.tmp").write_text(f"{host} {port}\n")
+        (out / "address.tmp").rename(out / "address")
 
     serve(backend, "127.0.0.1", 0, on_ready=ready)
 
