@@ -290,7 +290,7 @@ if ((SUBJECT)) && { [ ! -f "$stamp" ] || [ "$SUBJECT_REQUIREMENTS" -nt "$stamp" 
   builds+=(build_subject_env)
 fi
 stamp="$VENV/models/lerobot-oracle/.conflictbench-installed"
-if ((TESTS)) && [[ " $MODELS " == *" lerobot "* ]] \
+if ((TESTS)) && [[ " $(echo $MODELS) " == *" lerobot "* ]] \
   && { [ ! -f "$stamp" ] || [ "$ORACLE_REQUIREMENTS" -nt "$stamp" ] || [ "$ORACLE_EXCLUDES" -nt "$stamp" ]; }; then
   builds+=(build_oracle_env)
 fi
