@@ -10,6 +10,8 @@ from testing_support import reference_spec
 
 from conflictbench import BUILTIN_PLUGINS, hookimpl
 from conflictbench.core import LIBERO_SUITES, Plugins, PolicyTraits
+from conflictbench.sim.replay import ReplayJob, replay_all
+from conflictbench.sim.worker import as_stepped
 
 pytestmark = pytest.mark.sim
 SHORT = {suite: 12 for suite in LIBERO_SUITES}
@@ -59,7 +61,7 @@ def hold_plugins():
 
 
 def test_absolute_control_reaches_the_commanded_pose_and_relative_reads_it_as_a_delta(play, hold_plugins, tmp_path):
-    paths = {}
+    paths, records = {}, {}
     for mode in ("absolute", "relative"):
         HoldAbove.seen.clear()
         result, store = play(
@@ -71,7 +73,8 @@ def test_absolute_control_reaches_the_commanded_pose_and_relative_reads_it_as_a_
         )
         assert result.played == 1 and result.errors == 0
         (record,) = store.records()
-        paths[mode] = record.eef_pos
+        paths[mode], records[mode] = record.eef_pos, record
+        assert record.control_mode == mode  # stored: what a replay sets again
         first = HoldAbove.seen[0]
         # Every observation carries the raw robot state LeRobot's LIBERO env reports.
         assert first.joint_velocities.shape == (7,) and first.gripper_qvel.shape == (2,)
@@ -84,11 +87,47 @@ def test_absolute_control_reaches_the_commanded_pose_and_relative_reads_it_as_a_
         quarter_turn = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
         assert np.allclose(mat, quat2mat(first.eef_quat.copy()) @ quarter_turn, atol=1e-3)
         assert np.linalg.det(mat) == pytest.approx(1.0, abs=1e-9)
+    # The warm-up's no-ops run under delta control in both modes: the mode is set after it.
+    assert np.array_equal(paths["absolute"][0], paths["relative"][0])
     start, absolute, relative = paths["absolute"][0], paths["absolute"][-1], paths["relative"][-1]
     # Absolute: the arm rises towards the target and stays over its start.
     assert absolute[2] - start[2] > 0.01 and np.linalg.norm(absolute[:2] - start[:2]) < 0.01
     # Relative: the same rows are clipped deltas of about a metre in x and z: the arm runs far from its start.
     assert np.linalg.norm(relative - start) > 3 * np.linalg.norm(absolute - start)
+    # A replay (a video's) retraces the absolute episode exactly when it sets the stored mode again.
+    record = records["absolute"]
+    as_played, as_relative = (
+        ReplayJob(record.episode_id, record.suite, record.task_id, record.init_state, record.seed,
+                  record.warmup_steps, record.actions, record.eef_pos, NullSink(), control_mode=mode)
+        for mode in (record.control_mode, "relative")
+    )  # fmt: skip
+    (played,) = replay_all([as_played], workers=1)
+    assert played.error is None and played.deviation_m == 0.0
+    (wrong,) = replay_all([as_relative], workers=1)
+    assert wrong.error is None and wrong.deviation_m > 0.05
+
+
+def test_absolute_control_steps_float32_rows_and_relative_leaves_them_as_they_are():
+    row = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, -1.0]) / 3
+    assert as_stepped(row, "absolute").dtype == np.float32
+    assert np.array_equal(as_stepped(row, "absolute"), row.astype(np.float32))
+    assert as_stepped(row, "relative") is row
+
+
+class NullSink:
+    """Keeps no frame."""
+
+    def open(self):
+        pass
+
+    def add(self, frame):
+        pass
+
+    def close(self):
+        return 0
+
+    def abort(self):
+        pass
 
 
 def test_only_a_control_mode_other_than_the_default_enters_the_identity():

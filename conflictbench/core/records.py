@@ -276,6 +276,9 @@ class EpisodeRecord:
     warmup_steps: int | None = None
     """No-op steps played after setting the initial state, before the first recorded state (what a replay
     must play again; ``None`` in stores written before the column)."""
+    control_mode: str | None = None
+    """How the arm read the actions after the warm-up, ``relative`` or ``absolute`` (what a replay must set again;
+    ``None`` in stores written before the column: relative)."""
     # provenance
     conflictbench_version: str = ""
     plugin: str = ""

@@ -132,6 +132,7 @@ def episode_record(
         prompt_text=job.instruction,
         max_steps=job.max_steps,
         warmup_steps=job.warmup_steps,
+        control_mode=job.control_mode,
         target_names=job.targets,
         conflictbench_version=_own_version(),
         plugin=spec.plugin,

@@ -47,6 +47,8 @@ class ReplayJob:
     sink: Any  # a FrameSink
     frame_every: int = 1
     """A frame of every n-th state (and of the last): each render costs ~0.1 s on a CPU, a step 0.01 s."""
+    control_mode: str = "relative"
+    """How the arm read the actions after the warm-up, as the episode was played."""
 
     def keeps(self, state: int) -> bool:
         return state % self.frame_every == 0 or state == len(self.actions)
@@ -97,7 +99,7 @@ def _env_for(job: ReplayJob):
 def replay(job: ReplayJob) -> ReplayResult:
     """Play ``job`` and hand each camera frame (upright, as people look at it) to its sink."""
     from . import libero_env
-    from .worker import NOOP_ACTION
+    from .worker import NOOP_ACTION, as_stepped, set_control_mode
 
     start = time.perf_counter()
     path: list[np.ndarray] = []
@@ -111,12 +113,14 @@ def replay(job: ReplayJob) -> ReplayResult:
         for k in range(job.warmup_steps):
             gate.set(k == job.warmup_steps - 1)
             obs, _, _, _ = env.step(NOOP_ACTION)
+        set_control_mode(env, job.control_mode)
         eef_site = env.env.robots[0].eef_site_id
         job.sink.open()
         for state in range(len(job.actions) + 1):  # state 0: after the warm-up; state i: after action i
             if state:
                 gate.set(job.keeps(state))
-                obs, _, _, _ = env.step(np.asarray(job.actions[state - 1], dtype=np.float64))
+                action = np.asarray(job.actions[state - 1], dtype=np.float64)
+                obs, _, _, _ = env.step(as_stepped(action, job.control_mode))
             path.append(env.sim.data.site_xpos[eef_site].copy())
             if job.keeps(state):
                 job.sink.add(np.ascontiguousarray(obs[f"{CAMERA}_image"][::-1, ::-1]))  # LIBERO renders upside down

@@ -53,6 +53,7 @@ SCHEMA = pa.schema(
         ("prompt_text", pa.string()),
         ("max_steps", pa.int32()),
         ("warmup_steps", pa.int32()),
+        ("control_mode", pa.string()),
         # provenance
         ("conflictbench_version", pa.string()),
         ("plugin", pa.string()),

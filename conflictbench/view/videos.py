@@ -116,6 +116,7 @@ def render_videos(
                 eef_pos=r.eef_pos,
                 sink=Mp4Sink(str(site_file(out, "videos", r.episode_id, ".mp4")), fps=FPS // FRAME_EVERY),
                 frame_every=FRAME_EVERY,
+                control_mode=r.control_mode or "relative",
             )
 
     bar = CountProgress(len(todo), "videos: episodes replayed", enabled=progress, failures=True)
