@@ -308,3 +308,12 @@ def test_a_server_that_does_not_report_its_address_is_unavailable_and_stopped(tm
     with pytest.raises(ServerUnavailable, match=words):
         process.start()
     assert process.process is None and time.monotonic() - started < 15
+
+
+def test_a_server_that_closes_its_pipe_then_exits_with_a_user_error_says_that_error(tmp_path):
+    """A server refusing its checkpoint closes the ready pipe, then takes its time to exit (a model stack tearing
+    down): its one line is the error, not a pipe closed unsaid."""
+    script = ("import os, sys, time; os.close(int(sys.argv[-1])); time.sleep(1.5); "
+              "print('the checkpoint does not fit'); sys.exit(2)")  # fmt: skip
+    with pytest.raises(UserError, match="^the checkpoint does not fit$"):
+        reporting(tmp_path, script, timeout=20).start()

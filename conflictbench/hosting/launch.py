@@ -23,6 +23,7 @@ within the start-up limit, is :class:`ServerUnavailable` (the run stops, exit co
 from __future__ import annotations
 
 import atexit
+import contextlib
 import ctypes
 import itertools
 import os
@@ -46,6 +47,9 @@ _PR_SET_PDEATHSIG = 1
 _log_numbers = itertools.count()
 #: Where a server that reports its address is, in a failure before it said.
 _UNREPORTED = "127.0.0.1 (a port the started server had not reported yet)"
+#: How long a started server that closed its ready pipe unsaid may take to exit (its exit code says why it stopped:
+#: 2 with a one-line user error; a model stack such as torch can take seconds to tear down).
+_EXIT_WAIT_S = 15.0
 #: Health checks of a local server never go through a proxy (http_proxy would catch 127.0.0.1 too).
 _DIRECT = urllib.request.build_opener(urllib.request.ProxyHandler({}))
 
@@ -178,7 +182,8 @@ class ServerProcess:
                 continue
             chunk = os.read(reading, 256)
             if not chunk:  # every writer closed it: the process is ending, or will never say
-                time.sleep(0.5)
+                with contextlib.suppress(subprocess.TimeoutExpired):  # its exit code says why (torch exits slowly)
+                    self.process.wait(timeout=min(_EXIT_WAIT_S, max(0.5, deadline - time.monotonic())))
                 self._check_alive()
                 raise ServerUnavailable(
                     _UNREPORTED,
