@@ -69,6 +69,12 @@ def camera_order(names: list[str]) -> list[str]:
     return [next(n for n in names if n != wrist[0]), wrist[0]]
 
 
+def weight_load_failure(printed: str) -> str | None:
+    """The line LeRobot printed, in ``printed`` (what loading wrote to stdout), saying a checkpoint's weights did not
+    load (it prints that and goes on with random weights instead of raising); None where there is none."""
+    return next((line for line in printed.splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
+
+
 def load_policy(folder: Path, policy_type: str, device: str) -> tuple[Any, Any, Any]:
     """(policy, preprocessor, postprocessor) of the checkpoint, on ``device``, in eval mode; CheckpointError
     where LeRobot cannot load it (LeRobot prints some failures instead of raising: those count too)."""
@@ -83,7 +89,7 @@ def load_policy(folder: Path, policy_type: str, device: str) -> tuple[Any, Any, 
             policy = get_policy_class(policy_type).from_pretrained(str(folder), config=config)
     except OSError as error:  # a base model or processor it names is not in the Hugging Face cache
         raise CheckpointError(f"cannot load {folder}: {str(error).splitlines()[0]}") from None
-    failure = next((line for line in log.getvalue().splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
+    failure = weight_load_failure(log.getvalue())
     if failure is not None:
         raise CheckpointError(f"{folder / WEIGHTS_FILE} does not fit the {policy_type} model: {failure}")
     policy.to(device)

@@ -27,15 +27,20 @@ Imports torch and LeRobot only inside :func:`load_backend` and the methods it en
 from __future__ import annotations
 
 import collections
+import contextlib
 import copy
 import dataclasses
+import io
 import logging
 import random
+import sys
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from conflictbench_serving.lerobot import weight_load_failure
 
 from .checkpoints import CheckpointError, check_folder, fingerprint
 from .protocol import (
@@ -60,6 +65,8 @@ NO_RENAME = {"observation.state": "observation.state"}
 MAX_EPISODES = 64
 #: Processor pipelines kept, one per rename_map (a run names one).
 MAX_RENAME_MAPS = 4
+#: Policies kept, one per n_action_steps (the checkpoint's, and the last other a run named).
+MAX_POLICIES = 2
 
 
 class StepOutOfOrder(ValueError):
@@ -91,23 +98,15 @@ class LeRobotBackend:
     def __init__(self, folder: Path, policy_type: str, device: str) -> None:
         import lerobot
         import torch
-        from lerobot.configs.policies import PreTrainedConfig
         from lerobot.envs.configs import LiberoEnv
         from lerobot.envs.factory import make_env_pre_post_processors
-        from lerobot.policies.factory import make_policy
 
         self._torch, self.folder, self.device, self.policy_type = torch, folder, device, policy_type
-        config = PreTrainedConfig.from_pretrained(str(folder))
-        config.pretrained_path = folder
-        config.device = device
-        try:
-            # make_policy checks the cameras against LiberoEnv's only where rename_map is empty; a run's camera
-            # names and rename_map come with its requests, and the client checks them by the same rule before the
-            # server starts (checkpoints.check_checkpoint). A rename of nothing to itself skips that check here.
-            self.policy = make_policy(config, env_cfg=LiberoEnv(), rename_map=NO_RENAME)
-        except (OSError, ValueError, KeyError, TypeError, RuntimeError) as error:
-            raise CheckpointError(f"LeRobot cannot load {folder}: {error_line(error)}") from None
-        self.policy.eval()
+        if device.startswith("cuda"):  # what lerobot-eval's eval_main sets before it builds anything
+            torch.backends.cudnn.benchmark = True
+            torch.backends.cuda.matmul.allow_tf32 = True
+        self._policies: dict[int, Any] = {}
+        self.policy = self.policy_with(0)
         self.env_processors = make_env_pre_post_processors(LiberoEnv(), self.policy.config)
         self._processors: dict[tuple, tuple[Any, Any]] = {}
         self.processors(())  # the checkpoint's own pipelines load now: a broken one fails before the port is bound
@@ -121,6 +120,42 @@ class LeRobotBackend:
             "input_features": sorted(self.policy.config.input_features),
             "action_dim": int(self.policy.config.output_features["action"].shape[0]),
         }
+
+    def policy_with(self, n_action_steps: int) -> Any:
+        """The policy as lerobot-eval builds it, with ``--policy.n_action_steps`` parsed into its config before
+        ``make_policy`` where ``n_action_steps`` is not 0 (a model keeps the config it was built with: Diffusion
+        slices its chunk by it). Each value is built once; a run names one (:data:`MAX_POLICIES` kept)."""
+        if n_action_steps in self._policies:
+            return self._policies[n_action_steps]
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.envs.configs import LiberoEnv
+        from lerobot.policies.factory import make_policy
+
+        folder = self.folder
+        try:
+            # As lerobot-eval's EvalPipelineConfig reads --policy.path with --policy.n_action_steps (configs/eval.py).
+            overrides = [f"--n_action_steps={n_action_steps}"] if n_action_steps else []
+            config = PreTrainedConfig.from_pretrained(str(folder), cli_overrides=overrides)
+            config.pretrained_path, config.device = folder, self.device
+            printed = io.StringIO()
+            with contextlib.redirect_stdout(printed):  # LeRobot prints, instead of raising, that weights did not load
+                # make_policy checks the cameras against LiberoEnv's only where rename_map is empty; a run's camera
+                # names and rename_map come with its requests, and the client checks them by the same rule before
+                # the server starts (checkpoints.check_checkpoint). A rename of nothing to itself skips it here.
+                policy = make_policy(config, env_cfg=LiberoEnv(), rename_map=NO_RENAME)
+        except Exception as error:  # whatever LeRobot, torch or safetensors raise: this folder cannot be played
+            what = f"n_action_steps={n_action_steps} with " if n_action_steps else ""
+            raise CheckpointError(f"LeRobot cannot load {what}{folder}: {error_line(error)}") from None
+        sys.stdout.write(printed.getvalue())
+        failure = weight_load_failure(printed.getvalue())
+        if failure is not None:
+            weights = folder / "model.safetensors"
+            raise CheckpointError(f"{weights} does not fit the {self.policy_type} model: {failure}")
+        policy.eval()
+        while len(self._policies) >= MAX_POLICIES:
+            self._policies.pop(next(k for k in self._policies if k != 0))
+        self._policies[n_action_steps] = policy
+        return policy
 
     def processors(self, rename_map: tuple) -> tuple[Any, Any]:
         """The checkpoint's pre/post-processors with lerobot-eval's overrides (device, ``rename_map``), loaded once
@@ -162,21 +197,17 @@ class LeRobotBackend:
         return held
 
     def fresh_policy(self, n_action_steps: int) -> Any:
-        """A copy of the policy for one episode: the same modules and weights, its own queues, ``reset()``; with
-        ``n_action_steps`` (``--policy.n_action_steps``) set on its config, checked by the config's own rules."""
+        """A copy of the policy (built with ``n_action_steps``, 0: the checkpoint's) for one episode: the same
+        modules and weights, its own queues, history or ensembler, then ``reset()``."""
         torch = self._torch
-        shell = copy.copy(self.policy)  # shares _modules, _parameters, _buffers: the weights
+        policy = self.policy_with(n_action_steps)
+        shell = copy.copy(policy)  # shares _modules, _parameters, _buffers: the weights
         internals = set(vars(torch.nn.Module()))
-        for name, value in vars(self.policy).items():
+        for name, value in vars(policy).items():
             if name in internals or isinstance(value, torch.nn.Module | torch.Tensor) or name == "config":
                 continue
             if isinstance(value, collections.deque | dict | list) or type(value).__module__.startswith("lerobot."):
                 shell.__dict__[name] = copy.deepcopy(value)  # an episode's queue, history or ensembler
-        if n_action_steps:
-            try:
-                shell.__dict__["config"] = dataclasses.replace(self.policy.config, n_action_steps=n_action_steps)
-            except (TypeError, ValueError) as error:
-                raise ValueError(f"n_action_steps={n_action_steps} does not fit this checkpoint: {error}") from None
         shell.reset()
         return shell
 
@@ -215,7 +246,9 @@ class LeRobotBackend:
         episode = self.episode_policy(request)
         preprocessor, postprocessor = self.processors(episode.settings[1])
         env_preprocessor, env_postprocessor = self.env_processors
-        with torch.no_grad():
+        amp = getattr(episode.policy.config, "use_amp", False)  # lerobot-eval's eval_main wraps its rollout so
+        autocast = torch.autocast(device_type=torch.device(self.device).type) if amp else contextlib.nullcontext()
+        with torch.no_grad(), autocast:
             observation = preprocess_observation(self.raw_observation(request))
             observation["task"] = [request[PROMPT]]
             observation = preprocessor(env_preprocessor(observation))

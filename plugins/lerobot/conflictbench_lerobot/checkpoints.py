@@ -28,7 +28,7 @@ __all__ = [
 ]
 
 #: Every policy type LeRobot 0.6.1 registers (``lerobot/policies/``), and whether this plugin is tested with it.
-SUPPORTED_TYPES = ("act", "diffusion", "pi05", "smolvla", "xvla")
+SUPPORTED_TYPES = ("act", "diffusion", "multi_task_dit", "pi05", "smolvla", "xvla")
 KNOWN_TYPES = (
     *SUPPORTED_TYPES,
     *("eo1", "evo1", "fastwam", "gaussian_actor", "groot", "lingbot_va", "molmoact2", "multi_task_dit"),

@@ -51,6 +51,9 @@ class LeRobotConfig(HostedConfig):
     ``model.max_steps`` is lerobot-eval's ``--env.episode_length`` (0: its budget per suite, 280/280/300/520)."""
 
     minimums: ClassVar = {**HostedConfig.minimums, "render_size": 1, "num_steps_wait": 0, "n_action_steps": 0}
+    # The two maps count as what they mean (the policy's identity holds them parsed), not as typed: "" and "{}"
+    # are the same rename_map. max_batch counts as 1 there: the server runs one step a call, whatever it is.
+    identity_exempt: ClassVar[tuple[str, ...]] = (*HostedConfig.identity_exempt, "camera_name_mapping", "rename_map")
 
     render_size: int = 360
     """The cameras' width and height (``--env.observation_height`` / ``_width``; the gym class alone renders 256)."""
@@ -94,6 +97,8 @@ class LeRobotPolicy(HostedPolicy):
         self.warmup_steps = cfg.num_steps_wait
         self.control_mode = cfg.control_mode
         super().__init__(name, cfg, checkpoint, python)
+        self.identity = {**self.identity, "max_batch": 1, "camera_names": self.camera_names,
+                         "rename_map": self.rename_map}  # fmt: skip
 
     @classmethod
     def load(cls, name: str, cfg: LeRobotConfig) -> LeRobotPolicy:

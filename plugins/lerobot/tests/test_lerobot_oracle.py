@@ -149,19 +149,22 @@ def same_bits(ours: np.ndarray, theirs: np.ndarray) -> bool:
 
 
 @needs_oracle
-@pytest.mark.parametrize("policy_type", TINY_TYPES)
+@pytest.mark.parametrize(("policy_type", "n_action_steps"), [*((t, 0) for t in TINY_TYPES), ("diffusion", 3)])
 def test_the_policy_receives_lerobots_inputs_and_answers_its_actions_bit_for_bit(
-    policy_type, tiny_lerobot_checkpoints, tmp_path, monkeypatch
+    policy_type, n_action_steps, tiny_lerobot_checkpoints, tmp_path
 ):
+    """``n_action_steps``: lerobot-eval's ``--policy.n_action_steps`` and ours (0: the checkpoint's)."""
     from conflictbench_lerobot.client import LeRobotConfig, load
 
     checkpoint = tiny_lerobot_checkpoints[policy_type]
     seeds = [step_seed(EPISODE, t) for t in range(EPISODE_LENGTH)]
-    oracle = oracle_episode(checkpoint, tmp_path / "oracle.npz", seeds, EPISODE_LENGTH)
+    chunk = {"n_action_steps": n_action_steps} if n_action_steps else {}
+    oracle = oracle_episode(checkpoint, tmp_path / "oracle.npz", seeds, EPISODE_LENGTH, **chunk)
     steps = len(oracle["actions"])
     assert steps == EPISODE_LENGTH or oracle["success"][-1]
     server = RecordingServer(checkpoint, tmp_path / "ours")
-    policy = load("lerobot", LeRobotConfig(server=server.url, checkpoint=policy_type, connect_retries=0))
+    policy = load("lerobot", LeRobotConfig(server=server.url, checkpoint=policy_type, connect_retries=0,
+                                           n_action_steps=n_action_steps))  # fmt: skip
     try:
         for t in range(steps):
             chunk = policy.act(observation_from_oracle(oracle, t))

@@ -236,3 +236,18 @@ def test_bad_settings_are_user_errors_before_anything_starts(tmp_path):
             load("lerobot", replace(LeRobotConfig(checkpoint=str(good)), **settings))
     with pytest.raises(UserError, match="takes the cameras"):
         load("lerobot", LeRobotConfig(checkpoint=str(folder(tmp_path / "d", cameras=("top", "side")))))
+
+
+def test_the_maps_count_by_what_they_mean_and_the_batch_as_one_step():
+    from conflictbench_lerobot.client import LeRobotConfig
+
+    assert {"camera_name_mapping", "rename_map", "max_batch"} <= set(LeRobotConfig.identity_exempt)
+    identities = []
+    with serving(StandInBackend()) as url:
+        for names, renames in (("", ""), (json.dumps(DEFAULT), "{}")):
+            policy = load("lerobot", LeRobotConfig(server=url, checkpoint="standin", connect_retries=0,
+                                                   camera_name_mapping=names, rename_map=renames))  # fmt: skip
+            identities.append(policy.identity)
+            policy.close()
+    assert identities[0] == identities[1]
+    assert identities[0]["max_batch"] == 1 and identities[0]["camera_names"] == DEFAULT

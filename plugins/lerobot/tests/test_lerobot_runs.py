@@ -37,15 +37,18 @@ def test_a_started_server_plays_lerobot_evals_episode_with_each_instruction(tiny
 
 
 @needs_model_env
-def test_a_checkpoint_lerobot_cannot_load_is_one_line_and_exit_code_2(tiny_lerobot_checkpoints, tmp_path):
+@pytest.mark.parametrize("policy_type", ["act", "pi05"])
+def test_a_checkpoint_lerobot_cannot_load_is_one_line_and_exit_code_2(policy_type, tiny_lerobot_checkpoints, tmp_path):
+    """ACT's loader raises on a damaged weights file; π0.5's prints and goes on with random weights: both refused."""
     broken = tmp_path / "broken"
-    shutil.copytree(tiny_lerobot_checkpoints["act"], broken)
+    shutil.copytree(tiny_lerobot_checkpoints[policy_type], broken)
     (broken / "model.safetensors").write_bytes(b"not a safetensors file")
     out = run_cli(tmp_path, "model=lerobot", f"model.checkpoint={broken}", "model.device=cpu",
                   env=LEROBOT.env(broken), max_steps=STEPS)  # fmt: skip
     assert out.returncode == 2, out.stderr[-3000:]
     last = out.stderr.strip().splitlines()[-1]
-    assert "cannot load" in last and str(broken) in last, out.stderr[-3000:]
+    said = {"act": "LeRobot cannot load", "pi05": "model.safetensors does not fit the pi05 model"}[policy_type]
+    assert last.startswith("conflictbench: error: conflictbench-serve: ") and said in last and str(broken) in last
     assert not (tmp_path / "results" / "episodes").exists() or not any((tmp_path / "results").rglob("*.parquet"))
 
 
@@ -66,9 +69,9 @@ def test_a_checkpoint_whose_inputs_libero_cannot_give_is_refused_before_any_serv
 def test_an_untested_policy_type_loads_with_a_one_line_warning(tmp_path, capsys):
     from conflictbench_lerobot.client import announce
 
-    announce("tdmpc", str(tmp_path))
+    announce("eo1", str(tmp_path))
     said = capsys.readouterr().err.splitlines()
-    assert said[0].endswith(f"plays a LeRobot tdmpc policy ({tmp_path})")
-    assert said[1].startswith("conflictbench: warning: untested policy type tdmpc (tested: act, diffusion, pi05")
+    assert said[0].endswith(f"plays a LeRobot eo1 policy ({tmp_path})")
+    assert said[1].startswith("conflictbench: warning: untested policy type eo1 (tested: act, diffusion, multi_task")
     announce("act", str(tmp_path))
     assert len(capsys.readouterr().err.splitlines()) == 1

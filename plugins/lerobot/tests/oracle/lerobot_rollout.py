@@ -115,6 +115,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, help="lerobot-eval's --seed: set_seed and the env's reset (default 1000)")
     parser.add_argument("--seeds", type=lambda text: [int(s) for s in text.split(",")], help="per-step seeds: 1,2,3")
     parser.add_argument("--device", help="the policy's device (default: the checkpoint's)")
+    parser.add_argument("--n-action-steps", type=int, help="lerobot-eval's --policy.n_action_steps (default: its own)")
     parser.add_argument("--replay", type=Path, help="a .npy of rows select_action returns instead (a test hook)")
     parser.add_argument("--out", type=Path, help="the .npz to write (and <out>.json beside it)")
     args = parser.parse_args(argv)
@@ -276,7 +277,9 @@ def play(args: argparse.Namespace, replay: list[list[float]] | None = None) -> d
     lerobot_libero.get_task_init_states = load_npz_init_states
 
     # What EvalPipelineConfig.__post_init__ does with --policy.path (configs/eval.py:45-53).
-    policy_cfg = PreTrainedConfig.from_pretrained(args.checkpoint)
+    # --policy.n_action_steps as lerobot-eval parses it (configs/eval.py: from_pretrained with cli_overrides).
+    overrides = [f"--n_action_steps={args.n_action_steps}"] if args.n_action_steps else []
+    policy_cfg = PreTrainedConfig.from_pretrained(args.checkpoint, cli_overrides=overrides)
     policy_cfg.pretrained_path = Path(args.checkpoint)
     if args.device:
         policy_cfg.device = args.device
