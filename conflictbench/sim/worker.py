@@ -204,9 +204,12 @@ class EpisodePlayer:
 def set_control_mode(env, mode: str) -> None:
     """How every arm reads actions from now on: OSC deltas (``"relative"``, robosuite's configured default, which a
     reset restores) or a target pose (``"absolute"``), set on the controllers after the warm-up's delta no-ops, as
-    LeRobot's LIBERO env does (``libero.py``, ``reset``: ``controller.use_delta``)."""
+    LeRobot's LIBERO env does (``libero.py``, ``reset``: ``controller.use_delta``). Relative is what every reset
+    leaves (a hard reset loads the controller's configuration anew): nothing to set."""
+    if mode == "relative":
+        return
     for robot in env.env.robots:
-        robot.controller.use_delta = mode == "relative"
+        robot.controller.use_delta = False
 
 
 def as_stepped(action: np.ndarray, mode: str) -> np.ndarray:

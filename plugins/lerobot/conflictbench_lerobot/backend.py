@@ -65,8 +65,6 @@ NO_RENAME = {"observation.state": "observation.state"}
 MAX_EPISODES = 64
 #: Processor pipelines kept, one per rename_map (a run names one).
 MAX_RENAME_MAPS = 4
-#: Policies kept, one per n_action_steps (the checkpoint's, and the last other a run named).
-MAX_POLICIES = 2
 
 
 class StepOutOfOrder(ValueError):
@@ -124,9 +122,16 @@ class LeRobotBackend:
     def policy_with(self, n_action_steps: int) -> Any:
         """The policy as lerobot-eval builds it, with ``--policy.n_action_steps`` parsed into its config before
         ``make_policy`` where ``n_action_steps`` is not 0 (a model keeps the config it was built with: Diffusion
-        slices its chunk by it). Each value is built once; a run names one (:data:`MAX_POLICIES` kept)."""
+        slices its chunk by it). Built once; besides the checkpoint's own, a server plays one other value (each is a
+        whole model more), and refuses a second."""
         if n_action_steps in self._policies:
             return self._policies[n_action_steps]
+        other = [k for k in self._policies if k]
+        if other:  # each value is a whole model more: a server plays the checkpoint's and one other, never more
+            raise ValueError(
+                f"this server plays n_action_steps={other[0]} beside the checkpoint's own; "
+                f"start another for n_action_steps={n_action_steps}"
+            )
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.envs.configs import LiberoEnv
         from lerobot.policies.factory import make_policy
@@ -152,8 +157,6 @@ class LeRobotBackend:
             weights = folder / "model.safetensors"
             raise CheckpointError(f"{weights} does not fit the {self.policy_type} model: {failure}")
         policy.eval()
-        while len(self._policies) >= MAX_POLICIES:
-            self._policies.pop(next(k for k in self._policies if k != 0))
         self._policies[n_action_steps] = policy
         return policy
 

@@ -31,7 +31,7 @@ __all__ = [
 SUPPORTED_TYPES = ("act", "diffusion", "multi_task_dit", "pi05", "smolvla", "xvla")
 KNOWN_TYPES = (
     *SUPPORTED_TYPES,
-    *("eo1", "evo1", "fastwam", "gaussian_actor", "groot", "lingbot_va", "molmoact2", "multi_task_dit"),
+    *("eo1", "evo1", "fastwam", "gaussian_actor", "groot", "lingbot_va", "molmoact2"),
     *("pi0", "pi0_fast", "tdmpc", "vla_jepa", "vqbet", "wall_x"),
 )
 #: The state each type's LIBERO processors build (``LiberoProcessorStep``: 8; X-VLA's own build 20, which its model

@@ -9,8 +9,8 @@ import json
 from pathlib import Path
 
 import pytest
-from tiny_fixtures import LEROBOT, needs_model_env
-from tiny_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
+from lerobot_fixtures import LEROBOT, needs_model_env
+from lerobot_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
 
 CHECKS = Path(__file__).parent / "backend_checks.py"
 

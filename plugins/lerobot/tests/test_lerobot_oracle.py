@@ -8,8 +8,8 @@ observations, what ``select_action`` received and returned, and every executed r
 (a) ``test_the_policy_receives_lerobots_inputs_and_answers_its_actions_bit_for_bit``, every tested type: the
     oracle's raw observations go through our simulator side's observation (``make_observation``), our client and our
     server (recording what its ``select_action`` receives): every input tensor, the task text, the policy's output
-    and the executed action equal the oracle's bit for bit, over a whole episode of a 60-step budget
-    (``--env.episode_length=60``; several chunks of every tiny checkpoint).
+    and the executed action equal the oracle's bit for bit, over a whole episode of a 40-step budget
+    (``--env.episode_length=40``: at least four chunks of every tiny checkpoint).
 (b) ``test_a_closed_loop_episode_follows_lerobots``, once per control mode (ACT relative, X-VLA absolute; the
     simulator side is the same for every type, and (a) covers each type's processing): ``conflictbench`` plays two
     episodes against our server; the oracle plays each one's task, initial state, instruction and seeds on numpy 2.
@@ -18,7 +18,8 @@ observations, what ``select_action`` received and returned, and every executed r
     float32 axis-angle into a goal rotation in float32, which numpy 1 and 2 compute differently (NEP 50; up to 6e-8,
     docs/upstream/lerobot_eval.md), so the end effectors part by about 1e-9 m after a few steps and a random policy
     that sees them amplifies that: the test holds the steps while the executed actions are identical (at least
-    :data:`ABSOLUTE_SAME_STEPS`) to :data:`ABSOLUTE_ATOL`, and prints where the two part.
+    :data:`ABSOLUTE_SAME_STEPS`) to :data:`ABSOLUTE_ATOL`, and prints where the two part. Marked ``slow``: ACT's
+    whole 280-step budget, where contact begins and numpy 1 and 2 part the physics (:data:`LONG_ATOL`).
 
 Both run where the simulator stack is the oracle's (MuJoCo 3.3.2, numpy 1.26: CI's 3.12 pass, ``.venv312/bin/pytest
 -m model_env plugins/lerobot/tests/test_lerobot_oracle.py``), and skip elsewhere.
@@ -36,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tiny_fixtures import LEROBOT, TINY_TYPES
-from tiny_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
+from lerobot_fixtures import LEROBOT, TINY_TYPES
+from lerobot_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
 
 from conflictbench import sampling_seed
 from conflictbench.core import Observation
@@ -51,15 +52,20 @@ ROLLOUT = TESTS / "oracle" / "lerobot_rollout.py"
 RECORDING_SERVER = TESTS / "recording_server.py"
 EPISODE = "oracle-episode"
 INSTRUCTION = "pick up the black bowl between the plate and the ramekin and place it on the plate"
-#: The budget of (a)'s whole episodes (lerobot-eval's --env.episode_length) and of (b)'s closed loops.
-EPISODE_LENGTH = 60
+#: The budget of (a)'s whole episodes (lerobot-eval's --env.episode_length): every tiny checkpoint refills its
+#: queue at least 4 times (chunks of 4 to 10 actions).
+EPISODE_LENGTH = 40
 CLOSED_LOOP_STEPS = 60
+#: A whole libero_spatial budget in closed loop (marked slow). Contact begins: numpy 1 and 2 part the physics by
+#: 6e-7 m while the actions stay identical (measured: 240 of 280 steps, 5.7e-7 m), then the policy sees it. Held: the
+#: identical steps (at least LONG_SAME_STEPS) to LONG_ATOL.
+LONG_STEPS, LONG_SAME_STEPS, LONG_ATOL = 280, 200, 1e-6
 #: One type per control mode for (b): relative (ACT) and absolute (X-VLA's LIBERO setting).
 CLOSED_LOOP = {"act": "relative", "xvla": "absolute"}
 #: (b)'s tolerance on executed actions and end-effector positions (m) under relative control.
 CLOSED_LOOP_ATOL = 1e-9
 #: Under absolute control: the least steps whose executed actions are identical, and the end effector's tolerance
-#: (m) over them (measured with the tiny X-VLA: 4 steps, 1.1e-9 m; numpy 1 and 2 differ in float32 conversions).
+#: (m) over them (measured with the tiny X-VLA: 4 steps, 1.0e-9 and 1.5e-9 m: numpy 1 and 2 convert float32 apart).
 ABSOLUTE_SAME_STEPS, ABSOLUTE_ATOL = 3, 1e-8
 RAW_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "robot0_gripper_qvel", "robot0_joint_pos",
             "robot0_joint_vel", "agentview_image", "robot0_eye_in_hand_image")  # fmt: skip
@@ -185,8 +191,12 @@ def test_the_policy_receives_lerobots_inputs_and_answers_its_actions_bit_for_bit
 
 
 @needs_oracle
-@pytest.mark.parametrize("policy_type", sorted(CLOSED_LOOP))
-def test_a_closed_loop_episode_follows_lerobots(policy_type, tiny_lerobot_checkpoints, tmp_path):
+@pytest.mark.parametrize(
+    ("policy_type", "steps"),
+    [*((t, CLOSED_LOOP_STEPS) for t in sorted(CLOSED_LOOP)), pytest.param("act", LONG_STEPS, marks=pytest.mark.slow)],
+)
+def test_a_closed_loop_episode_follows_lerobots(policy_type, steps, tiny_lerobot_checkpoints, tmp_path):
+    """``steps``: 60 (no contact yet), or libero_spatial's whole budget (``slow``: held to :data:`LONG_ATOL`)."""
     from conflictbench.store import EpisodeStore
 
     control_mode, checkpoint = CLOSED_LOOP[policy_type], tiny_lerobot_checkpoints[policy_type]
@@ -194,7 +204,7 @@ def test_a_closed_loop_episode_follows_lerobots(policy_type, tiny_lerobot_checkp
     try:
         settings = ["model=lerobot", f"model.server={server.url}", f"model.checkpoint=tiny-{policy_type}",
                     f"model.control_mode={control_mode}", "suite=physical", "level=L1", "run.cases_per_cell=1",
-                    "run.libero_suites=[libero_spatial]", f"run.max_steps={CLOSED_LOOP_STEPS}", "run.workers=1",
+                    "run.libero_suites=[libero_spatial]", f"run.max_steps={steps}", "run.workers=1",
                     "run.progress=false", "run.report=false", f"run.out={tmp_path / 'results'}"]  # fmt: skip
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "HF_HUB_CACHE")}
         done = subprocess.run([sys.executable, "-m", "conflictbench.cli", *settings], capture_output=True, text=True,
@@ -205,10 +215,10 @@ def test_a_closed_loop_episode_follows_lerobots(policy_type, tiny_lerobot_checkp
     records = EpisodeStore(tmp_path / "results").records()
     assert len(records) == 2
     for record in records:
-        assert record.steps == CLOSED_LOOP_STEPS and record.error is None
-        seeds = [int(server.step(record.episode_id, t)["seed"]) for t in range(CLOSED_LOOP_STEPS)]
+        assert record.steps == steps and record.error is None
+        seeds = [int(server.step(record.episode_id, t)["seed"]) for t in range(steps)]
         oracle = oracle_episode(
-            checkpoint, tmp_path / f"oracle-{record.episode_id}.npz", seeds, CLOSED_LOOP_STEPS,
+            checkpoint, tmp_path / f"oracle-{record.episode_id}.npz", seeds, steps,
             task_id=record.task_id, init_state=record.init_state, instruction=record.instruction,
             seed=record.seed, control_mode=control_mode,
         )  # fmt: skip
@@ -219,9 +229,12 @@ def test_a_closed_loop_episode_follows_lerobots(policy_type, tiny_lerobot_checkp
         print(f"{policy_type} {record.episode_id}: actions identical for {same} of {len(actions)} steps, within "
               f"{np.abs(actions - theirs).max():.3g}; end effector within {apart.max():.3g} m, "
               f"{apart[: same + 1].max():.3g} m while the actions are identical")  # fmt: skip
-        if control_mode == "relative":
+        if control_mode == "relative" and steps == CLOSED_LOOP_STEPS:
             np.testing.assert_allclose(actions, theirs, rtol=0, atol=CLOSED_LOOP_ATOL)
             np.testing.assert_allclose(eef, oracle["eef_site_pos"], rtol=0, atol=CLOSED_LOOP_ATOL)
+        elif control_mode == "relative":
+            assert same >= LONG_SAME_STEPS
+            np.testing.assert_allclose(eef[: same + 1], oracle["eef_site_pos"][: same + 1], rtol=0, atol=LONG_ATOL)
         else:
             assert same >= ABSOLUTE_SAME_STEPS
             np.testing.assert_allclose(eef[: same + 1], oracle["eef_site_pos"][: same + 1], rtol=0, atol=ABSOLUTE_ATOL)

@@ -9,29 +9,37 @@ import shutil
 
 import numpy as np
 import pytest
-from tiny_fixtures import LEROBOT, needs_model_env
-from tiny_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
+from lerobot_fixtures import LEROBOT, TINY_TYPES, needs_model_env
+from lerobot_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
 
 from conflictbench.testing import run_cli
 from conflictbench.testing.plugin_tests import played_records
 
 pytestmark = [pytest.mark.sim, pytest.mark.e2e]
 STEPS = 12
+#: The tested type whose first action is the same in a conflict and its reference: ACT reads no text and samples
+#: nothing. The others read the text (SmolVLA, π0.5, X-VLA, Multi-task DiT) or sample with each episode's own seed
+#: (Diffusion).
+BLIND_AND_DETERMINISTIC = {"act"}
 
 
 @needs_model_env
-def test_a_started_server_plays_lerobot_evals_episode_with_each_instruction(tiny_lerobot_checkpoints, tmp_path):
-    checkpoint = tiny_lerobot_checkpoints["smolvla"]
+@pytest.mark.parametrize("policy_type", TINY_TYPES)
+def test_a_started_server_plays_lerobot_evals_episode_with_each_instruction(
+    policy_type, tiny_lerobot_checkpoints, tmp_path
+):
+    checkpoint = tiny_lerobot_checkpoints[policy_type]
     env = {**LEROBOT.env(checkpoint), "MUJOCO_GL": "egl"}
-    out = run_cli(tmp_path, "model=lerobot", f"model.checkpoint={checkpoint}", "model.device=cpu", env=env,
-                  max_steps=STEPS)  # fmt: skip
-    assert "plays a LeRobot smolvla policy" in out.stderr and "untested" not in out.stderr
+    mode = "absolute" if policy_type == "xvla" else "relative"  # as X-VLA's LIBERO checkpoints are played
+    out = run_cli(tmp_path, "model=lerobot", f"model.checkpoint={checkpoint}", "model.device=cpu",
+                  f"model.control_mode={mode}", env=env, max_steps=STEPS)  # fmt: skip
+    assert f"plays a LeRobot {policy_type} policy" in out.stderr and "untested" not in out.stderr
     reference, conflict = played_records(tmp_path, out, STEPS)
     for record in (reference, conflict):
-        assert record.warmup_steps == 10 and record.actions.shape == (STEPS, 7)
-        assert np.all(np.abs(record.actions) < 10) and np.linalg.norm(record.eef_pos[-1] - record.eef_pos[0]) > 1e-4
-    # SmolVLA reads the task: the conflict's instruction moved its actions from the first step on.
-    assert not np.array_equal(reference.actions[0], conflict.actions[0])
+        assert record.warmup_steps == 10 and record.actions.shape == (STEPS, 7) and record.control_mode == mode
+        assert np.all(np.isfinite(record.actions)) and np.linalg.norm(record.eef_pos[-1] - record.eef_pos[0]) > 1e-4
+    # Each episode's own text and seed reached the model: where the type reads or draws them, the first actions differ.
+    assert np.array_equal(reference.actions[0], conflict.actions[0]) is (policy_type in BLIND_AND_DETERMINISTIC)
     server_log = next((tmp_path / "results" / "logs" / "servers").glob("lerobot-*.log")).read_text()
     assert "serving lerobot from" in server_log
 

@@ -1,4 +1,4 @@
-"""The tiny LeRobot checkpoints (tiny_fixtures.py): laid out as LeRobot saves one, with LIBERO's inputs, and each
+"""The tiny LeRobot checkpoints (lerobot_fixtures.py): laid out as LeRobot saves one, with LIBERO's inputs, and each
 loads and plays LIBERO-shaped observations in the model environment as ``lerobot-eval`` plays them (LeRobot's
 config, policy and processor loaders, its LIBERO environment processors, ``select_action`` over a whole chunk and
 into the next). Marked ``model_env``: they need ``.venv/models/lerobot``."""
@@ -8,13 +8,13 @@ from __future__ import annotations
 import json
 import os
 
+import lerobot_fixtures
 import pytest
-import tiny_fixtures
-from tiny_fixtures import BUILDER, LEROBOT, TINY_TYPES, build_report, needs_model_env, parse_lines
+from lerobot_fixtures import BUILDER, LEROBOT, TINY_TYPES, build_report, needs_model_env, parse_lines
 
 # The session fixtures, visible to this module whether or not a conftest gathers them too.
-tiny_lerobot_checkpoints = tiny_fixtures.tiny_lerobot_checkpoints
-tiny_lerobot_env = tiny_fixtures.tiny_lerobot_env
+tiny_lerobot_checkpoints = lerobot_fixtures.tiny_lerobot_checkpoints
+tiny_lerobot_env = lerobot_fixtures.tiny_lerobot_env
 
 #: What LeRobot's LIBERO datasets give a checkpoint (LeRobot's names: agentview, wrist; the 8-D state).
 LIBERO_INPUTS = {

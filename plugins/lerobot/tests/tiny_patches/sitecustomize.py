@@ -5,7 +5,7 @@ LeRobot fixes pi0.5's sizes in code: ``get_gemma_config`` in ``lerobot.policies.
 So400m SigLIP and a 257,152-token vocabulary whatever the config says. A tiny random-weight pi0.5 checkpoint
 (``tiny_lerobot.py --type pi05``) can therefore only be built, and loaded again, by a process that makes the
 same substitution when that module is imported: this module does it, in every process that has this folder on
-``PYTHONPATH`` (Python's ``site`` imports ``sitecustomize`` at start-up). ``tiny_fixtures.tiny_lerobot_env``
+``PYTHONPATH`` (Python's ``site`` imports ``sitecustomize`` at start-up). ``lerobot_fixtures.tiny_lerobot_env``
 puts it there for the processes the tests start; the plugin's server has no test hook of its own.
 
 Nothing is imported at start-up: a finder waits for ``lerobot.policies.pi05.modeling_pi05`` and patches the
