@@ -67,14 +67,22 @@ def main() -> None:
             found.append(len(queue))
         return found
 
+    lengths, lengths_n2 = refills(0), refills(2)
+    try:
+        act(step_request("third", 0, 1, n_action_steps=3))
+        third = ""
+    except ValueError as error:
+        third = str(error)
+
     print(json.dumps({
         "interleaved_same": interleaved_same,
         "again_same": bool(np.array_equal(first, again)),
         "out_of_order": out_of_order,
         "same_seed_same": bool(np.array_equal(seeded[0], seeded[1])),
         "other_seed_differs": not np.array_equal(seeded[0], seeded[2]),
-        "queue_lengths": refills(0),
-        "queue_lengths_n2": refills(2),
+        "queue_lengths": lengths,
+        "queue_lengths_n2": lengths_n2,
+        "third_n_action_steps": third,
         "dtype": str(first.dtype), "shape": list(first.shape),
     }))  # fmt: skip
 

@@ -30,3 +30,5 @@ def test_episodes_keep_their_own_queue_and_steps_come_once_in_order(policy_type,
     # The queue refills when empty: every n_action_steps-th step, the checkpoint's own or the run's.
     lengths, lengths_n2 = seen["queue_lengths"], seen["queue_lengths_n2"]
     assert lengths_n2 == [1, 0] * 4 and lengths[0] > 1 and lengths[1] == lengths[0] - 1
+    # One n_action_steps besides the checkpoint's (each is a whole model more): another is refused.
+    assert seen["third_n_action_steps"].startswith("this server plays n_action_steps=2 beside the checkpoint's own")
