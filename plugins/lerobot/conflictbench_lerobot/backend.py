@@ -194,7 +194,9 @@ class LeRobotBackend:
         held = self.episodes.get(name)
         if held is None:
             raise StepOutOfOrder(f"episode {name!r} step {step} came with no step 0 before it (or it was dropped)")
-        if held.next_step != step or held.settings != settings:
+        if held.settings != settings:
+            raise StepOutOfOrder(f"episode {name!r}: step {step} came with other settings than its step 0")
+        if held.next_step != step:
             raise StepOutOfOrder(f"episode {name!r}: step {step} came where step {held.next_step} was due")
         self.episodes.move_to_end(name)
         return held

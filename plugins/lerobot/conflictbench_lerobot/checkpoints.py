@@ -4,9 +4,11 @@ starting a server, the server before loading).
 Any folder LeRobot's ``save_pretrained`` wrote: ``config.json`` (its ``type``), ``model.safetensors`` and the
 processor pipelines. Its inputs must be ones LeRobot's LIBERO env gives, as ``lerobot-eval`` names them: the cameras
 ``observation.images.<name>`` for the names of ``camera_name_mapping`` (``image``, ``image2`` by default), after
-``rename_map``; LeRobot's check (``validate_visual_features_consistency``) accepts either set of cameras holding the
-other, and so does this one. The state is what LeRobot's LIBERO processors build: 8 values (end-effector position,
-axis-angle, gripper), or X-VLA's 20; the action has 7 values (LIBERO's arm and gripper).
+``rename_map``. LeRobot's check (``validate_visual_features_consistency``) accepts either set of cameras holding the
+other, and so does this one, after renaming (LeRobot skips its check when a ``rename_map`` is given; ours still holds
+the renamed names to it: a run that renames a camera nobody takes is refused here). The state is what LeRobot's
+LIBERO processors build: 8 values (end-effector position, axis-angle, gripper), or X-VLA's 20; the action has 7
+values (LIBERO's arm and gripper), or X-VLA's 20.
 """
 
 from __future__ import annotations

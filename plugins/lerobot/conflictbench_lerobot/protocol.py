@@ -158,7 +158,8 @@ def validate_request(message: Any) -> dict[str, Any]:
     _count(message[STEP], STEP)
     if not is_noise_seed(message[NOISE_SEED]):
         raise InvalidRequest(f"{NOISE_SEED!r} must be an int in [0, 2**63), got {describe(message[NOISE_SEED])}")
-    _names(message.get(CAMERA_NAMES, DEFAULT_CAMERA_NAMES), CAMERA_NAMES)
+    if set(_names(message.get(CAMERA_NAMES, DEFAULT_CAMERA_NAMES), CAMERA_NAMES)) != set(CAMERAS):
+        raise InvalidRequest(f"{CAMERA_NAMES!r} must name both of LIBERO's cameras, {', '.join(CAMERAS)}")
     _names(message.get(RENAME_MAP, {}), RENAME_MAP)
     _count(message.get(N_ACTION_STEPS, 0), N_ACTION_STEPS)
     return message

@@ -132,6 +132,7 @@ def valid_request() -> dict:
         (lambda r: r.update({STEP: -1}), "non-negative int"),
         (lambda r: r.update({NOISE_SEED: 2**63}), "an int in [0, 2**63)"),
         (lambda r: r.update({"lerobot/rename_map": {"a": 1}}), "a string of at most"),
+        (lambda r: r.update({"lerobot/camera_name_mapping": {"agentview_image": "image"}}), "must name both"),
     ],
 )
 def test_a_request_that_is_not_a_valid_step_ends_its_connection_and_never_reaches_the_model(change, said):
@@ -251,3 +252,21 @@ def test_the_maps_count_by_what_they_mean_and_the_batch_as_one_step():
             policy.close()
     assert identities[0] == identities[1]
     assert identities[0]["max_batch"] == 1 and identities[0]["camera_names"] == DEFAULT
+
+
+def test_readmes_settings_table_is_the_configs_defaults():
+    """The plugin README's table of settings: every ``model.*`` row's default is ``LeRobotConfig``'s, and the budget
+    it states is ``MAX_STEPS``."""
+    import dataclasses
+    import re
+
+    from conflictbench_lerobot.client import MAX_STEPS
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    rows = re.findall(r"^\| `model\.(\w+)` \| ([^|]+) \|", readme, flags=re.MULTILINE)
+    defaults = {f.name: f.default for f in dataclasses.fields(LeRobotConfig)}
+    assert len(rows) == 7
+    for name, shown in rows:
+        assert shown.strip().strip("`").strip('"') == str(defaults[name]).strip('"'), name
+    budget = " / ".join(str(MAX_STEPS[s]) for s in ("libero_spatial", "libero_object", "libero_goal", "libero_10"))
+    assert f"{budget}, libero_90 {MAX_STEPS['libero_90']}" in readme

@@ -1,6 +1,7 @@
 """``conflictbench model=lerobot model.checkpoint=DIR`` on real LIBERO episodes: the run starts our server in the model
-environment, plays lerobot-eval's episode (360-px renders, 10 settle steps, one request a step), and a checkpoint
-LeRobot cannot load, or one LIBERO cannot feed, is one line and exit code 2 before any episode."""
+environment and plays each tested type's episodes (their warm-up, control mode and each episode's own text and seed
+checked here; what the policy receives at every step is the oracle test's), and a checkpoint LeRobot cannot load, or
+one LIBERO cannot feed, is one line and exit code 2 before any episode."""
 
 from __future__ import annotations
 

@@ -58,9 +58,9 @@ def played(tiny_lerobot_checkpoints) -> dict[str, dict]:
 @needs_model_env
 @pytest.mark.parametrize("policy_type", TINY_TYPES)
 def test_tiny_checkpoint_plays_libero_observations_as_lerobot_eval(policy_type, played):
-    """Loaded as the server loads it, on 360-px renders through LeRobot's LIBERO processors: every step of a chunk
-    and the next gives one finite 7-D action, and the images and the state (and the task, where the type reads
-    one) move it."""
+    """Loaded by LeRobot (from_pretrained and the saved processors; not through our server), on 360-px renders
+    through LeRobot's LIBERO processors: every step of a chunk and the next gives one finite 7-D action, and the
+    images and the state (and the task, where the type reads one) move it."""
     report = played[policy_type]
     assert report["render"] == 360
     assert all(len(action) == 7 for action in report["actions"])
