@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 from lerobot_fixtures import LEROBOT, needs_model_env
-from lerobot_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
 
 CHECKS = Path(__file__).parent / "backend_checks.py"
 

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 from lerobot_fixtures import LEROBOT, TINY_TYPES, needs_model_env
-from lerobot_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
 
 from conflictbench.testing.plugin_tests import play_pinned_actions
 from conflictbench_lerobot.checkpoints import fingerprint

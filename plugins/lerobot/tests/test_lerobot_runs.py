@@ -11,7 +11,6 @@ import shutil
 import numpy as np
 import pytest
 from lerobot_fixtures import LEROBOT, TINY_TYPES, needs_model_env
-from lerobot_fixtures import tiny_lerobot_checkpoints as tiny_lerobot_checkpoints  # noqa: F401 (a fixture)
 
 from conflictbench.testing import run_cli
 from conflictbench.testing.plugin_tests import played_records

@@ -8,13 +8,8 @@ from __future__ import annotations
 import json
 import os
 
-import lerobot_fixtures
 import pytest
 from lerobot_fixtures import BUILDER, LEROBOT, TINY_TYPES, build_report, needs_model_env, parse_lines
-
-# The session fixtures, visible to this module whether or not a conftest gathers them too.
-tiny_lerobot_checkpoints = lerobot_fixtures.tiny_lerobot_checkpoints
-tiny_lerobot_env = lerobot_fixtures.tiny_lerobot_env
 
 #: What LeRobot's LIBERO datasets give a checkpoint (LeRobot's names: agentview, wrist; the 8-D state).
 LIBERO_INPUTS = {
