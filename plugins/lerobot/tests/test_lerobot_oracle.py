@@ -13,16 +13,17 @@ observations, what ``select_action`` received and returned, and every executed r
 (b) ``test_a_closed_loop_episode_follows_lerobots``, once per control mode (ACT relative, X-VLA absolute; the
     simulator side is the same for every type, and (a) covers each type's processing): ``conflictbench`` plays two
     episodes against our server; the oracle plays the conflict episode's task, initial state, instruction and seeds
-    on numpy 2, both at :data:`CLOSED_LOOP_RENDER` pixels (the loop checks control and physics; (a) checks the 360-px
-    images). Relative control, over libero_spatial's whole 280-step budget (marked ``slow``): the executed actions
-    and end-effector positions agree within :data:`CLOSED_LOOP_ATOL` over the first 60 steps (no contact yet), and
-    while the actions are identical (at least :data:`LONG_SAME_STEPS`) the end effectors within :data:`LONG_ATOL`
-    (contact begins, and numpy 1 and 2 may part the physics; measured: all 280 actions identical, the end effector
-    within 3.2e-11 m). Absolute control, 60 steps: robosuite turns the float32 axis-angle into a goal rotation in
-    float32, which numpy 1 and 2 compute differently (NEP 50; up to 6e-8, docs/upstream/lerobot_eval.md), so the end
-    effectors part by about 1e-10 m after a few steps and a random policy that sees them amplifies that: the test
-    holds the steps while the executed actions are identical (at least :data:`ABSOLUTE_SAME_STEPS`) to
-    :data:`ABSOLUTE_ATOL`, and prints where the two part.
+    on numpy 2, both at :data:`CLOSED_LOOP_RENDER` pixels (the loop checks control, physics and, since ACT's
+    actions follow its images, that our renders at the size the setting names are LeRobot's; (a) checks what our
+    side makes of LeRobot's 360-px renders). Relative control, over libero_spatial's whole 280-step budget (marked
+    ``slow``): the executed actions and end-effector positions agree within :data:`CLOSED_LOOP_ATOL` over the first
+    60 steps (no contact yet), and while the actions are identical (at least :data:`LONG_SAME_STEPS`) the end
+    effectors within :data:`LONG_ATOL` (contact begins, and numpy 1 and 2 may part the physics; measured: all 280
+    actions identical, the end effector within 3.2e-11 m). Absolute control, 60 steps: robosuite turns the float32
+    axis-angle into a goal rotation in float32, which numpy 1 and 2 compute differently (NEP 50; up to 6e-8,
+    docs/upstream/lerobot_eval.md), so the end effectors part by about 1e-10 m after a few steps and a random policy
+    that sees them amplifies that: the test holds the steps while the executed actions are identical (at least
+    :data:`ABSOLUTE_SAME_STEPS`) to :data:`ABSOLUTE_ATOL`, and prints where the two part.
 
 Both run where the simulator stack is the oracle's (MuJoCo 3.3.2, numpy 1.26: CI's 3.12 pass, ``.venv312/bin/pytest
 -m model_env plugins/lerobot/tests/test_lerobot_oracle.py``), and skip elsewhere.
@@ -58,8 +59,9 @@ INSTRUCTION = "pick up the black bowl between the plate and the ramekin and plac
 #: queue at least 4 times (chunks of 4 to 10 actions).
 EPISODE_LENGTH = 40
 CLOSED_LOOP_STEPS = 60
-#: (b)'s renders (both sides): the closed loop checks the simulator side's control and physics; (a) checks the
-#: 360-px images bit for bit. Smaller renders make its long episode affordable.
+#: (b)'s renders (both sides, through model.render_size and --env.observation_height/_width): the closed loop checks
+#: control, physics and that our renders are LeRobot's; (a) what our side makes of LeRobot's 360-px renders, bit for
+#: bit. Smaller renders make its long episode affordable.
 CLOSED_LOOP_RENDER = 128
 #: ACT's closed loop: libero_spatial's whole budget (marked slow). Contact begins, where numpy 1 and 2 may part the
 #: physics (measured at 360 px: 240 of 280 actions identical, the end effector within 5.7e-7 m; at 128 px: all 280,
@@ -242,9 +244,10 @@ def test_a_closed_loop_episode_follows_lerobots(policy_type, steps, tiny_lerobot
               f"{np.abs(actions - theirs).max():.3g}; end effector within {apart.max():.3g} m, "
               f"{apart[: same + 1].max():.3g} m while the actions are identical")  # fmt: skip
         if control_mode == "relative":
-            early = slice(0, CLOSED_LOOP_STEPS)
-            np.testing.assert_allclose(actions[early], theirs[early], rtol=0, atol=CLOSED_LOOP_ATOL)
-            np.testing.assert_allclose(eef[early], oracle["eef_site_pos"][early], rtol=0, atol=CLOSED_LOOP_ATOL)
+            early = CLOSED_LOOP_STEPS  # its actions, and the end effector before the first and after each of them
+            np.testing.assert_allclose(actions[:early], theirs[:early], rtol=0, atol=CLOSED_LOOP_ATOL)
+            np.testing.assert_allclose(eef[: early + 1], oracle["eef_site_pos"][: early + 1], rtol=0,
+                                       atol=CLOSED_LOOP_ATOL)  # fmt: skip
             assert same >= LONG_SAME_STEPS
             np.testing.assert_allclose(eef[: same + 1], oracle["eef_site_pos"][: same + 1], rtol=0, atol=LONG_ATOL)
         else:
