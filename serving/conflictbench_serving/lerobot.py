@@ -69,10 +69,12 @@ def camera_order(names: list[str]) -> list[str]:
     return [next(n for n in names if n != wrist[0]), wrist[0]]
 
 
-def weight_load_failure(printed: str) -> str | None:
-    """The line LeRobot printed, in ``printed`` (what loading wrote to stdout), saying a checkpoint's weights did not
-    load (it prints that and goes on with random weights instead of raising); None where there is none."""
-    return next((line for line in printed.splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
+def refuse_unloaded_weights(printed: str, folder: Path, policy_type: str) -> None:
+    """:class:`CheckpointError` where ``printed`` (what loading ``folder`` wrote to stdout) says its weights did not
+    load: LeRobot prints that and goes on with random weights instead of raising."""
+    failure = next((line for line in printed.splitlines() if any(m in line for m in _WEIGHT_FAILURES)), None)
+    if failure is not None:
+        raise CheckpointError(f"{folder / WEIGHTS_FILE} does not fit the {policy_type} model: {failure}")
 
 
 def load_policy(folder: Path, policy_type: str, device: str) -> tuple[Any, Any, Any]:
@@ -89,9 +91,7 @@ def load_policy(folder: Path, policy_type: str, device: str) -> tuple[Any, Any, 
             policy = get_policy_class(policy_type).from_pretrained(str(folder), config=config)
     except OSError as error:  # a base model or processor it names is not in the Hugging Face cache
         raise CheckpointError(f"cannot load {folder}: {str(error).splitlines()[0]}") from None
-    failure = weight_load_failure(log.getvalue())
-    if failure is not None:
-        raise CheckpointError(f"{folder / WEIGHTS_FILE} does not fit the {policy_type} model: {failure}")
+    refuse_unloaded_weights(log.getvalue(), folder, policy_type)
     policy.to(device)
     policy.eval()
     preprocessor, postprocessor = make_pre_post_processors(

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from conflictbench_serving.lerobot import weight_load_failure
+from conflictbench_serving.lerobot import refuse_unloaded_weights
 
 from .checkpoints import CheckpointError, check_folder, fingerprint
 from .protocol import (
@@ -152,10 +152,7 @@ class LeRobotBackend:
             what = f"n_action_steps={n_action_steps} with " if n_action_steps else ""
             raise CheckpointError(f"LeRobot cannot load {what}{folder}: {error_line(error)}") from None
         sys.stdout.write(printed.getvalue())
-        failure = weight_load_failure(printed.getvalue())
-        if failure is not None:
-            weights = folder / "model.safetensors"
-            raise CheckpointError(f"{weights} does not fit the {self.policy_type} model: {failure}")
+        refuse_unloaded_weights(printed.getvalue(), folder, self.policy_type)
         policy.eval()
         self._policies[n_action_steps] = policy
         return policy
