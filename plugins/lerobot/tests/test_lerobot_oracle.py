@@ -36,14 +36,13 @@ import os
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from lerobot_fixtures import LEROBOT, TINY_TYPES
 
-from conflictbench import sampling_seed
+from conflictbench import ServerProcess, sampling_seed
 from conflictbench.core import Observation
 
 pytestmark = [pytest.mark.model_env, pytest.mark.sim]
@@ -116,21 +115,14 @@ def oracle_episode(checkpoint: Path, out: Path, seeds: list[int], max_steps: int
 
 
 class RecordingServer:
-    """Our server (the plugin's backend and server) in the model environment, writing each step's policy input."""
+    """Our server (the plugin's backend and server) in the model environment, writing each step's policy input;
+    started, waited for and stopped as a run's own server is (:class:`conflictbench.ServerProcess`)."""
 
     def __init__(self, checkpoint: Path, out: Path):
-        self.out = out
-        log = out.with_suffix(".log")
-        with open(log, "w") as sink:  # the server's output goes to its log, never into a pipe nobody drains
-            argv = [str(LEROBOT.python), str(RECORDING_SERVER), str(checkpoint), str(out)]
-            self.process = subprocess.Popen(argv, stdout=sink, stderr=subprocess.STDOUT, env=LEROBOT.env(checkpoint))
-        address = out / "address"
-        deadline = time.monotonic() + 300
-        while not address.exists():
-            if self.process.poll() is not None or time.monotonic() > deadline:
-                self.stop()
-                raise AssertionError(f"the recording server did not start: {log.read_text()[-3000:]}")
-            time.sleep(0.2)
+        self.out, address = out, out / "address"
+        self.process = ServerProcess([str(LEROBOT.python), str(RECORDING_SERVER), str(checkpoint), str(out)],
+                                     name="recording-server", ready=address.exists, env=LEROBOT.env(checkpoint),
+                                     startup_timeout_s=300, log_dir=out.parent).start()  # fmt: skip
         host, port = address.read_text().split()
         self.url = f"ws://{host}:{port}"
 
@@ -140,12 +132,7 @@ class RecordingServer:
             return {key: arrays[key] for key in arrays.files}
 
     def stop(self) -> None:
-        self.process.terminate()
-        try:
-            self.process.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
+        self.process.stop()
 
 
 def observation_from_oracle(oracle: dict, t: int):
