@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -96,11 +96,8 @@ def test_absolute_control_reaches_the_commanded_pose_and_relative_reads_it_as_a_
     assert np.linalg.norm(relative - start) > 3 * np.linalg.norm(absolute - start)
     # A replay (a video's) retraces the absolute episode exactly when it sets the stored mode again.
     record = records["absolute"]
-    as_played, as_relative = (
-        ReplayJob(record.episode_id, record.suite, record.task_id, record.init_state, record.seed,
-                  record.warmup_steps, record.actions, record.eef_pos, NullSink(), control_mode=mode)
-        for mode in (record.control_mode, "relative")
-    )  # fmt: skip
+    as_played = ReplayJob.of(record, NullSink())
+    as_relative = replace(as_played, control_mode="relative")
     (played,) = replay_all([as_played], workers=1)
     assert played.error is None and played.deviation_m == 0.0
     (wrong,) = replay_all([as_relative], workers=1)

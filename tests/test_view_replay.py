@@ -200,12 +200,7 @@ class SlowSink:
 def test_leaving_the_replays_early_ends_their_processes_at_once(mover_site):
     """What Ctrl-C in `conflictbench view` does (the generator is closed): no waiting for replays under way."""
     _, store, _ = mover_site
-    jobs = [
-        ReplayJob(
-            r.episode_id, r.suite, r.task_id, r.init_state, r.seed, r.warmup_steps, r.actions, r.eef_pos, SlowSink()
-        )  # fmt: skip
-        for r in store.records()
-    ]
+    jobs = [ReplayJob.of(r, SlowSink()) for r in store.records()]
     earlier = set(multiprocessing.active_children())  # another test's, if any: not this one's to judge
     replays = replay_all(jobs, workers=1)
     first = next(replays)  # then the second replay is under way (17 frames: about 8 s)

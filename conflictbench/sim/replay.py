@@ -50,6 +50,16 @@ class ReplayJob:
     control_mode: str = "relative"
     """How the arm read the actions after the warm-up, as the episode was played."""
 
+    @classmethod
+    def of(cls, record: Any, sink: Any, frame_every: int = 1) -> ReplayJob:
+        """The job that plays a stored ``record`` (an :class:`~conflictbench.core.EpisodeRecord`) again as it was
+        played: its warm-up and control mode, or, in a store written before those columns, the defaults of then."""
+        from conflictbench.core.policy import DEFAULT_WARMUP_STEPS
+
+        warmup = DEFAULT_WARMUP_STEPS if record.warmup_steps is None else record.warmup_steps
+        return cls(record.episode_id, record.suite, record.task_id, record.init_state, record.seed, warmup,
+                   record.actions, record.eef_pos, sink, frame_every, record.control_mode or "relative")  # fmt: skip
+
     def keeps(self, state: int) -> bool:
         return state % self.frame_every == 0 or state == len(self.actions)
 

@@ -97,7 +97,6 @@ def render_videos(
 ) -> tuple[int, int, float]:
     """Replay the (episode id, policy) given (in that order: by base task; from :func:`lacking_videos`); returns
     (rendered, failed, seconds)."""
-    from conflictbench.core.policy import DEFAULT_WARMUP_STEPS
     from conflictbench.sim.replay import ReplayJob, replay_all
 
     notes: dict[str, dict[str, Any]] = {}
@@ -105,19 +104,8 @@ def render_videos(
     def jobs() -> Iterator[ReplayJob]:  # arrays loaded a chunk at a time, as the replays need them
         for r in _chunks(store, todo):
             notes[r.episode_id] = {"episode": episode_digest(r), "warmup_assumed": r.warmup_steps is None}
-            yield ReplayJob(
-                episode_id=r.episode_id,
-                suite=r.suite,
-                task_id=r.task_id,
-                init_state=r.init_state,
-                seed=r.seed,
-                warmup_steps=DEFAULT_WARMUP_STEPS if r.warmup_steps is None else r.warmup_steps,
-                actions=r.actions,
-                eef_pos=r.eef_pos,
-                sink=Mp4Sink(str(site_file(out, "videos", r.episode_id, ".mp4")), fps=FPS // FRAME_EVERY),
-                frame_every=FRAME_EVERY,
-                control_mode=r.control_mode or "relative",
-            )
+            sink = Mp4Sink(str(site_file(out, "videos", r.episode_id, ".mp4")), fps=FPS // FRAME_EVERY)
+            yield ReplayJob.of(r, sink, FRAME_EVERY)
 
     bar = CountProgress(len(todo), "videos: episodes replayed", enabled=progress, failures=True)
     rendered = failed = 0
