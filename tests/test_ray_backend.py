@@ -175,6 +175,7 @@ def test_strangers_on_the_listener_neither_block_the_actors_nor_the_end_of_the_r
     """A connection that resets, one that stays silent and one without the key: the actor still connects,
     and stopping the pool returns at once."""
     from conflictbench.sim.libero_env import EnvSettings
+    from conflictbench.sim.pool import STOP_TIMEOUT_S
     from conflictbench.sim.ray_pool import RayWorkerPool
 
     pool = RayWorkerPool(EnvSettings(needs_images=False), size=1)
@@ -190,7 +191,9 @@ def test_strangers_on_the_listener_neither_block_the_actors_nor_the_end_of_the_r
         started = time.monotonic()
     finally:
         pool.stop()
-    assert time.monotonic() - started < 5
+    # Not held up until the actors' stop limit (STOP_TIMEOUT_S, 10 s); 5 s was close for Ray actors leaving on 2
+    # busy cores.
+    assert time.monotonic() - started < STOP_TIMEOUT_S - 1
     silent.close()
 
 

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import time
+import types
 
 import numpy as np
 import pandas as pd
@@ -14,7 +15,7 @@ import pytest
 from testing_support import episode_record
 
 from conflictbench.core import EpisodeRecord
-from conflictbench.store import SCHEMA, EpisodeStore
+from conflictbench.store import SCHEMA, EpisodeStore, claims
 
 
 def record(eid: str, h: int = 4, k: int = 2, policy: str = "noop", seed: int = 0, **kw) -> EpisodeRecord:
@@ -143,9 +144,12 @@ def test_claims_exclude_live_processes_and_are_taken_over_from_dead_ones(tmp_pat
     assert not store.claim("e3")  # a process on another machine cannot be checked: respected...
 
 
-def test_another_machines_claim_holds_while_it_is_renewed_whatever_its_clock_says(tmp_path):
+def test_another_machines_claim_holds_while_it_is_renewed_whatever_its_clock_says(tmp_path, monkeypatch):
     """A lease that needs no agreeing clocks: another machine's claim holds while its token changes, and is taken
-    over once this process has seen it unchanged for the TTL (a job the scheduler killed)."""
+    over once this process has seen it unchanged for the TTL (a job the scheduler killed). This process's clock is
+    the test's (a busy machine's sleeps overran a TTL of 0.5 s)."""
+    ours = [1000.0]
+    monkeypatch.setattr(claims, "time", types.SimpleNamespace(monotonic=lambda: ours[0]))
     store = EpisodeStore(tmp_path)
     store.remote_claim_ttl_s = 0.5
     claim = tmp_path / "claims" / "e.claim"
@@ -154,9 +158,11 @@ def test_another_machines_claim_holds_while_it_is_renewed_whatever_its_clock_say
     for token in (f"{time.time() - 86400:.3f}", "b2", f"{time.time() + 86400:.3f}", "d4"):
         claim.write_text(f"another-host 1 {token}\n")  # a renewal: a new token
         assert not store.claim("e") and store.held_by_others(["e"]) == {"e"}
-        time.sleep(0.3)  # more than the TTL in all, never the TTL unchanged
+        ours[0] += 0.3  # more than the TTL in all, never the TTL unchanged
     assert not store.claim("e")  # still inside the TTL since the last renewal was seen
-    time.sleep(0.3)
+    ours[0] += 0.19
+    assert not store.claim("e")
+    ours[0] += 0.02
     assert store.claim("e")  # unchanged for longer than the TTL: its owner is gone
     assert claim.read_text().startswith(os.uname().nodename)
 

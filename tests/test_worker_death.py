@@ -4,7 +4,6 @@ worker's query never reaches the next episode."""
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
@@ -30,8 +29,8 @@ class Still:
     needs_images = False
     max_steps = dict.fromkeys(LIBERO_SUITES, 30)
 
-    def __init__(self, concurrent: bool):
-        self.calls, self.first_episode = 0, None
+    def __init__(self, concurrent: bool, on_query=lambda calls: None):
+        self.calls, self.first_episode, self.on_query = 0, None, on_query
         if concurrent:
             self.concurrent_requests = True
             self.act_batch = self._act_batch
@@ -47,6 +46,7 @@ class Still:
 
     def _answer(self, observation, delay: float):
         self.calls += 1
+        self.on_query(self.calls)
         self.first_episode = self.first_episode or observation.episode_id
         time.sleep(delay)
         action = np.array([0, 0, 0, 0.001 * observation.step, 0, 0, -1.0])
@@ -55,28 +55,26 @@ class Still:
 
 
 def run_killing_the_worker(tmp_path, concurrent: bool, at_calls: list[int]) -> tuple[EpisodeStore, RunResult]:
-    """Kill the worker once the policy has answered ``at_calls[0]`` queries, again at ``at_calls[1]`` ..."""
+    """Kill the worker when the policy is asked its ``at_calls[0]``-th query, again at its ``at_calls[1]``-th ...
+    (by the policy itself, so the kill lands on that query however busy the machine: a thread polling the count
+    every 20 ms could land steps late, and a second kill in the wrong episode)."""
+
+    def kill_at(calls: int) -> None:
+        if calls in at_calls:
+            runner._pool.slots[0].process.kill()
 
     class Plugin:
         __name__ = "still"
 
         @hookimpl
         def conflictbench_register_policies(self, register):
-            register("still", load=lambda cfg: Still(concurrent))
+            register("still", load=lambda cfg: Still(concurrent, kill_at))
 
     plugins = Plugins(BUILTIN_PLUGINS, entry_points=False, extra=[Plugin()])
     spec = plugins.policy("still")
     store = EpisodeStore(tmp_path / "store")
     runner = Runner(plugins, spec, spec.make_config(), store=store, workers=1, progress=False)
 
-    def kill() -> None:
-        deadline = time.time() + 120
-        for calls in at_calls:
-            while time.time() < deadline and not (runner._policy is not None and runner._policy.calls >= calls):
-                time.sleep(0.02)
-            runner._pool.slots[0].process.kill()
-
-    threading.Thread(target=kill, daemon=True).start()
     result = runner.run(specs())
     return store, result
 
