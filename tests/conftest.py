@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 import os
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,6 +20,26 @@ from conflictbench.store import EpisodeStore
 # shared cache of compiled models (conflictbench/sim/compiled_models.py) loads them instead. .ci/run sets it for
 # every stage (the plugins' tests too); set it yourself to move it, or to an empty value to compile every time.
 os.environ.setdefault("CONFLICTBENCH_MODEL_CACHE", str(Path.home() / ".cache" / "conflictbench" / "compiled-models"))
+
+# Where PYTHONDONTWRITEBYTECODE is set (these machines set it) and uv installed no bytecode, each of the hundreds of
+# processes the tests start (workers, servers, the CLI) compiled LIBERO's, torch's and our modules from source:
+# importing the simulator side took 3.3 s, 1.2 s with caches. The first process to import a module writes its cache
+# (as .ci/run does; CPython writes it atomically and checks the source's time and size before using one).
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+sys.dont_write_bytecode = False
+
+
+@pytest.fixture(autouse=True)
+def _root_logger_left_as_found():
+    """A run in-process (Hydra sets up the root logger: INFO, onto the output pytest captured for that test) left
+    later tests' servers logging into a closed stream: pages of "--- Logging error ---" in a failure's output."""
+    root = logging.getLogger()
+    before, level = set(root.handlers), root.level
+    yield
+    for handler in [h for h in root.handlers if h not in before and not type(h).__module__.startswith("_pytest")]:
+        root.removeHandler(handler)  # pytest's own capture handlers come and go with each phase: not ours to touch
+        handler.close()  # Hydra's file handler holds the run's log open
+    root.setLevel(level)
 
 
 @pytest.fixture(scope="session")
