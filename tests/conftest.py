@@ -39,6 +39,9 @@ def _root_logger_left_as_found():
     for handler in [h for h in root.handlers if h not in before and not type(h).__module__.startswith("_pytest")]:
         root.removeHandler(handler)  # pytest's own capture handlers come and go with each phase: not ours to touch
         handler.close()  # Hydra's file handler holds the run's log open
+    for handler in before - set(root.handlers):  # Hydra's set-up first removes every handler the root had
+        if not type(handler).__module__.startswith("_pytest"):
+            root.addHandler(handler)
     root.setLevel(level)
 
 
