@@ -29,19 +29,23 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.dont_write_bytecode = False
 
 
+def _not_pytests(handlers: list[logging.Handler]) -> set[logging.Handler]:
+    return {handler for handler in handlers if not type(handler).__module__.startswith("_pytest")}
+
+
 @pytest.fixture(autouse=True)
 def _root_logger_left_as_found():
     """A run in-process (Hydra sets up the root logger: INFO, onto the output pytest captured for that test) left
     later tests' servers logging into a closed stream: pages of "--- Logging error ---" in a failure's output."""
     root = logging.getLogger()
-    before, level = set(root.handlers), root.level
+    before, level = _not_pytests(root.handlers), root.level
     yield
-    for handler in [h for h in root.handlers if h not in before and not type(h).__module__.startswith("_pytest")]:
-        root.removeHandler(handler)  # pytest's own capture handlers come and go with each phase: not ours to touch
+    after = _not_pytests(root.handlers)  # pytest's own capture handlers come and go with each phase: not ours
+    for handler in after - before:
+        root.removeHandler(handler)
         handler.close()  # Hydra's file handler holds the run's log open
-    for handler in before - set(root.handlers):  # Hydra's set-up first removes every handler the root had
-        if not type(handler).__module__.startswith("_pytest"):
-            root.addHandler(handler)
+    for handler in before - after:  # Hydra's set-up first removes every handler the root had
+        root.addHandler(handler)
     root.setLevel(level)
 
 

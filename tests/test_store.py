@@ -147,7 +147,7 @@ def test_claims_exclude_live_processes_and_are_taken_over_from_dead_ones(tmp_pat
 def test_another_machines_claim_holds_while_it_is_renewed_whatever_its_clock_says(tmp_path, monkeypatch):
     """A lease that needs no agreeing clocks: another machine's claim holds while its token changes, and is taken
     over once this process has seen it unchanged for the TTL (a job the scheduler killed). This process's clock is
-    the test's (a busy machine's sleeps overran a TTL of 0.5 s)."""
+    the test's (real sleeps of 0.3 s against a TTL of 0.5 s could overrun it on a busy machine)."""
     ours = [1000.0]
     monkeypatch.setattr(claims, "time", types.SimpleNamespace(monotonic=lambda: ours[0]))
     store = EpisodeStore(tmp_path)

@@ -211,12 +211,12 @@ def test_leaving_the_replays_early_ends_their_processes_at_once(mover_site):
     assert first.error is None and first.deviation_m == 0.0
     children = [child for child in multiprocessing.active_children() if child not in earlier]
     assert children
-    started = time.monotonic()
+    started, limit_s = time.monotonic(), 5  # the replay under way has about 8 s to go
     replays.close()
-    assert time.monotonic() - started < 5  # the replay under way has 8 s to go
+    assert time.monotonic() - started < limit_s
     # Ended by then, whoever reaps them: the executor's own thread joins them too, and a child it reaped a moment
     # ago reads as alive here until that thread records its exit code (seen once in CI under load).
-    while any(child.is_alive() for child in children) and time.monotonic() - started < 5:
+    while any(child.is_alive() for child in children) and time.monotonic() - started < limit_s:
         time.sleep(0.05)
     assert not any(child.is_alive() for child in children)
 
